@@ -1,0 +1,69 @@
+"""svbrdf-render: a standalone differentiable SVBRDF renderer.
+
+Public API (everything importable from here)::
+
+    from svbrdf_render import SVBRDF, Scene, Camera, PointLight, Flash, render
+    from svbrdf_render import training_scene, evaluation_scene, fit_flash
+    from svbrdf_render import read_des18, write_des18, read_map_folder, write_map_folder
+
+The core needs torch and numpy only; reading and writing image and YAML files needs the
+``io`` extra (``pip install 'svbrdf-render[io]'``).
+"""
+
+from . import brdf
+from .effects import DES18_EFFECTS, EFFECTS, PHOTO_EFFECTS, resolve_effects
+from .errors import MapError, MapFileError, SceneError, SVBRDFError
+from .fit import FlashFit, fit_flash
+from .geometry import safe_normalize, surface_positions
+from .mapfiles import (
+    read_des18,
+    read_image,
+    read_map_folder,
+    write_des18,
+    write_image,
+    write_map_folder,
+)
+from .maps import MAP_NAMES, SVBRDF
+from .reference import render_reference
+from .render import BACKENDS, build_plan, render
+from .sampling import EVAL_CONFIGS, EVAL_SEED, evaluation_scene, training_scene
+from .scene import DES18_DISTANCE, Camera, Flash, PointLight, Scene
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "BACKENDS",
+    "DES18_DISTANCE",
+    "DES18_EFFECTS",
+    "EFFECTS",
+    "EVAL_CONFIGS",
+    "EVAL_SEED",
+    "MAP_NAMES",
+    "PHOTO_EFFECTS",
+    "SVBRDF",
+    "Camera",
+    "Flash",
+    "FlashFit",
+    "MapError",
+    "MapFileError",
+    "PointLight",
+    "SVBRDFError",
+    "Scene",
+    "SceneError",
+    "brdf",
+    "build_plan",
+    "evaluation_scene",
+    "fit_flash",
+    "read_des18",
+    "read_image",
+    "read_map_folder",
+    "render",
+    "render_reference",
+    "resolve_effects",
+    "safe_normalize",
+    "surface_positions",
+    "training_scene",
+    "write_des18",
+    "write_image",
+    "write_map_folder",
+]

@@ -1,0 +1,120 @@
+"""Fit a flash to a photo through the renderer.
+
+Given maps and a photo of them under a flash, find the flash position and intensity that
+best re-render the photo. The intensity is solved in closed form at every step (the
+rendering is linear in it), so gradient descent moves only the three coordinates of the
+light. The resulting RMSE is how re-renderings of real photos are judged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from .effects import DES18_EFFECTS
+from .errors import MapError
+from .maps import SVBRDF
+from .render import render
+from .scene import DES18_DISTANCE, Camera, PointLight, Scene
+
+__all__ = ["FlashFit", "fit_flash"]
+
+
+@dataclass(frozen=True)
+class FlashFit:
+    """Result of :func:`fit_flash`, one entry per material.
+
+    Attributes:
+        position: ``(B, 3)`` fitted light positions.
+        intensity: ``(B,)`` fitted intensities.
+        rmse: ``(B,)`` RMSE of the clipped re-rendering against the photo, at full size.
+        rendering: ``(B, 3, H, W)`` the clipped re-rendering.
+        camera: the camera used (fixed during the fit).
+    """
+
+    position: Tensor
+    intensity: Tensor
+    rmse: Tensor
+    rendering: Tensor
+    camera: Camera
+
+    def scene(self, index: int = 0, effects=DES18_EFFECTS) -> Scene:
+        """The fitted scene of material ``index``."""
+        return Scene(
+            self.camera,
+            (PointLight(self.position[index], float(self.intensity[index])),),
+            effects,
+        )
+
+
+def _unit_render(svbrdf: SVBRDF, pos: Tensor, camera: Camera, effects) -> Tensor:
+    scene = Scene(camera, (PointLight(pos.unsqueeze(1), 1.0),), effects)
+    return render(svbrdf, scene)[:, 0]
+
+
+def _best_intensity(unit: Tensor, photo: Tensor) -> Tensor:
+    num = (unit * photo).flatten(1).sum(1)
+    den = (unit * unit).flatten(1).sum(1).clamp_min(1e-12)
+    return (num / den).clamp_min(0)
+
+
+def fit_flash(
+    svbrdf: SVBRDF,
+    photo: Tensor,
+    *,
+    camera_distance: float = DES18_DISTANCE,
+    effects=DES18_EFFECTS,
+    steps: int = 150,
+    lr: float = 0.05,
+    fit_size: int | None = 128,
+    init_position: Tensor | None = None,
+) -> FlashFit:
+    """Fit a point light (position and intensity) so that ``render(svbrdf)`` matches ``photo``.
+
+    Args:
+        svbrdf: maps of B materials.
+        photo: ``(B, 3, H, W)`` linear photos of the same size as the maps.
+        camera_distance: on-axis camera distance (fixed).
+        effects: the shading effects of the re-rendering (no image effects).
+        steps, lr: Adam iterations and step size on the light position.
+        fit_size: fit on maps resized to this size (faster; the RMSE is reported at full
+            size); ``None`` fits at full size.
+        init_position: ``(3,)`` or ``(B, 3)``; default the camera position.
+
+    The photo and the re-rendering are compared after clipping the rendering to
+    ``[0, 1]``, as a camera saturates.
+    """
+    if photo.dim() == 3:
+        photo = photo.unsqueeze(0)
+    b, h, w = svbrdf.shape
+    if photo.shape != (b, 3, h, w):
+        raise MapError(f"fit_flash: photo has shape {tuple(photo.shape)}, expected {(b, 3, h, w)}")
+    photo = photo.to(device=svbrdf.device, dtype=torch.float32)
+    camera = Camera(torch.tensor([0.0, 0.0, camera_distance], device=svbrdf.device))
+    maps = svbrdf.detach().to(torch.float32)
+    target = photo
+    if fit_size is not None and min(h, w) > fit_size:
+        maps = maps.resize(fit_size)
+        target = F.interpolate(photo, size=(fit_size, fit_size), mode="area")
+    if init_position is None:
+        init_position = camera.position
+    pos = init_position.to(svbrdf.device, torch.float32).expand(b, 3).clone().requires_grad_(True)
+    opt = torch.optim.Adam([pos], lr=lr)
+    for _ in range(steps):
+        opt.zero_grad(set_to_none=True)
+        unit = _unit_render(maps, pos, camera, effects)
+        k = _best_intensity(unit, target)
+        loss = ((unit * k.view(-1, 1, 1, 1)).clamp(0, 1) - target).square().mean()
+        loss.backward()
+        opt.step()
+        with torch.no_grad():  # keep the light above the surface
+            pos[:, 2].clamp_(min=0.05)
+    with torch.no_grad():
+        unit = _unit_render(svbrdf.detach().to(torch.float32), pos, camera, effects)
+        k = _best_intensity(unit, photo)
+        rendering = (unit * k.view(-1, 1, 1, 1)).clamp(0, 1)
+        rmse = (rendering - photo).square().flatten(1).mean(1).sqrt()
+    return FlashFit(pos.detach(), k, rmse, rendering, camera)
