@@ -1,7 +1,9 @@
 """Fit a flash to a photo through the renderer.
 
 Given maps and a photo of them under a flash, find the flash position and intensity that
-best re-render the photo. The intensity is solved in closed form at every step (the
+best re-render the photo. By default the camera travels with the flash (a phone: lens and
+flash a centimetre apart); ``colocated=False`` keeps the camera on the axis at
+``camera_distance`` and moves the light alone. The intensity is solved in closed form at every step (the
 rendering is linear in it), so gradient descent moves only the three coordinates of the
 light. The resulting RMSE is how re-renderings of real photos are judged.
 """
@@ -32,27 +34,28 @@ class FlashFit:
         intensity: ``(B,)`` fitted intensities.
         rmse: ``(B,)`` RMSE of the clipped re-rendering against the photo, at full size.
         rendering: ``(B, 3, H, W)`` the clipped re-rendering.
-        camera: the camera used (fixed during the fit).
+        colocated: whether the camera sat at the light (else on the axis at
+            ``camera_distance``).
     """
 
     position: Tensor
     intensity: Tensor
     rmse: Tensor
     rendering: Tensor
-    camera: Camera
+    colocated: bool = True
+    camera_distance: float = DES18_DISTANCE
 
     def scene(self, index: int = 0, effects=DES18_EFFECTS) -> Scene:
         """The fitted scene of material ``index``."""
-        return Scene(
-            self.camera,
-            (PointLight(self.position[index], float(self.intensity[index])),),
-            effects,
-        )
+        pos = self.position[index]
+        camera = Camera(pos if self.colocated else torch.tensor([0.0, 0.0, self.camera_distance]))
+        return Scene(camera, (PointLight(pos, float(self.intensity[index])),), effects)
 
 
-def _unit_render(svbrdf: SVBRDF, pos: Tensor, camera: Camera, effects) -> Tensor:
-    scene = Scene(camera, (PointLight(pos.unsqueeze(1), 1.0),), effects)
-    return render(svbrdf, scene)[:, 0]
+def _unit_render(svbrdf: SVBRDF, pos: Tensor, colocated: bool, distance: float, effects) -> Tensor:
+    pos = pos.unsqueeze(1)  # (B, 1, 3): one configuration per material
+    camera = Camera(pos if colocated else pos.new_tensor([0.0, 0.0, distance]))
+    return render(svbrdf, Scene(camera, (PointLight(pos, 1.0),), effects))[:, 0]
 
 
 def _best_intensity(unit: Tensor, photo: Tensor) -> Tensor:
@@ -65,6 +68,7 @@ def fit_flash(
     svbrdf: SVBRDF,
     photo: Tensor,
     *,
+    colocated: bool = True,
     camera_distance: float = DES18_DISTANCE,
     effects=DES18_EFFECTS,
     steps: int = 150,
@@ -77,12 +81,13 @@ def fit_flash(
     Args:
         svbrdf: maps of B materials.
         photo: ``(B, 3, H, W)`` linear photos of the same size as the maps.
-        camera_distance: on-axis camera distance (fixed).
+        colocated: the camera sits at the light (default), else it stays on the axis.
+        camera_distance: starting distance of the flash; the camera's when not colocated.
         effects: the shading effects of the re-rendering (no image effects).
         steps, lr: Adam iterations and step size on the light position.
         fit_size: fit on maps resized to this size (faster; the RMSE is reported at full
             size); ``None`` fits at full size.
-        init_position: ``(3,)`` or ``(B, 3)``; default the camera position.
+        init_position: ``(3,)`` or ``(B, 3)``; default ``(0, 0, camera_distance)``.
 
     The photo and the re-rendering are compared after clipping the rendering to
     ``[0, 1]``, as a camera saturates.
@@ -93,19 +98,18 @@ def fit_flash(
     if photo.shape != (b, 3, h, w):
         raise MapError(f"fit_flash: photo has shape {tuple(photo.shape)}, expected {(b, 3, h, w)}")
     photo = photo.to(device=svbrdf.device, dtype=torch.float32)
-    camera = Camera(torch.tensor([0.0, 0.0, camera_distance], device=svbrdf.device))
     maps = svbrdf.detach().to(torch.float32)
     target = photo
     if fit_size is not None and min(h, w) > fit_size:
         maps = maps.resize(fit_size)
         target = F.interpolate(photo, size=(fit_size, fit_size), mode="area")
     if init_position is None:
-        init_position = camera.position
+        init_position = torch.tensor([0.0, 0.0, camera_distance])
     pos = init_position.to(svbrdf.device, torch.float32).expand(b, 3).clone().requires_grad_(True)
     opt = torch.optim.Adam([pos], lr=lr)
     for _ in range(steps):
         opt.zero_grad(set_to_none=True)
-        unit = _unit_render(maps, pos, camera, effects)
+        unit = _unit_render(maps, pos, colocated, camera_distance, effects)
         k = _best_intensity(unit, target)
         loss = ((unit * k.view(-1, 1, 1, 1)).clamp(0, 1) - target).square().mean()
         loss.backward()
@@ -113,8 +117,8 @@ def fit_flash(
         with torch.no_grad():  # keep the light above the surface
             pos[:, 2].clamp_(min=0.05)
     with torch.no_grad():
-        unit = _unit_render(svbrdf.detach().to(torch.float32), pos, camera, effects)
+        unit = _unit_render(svbrdf.detach().to(torch.float32), pos, colocated, camera_distance, effects)
         k = _best_intensity(unit, photo)
         rendering = (unit * k.view(-1, 1, 1, 1)).clamp(0, 1)
         rmse = (rendering - photo).square().flatten(1).mean(1).sqrt()
-    return FlashFit(pos.detach(), k, rmse, rendering, camera)
+    return FlashFit(pos.detach(), k, rmse, rendering, colocated, camera_distance)

@@ -18,7 +18,6 @@ stages through ``torch.compile`` (one fused kernel per shape; the first call com
 
 from __future__ import annotations
 
-import math
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -307,8 +306,3 @@ def render(
         radiance = radiance.expand(b, *radiance.shape[1:]) if radiance.shape[0] == 1 and b > 1 else radiance
         return plan.finish(radiance, p, geo, generator)
 
-
-def flash_intensity_for(peak: float, distance: float, diffuse: float = 0.5) -> float:
-    """The flash intensity that makes a flat Lambertian ``diffuse`` patch reach ``peak``
-    at its centre under an on-axis flash at ``distance``."""
-    return peak * math.pi * distance * distance / diffuse

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Union
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -67,8 +68,12 @@ def _flag(value, what: str) -> bool | Tensor:
 
 
 def _to_plain(value):
+    """Tensors to nested lists; float32 values by their shortest repr (2.2, not 2.2000000477)."""
     if isinstance(value, Tensor):
-        return value.detach().cpu().tolist()
+        arr = value.detach().cpu().numpy()
+        if arr.dtype in (np.float32, np.float16):
+            arr = np.array([float(str(x)) for x in arr.ravel()]).reshape(arr.shape)
+        return arr.tolist()
     return value
 
 
