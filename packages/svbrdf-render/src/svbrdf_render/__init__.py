@@ -25,7 +25,7 @@ from .mapfiles import (
 )
 from .maps import MAP_NAMES, SVBRDF
 from .reference import render_reference
-from .render import BACKENDS, build_plan, render
+from .render import BACKENDS, build_plan, log_radiance, render
 from .sampling import EVAL_CONFIGS, EVAL_SEED, evaluation_scene, training_scene
 from .scene import DES18_DISTANCE, Camera, Flash, PointLight, Scene
 
@@ -54,6 +54,7 @@ __all__ = [
     "build_plan",
     "evaluation_scene",
     "fit_flash",
+    "log_radiance",
     "read_des18",
     "read_image",
     "read_map_folder",

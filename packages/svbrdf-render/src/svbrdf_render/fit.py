@@ -58,9 +58,15 @@ def _unit_render(svbrdf: SVBRDF, pos: Tensor, colocated: bool, distance: float, 
     return render(svbrdf, Scene(camera, (PointLight(pos, 1.0),), effects))[:, 0]
 
 
-def _best_intensity(unit: Tensor, photo: Tensor) -> Tensor:
-    num = (unit * photo).flatten(1).sum(1)
-    den = (unit * unit).flatten(1).sum(1).clamp_min(1e-12)
+def _best_intensity(unit: Tensor, photo: Tensor, saturation: float = 0.98) -> Tensor:
+    """Least-squares intensity over the unsaturated pixels of the photo.
+
+    Saturated pixels only say "at least this bright"; counting them would pull the
+    intensity down whenever the photo clips.
+    """
+    keep = (photo < saturation).to(unit.dtype)
+    num = (unit * photo * keep).flatten(1).sum(1)
+    den = (unit * unit * keep).flatten(1).sum(1).clamp_min(1e-12)
     return (num / den).clamp_min(0)
 
 

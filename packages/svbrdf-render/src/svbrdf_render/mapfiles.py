@@ -90,9 +90,10 @@ def _png_header(path: Path) -> tuple[int, int] | None:
 def _read_png16(path: Path) -> np.ndarray:
     png = _pypng()
     try:
-        w, h, rows, info = png.Reader(filename=str(path)).asDirect()
-        planes = info["planes"]
-        arr = np.vstack([np.asarray(row, dtype=np.uint16) for row in rows])
+        with open(path, "rb") as f:  # pypng leaves a file it opened itself unclosed
+            w, h, rows, info = png.Reader(file=f).asDirect()
+            planes = info["planes"]
+            arr = np.vstack([np.asarray(row, dtype=np.uint16) for row in rows])
     except Exception as e:  # pypng raises several types for damaged files
         raise MapFileError(path, f"cannot decode this 16-bit PNG ({e})", "the file may be truncated") from None
     return arr.reshape(h, w, planes).astype(np.float32) / 65535.0

@@ -32,7 +32,7 @@ from .geometry import cross_norm_sq, dot, safe_normalize, surface_positions
 from .maps import SVBRDF
 from .scene import Scene
 
-__all__ = ["render", "RenderPlan", "build_plan", "BACKENDS"]
+__all__ = ["render", "log_radiance", "RenderPlan", "build_plan", "BACKENDS"]
 
 BACKENDS = ("eager", "compiled")
 _TINY = 1e-12
@@ -306,3 +306,15 @@ def render(
         radiance = radiance.expand(b, *radiance.shape[1:]) if radiance.shape[0] == 1 and b > 1 else radiance
         return plan.finish(radiance, p, geo, generator)
 
+
+
+def log_radiance(x: Tensor, eps: float = 0.01) -> Tensor:
+    """``log(max(x, 0) + eps)``: the transform of the log rendering loss.
+
+    Sensor noise pushes some rendered values below zero; ``log(x + eps)`` there is NaN
+    (or -inf), so the value is clamped at 0 first. The gradient is zero where it was
+    clamped and at most ``1/eps`` elsewhere.
+    """
+    if eps <= 0:
+        raise ValueError(f"log_radiance: eps must be > 0, got {eps}")
+    return torch.log(x.clamp_min(0) + eps)

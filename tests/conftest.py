@@ -1,0 +1,72 @@
+"""Shared fixtures: seeded random materials, the reference data folder, an op counter."""
+
+from __future__ import annotations
+
+import collections
+from pathlib import Path
+
+import pytest
+import torch
+from torch.utils._python_dispatch import TorchDispatchMode
+
+from svbrdf_render import SVBRDF
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data"
+
+
+def random_svbrdf(
+    batch: int = 2,
+    size: int = 16,
+    *,
+    seed: int = 0,
+    dtype: torch.dtype = torch.float32,
+    tilt: float = 0.5,
+    roughness: tuple[float, float] = (0.1, 0.9),
+) -> SVBRDF:
+    """Valid random maps: tilted unit normals, albedos in (0.05, 0.95)."""
+    g = torch.Generator().manual_seed(seed)
+    shape = (batch, 1, size, size)
+    nxy = (torch.rand(batch, 2, size, size, generator=g) * 2 - 1) * tilt
+    n = torch.cat([nxy, torch.ones(shape)], dim=1)
+    n = n / n.norm(dim=1, keepdim=True)
+    lo, hi = roughness
+    return SVBRDF(
+        n.to(dtype),
+        (0.05 + 0.9 * torch.rand(batch, 3, size, size, generator=g)).to(dtype),
+        (lo + (hi - lo) * torch.rand(shape, generator=g)).to(dtype),
+        (0.02 + 0.9 * torch.rand(batch, 3, size, size, generator=g)).to(dtype),
+    )
+
+
+@pytest.fixture
+def material() -> SVBRDF:
+    return random_svbrdf()
+
+
+@pytest.fixture
+def shared_data() -> Path:
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"reference data not found at {SHARED_DATA} (it lives beside the repo)")
+    return SHARED_DATA
+
+
+class OpCounter(TorchDispatchMode):
+    """Counts every aten op that runs (forward, and backward when it runs inside)."""
+
+    def __init__(self):
+        super().__init__()
+        self.counts: collections.Counter[str] = collections.Counter()
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        self.counts[str(func.overloadpacket)] += 1
+        return func(*args, **(kwargs or {}))
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+
+@pytest.fixture
+def op_counter():
+    return OpCounter
