@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from conftest import random_svbrdf
-from svbrdf_render import Camera, PointLight, SVBRDF, Scene, fit_flash, read_des18, render
+from svbrdf_render import SVBRDF, Camera, PointLight, Scene, fit_flash, read_des18, render
 
 
 def test_recovers_a_known_colocated_flash():

@@ -190,7 +190,8 @@ def _cmd_preview(args) -> None:
     scene = Scene(base.camera, (PointLight(pos, light.intensity, light.color),), base.effects)
     imgs = render(m, scene)[0]  # (K, 3, H, W)
     k, c, h, w = imgs.shape
-    grid = imgs.reshape(args.grid, args.grid, c, h, w).permute(2, 0, 3, 1, 4).reshape(c, args.grid * h, args.grid * w)
+    n = args.grid
+    grid = imgs.reshape(n, n, c, h, w).permute(2, 0, 3, 1, 4).reshape(c, n * h, n * w)
     out = write_image(args.output, grid)
     print(f"wrote {out} ({args.grid}x{args.grid} renderings of {w}x{h})")
 

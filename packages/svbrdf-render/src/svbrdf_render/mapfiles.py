@@ -95,7 +95,9 @@ def _read_png16(path: Path) -> np.ndarray:
             planes = info["planes"]
             arr = np.vstack([np.asarray(row, dtype=np.uint16) for row in rows])
     except Exception as e:  # pypng raises several types for damaged files
-        raise MapFileError(path, f"cannot decode this 16-bit PNG ({e})", "the file may be truncated") from None
+        raise MapFileError(
+            path, f"cannot decode this 16-bit PNG ({e})", "the file may be truncated"
+        ) from None
     return arr.reshape(h, w, planes).astype(np.float32) / 65535.0
 
 
@@ -130,7 +132,9 @@ def read_image(path, *, channels: int | None = 3) -> Tensor:
                 elif mode in ("1", "CMYK", "YCbCr", "F"):
                     arr = np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
                 else:
-                    raise MapFileError(path, f"unsupported image mode {mode!r}", "save it as 8- or 16-bit RGB PNG")
+                    raise MapFileError(
+                        path, f"unsupported image mode {mode!r}", "save it as 8- or 16-bit RGB PNG"
+                    )
         except MapFileError:
             raise
         except Exception as e:  # PIL raises UnidentifiedImageError, OSError, SyntaxError...
@@ -263,7 +267,8 @@ def write_des18(path, input_image: Tensor, svbrdf: SVBRDF, *, bits: int = 8) -> 
         x = x[0]
     if x.shape != (3, *svbrdf.size):
         raise ValueError(
-            f"write_des18: input image {tuple(x.shape)} does not match the maps (3, {svbrdf.size[0]}, {svbrdf.size[1]})"
+            f"write_des18: input image {tuple(x.shape)} does not match the maps "
+            f"(3, {svbrdf.size[0]}, {svbrdf.size[1]})"
         )
     maps = _encode_maps(svbrdf.detach().to("cpu", torch.float32))
     tiles = [x, maps["normal"], maps["diffuse"], maps["roughness"].expand(3, -1, -1), maps["specular"]]

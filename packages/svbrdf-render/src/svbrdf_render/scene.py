@@ -23,7 +23,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Union
+from typing import Any
 
 import numpy as np
 import torch
@@ -171,7 +171,7 @@ class Flash:
         return PointLight(camera.position + self.offset, self.intensity, self.color, camera.directional)
 
 
-Light = Union[PointLight, Flash]
+Light = PointLight | Flash
 
 
 @dataclass(frozen=True, eq=False)
@@ -261,7 +261,9 @@ class Scene:
         lights = []
         for lt in self.lights:
             if isinstance(lt, Flash):
-                lights.append(replace(lt, intensity=mv(lt.intensity), offset=mv(lt.offset), color=mv(lt.color)))
+                lights.append(
+                    replace(lt, intensity=mv(lt.intensity), offset=mv(lt.offset), color=mv(lt.color))
+                )
             else:
                 lights.append(
                     replace(
