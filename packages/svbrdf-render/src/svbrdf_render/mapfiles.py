@@ -25,6 +25,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ._optional import require
 from .errors import MapFileError
 from .geometry import safe_normalize
 from .maps import MAP_NAMES, SVBRDF
@@ -46,23 +47,11 @@ _MAP_EXTENSIONS = (".png", ".jpg", ".jpeg")
 
 
 def _pil():
-    try:
-        from PIL import Image
-    except ImportError:  # pragma: no cover - depends on the environment
-        raise ImportError(
-            "reading and writing images needs Pillow: pip install 'svbrdf-render[io]'"
-        ) from None
-    return Image
+    return require("PIL.Image", "Pillow", "reading and writing images")
 
 
 def _pypng():
-    try:
-        import png
-    except ImportError:  # pragma: no cover - depends on the environment
-        raise ImportError(
-            "16-bit PNG needs pypng: pip install 'svbrdf-render[io]'"
-        ) from None
-    return png
+    return require("png", "pypng", "16-bit PNG")
 
 
 def srgb_to_linear(x: Tensor) -> Tensor:

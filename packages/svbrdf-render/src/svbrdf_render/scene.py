@@ -29,6 +29,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ._optional import require
 from .effects import DES18_EFFECTS, resolve_effects
 from .errors import SceneError
 
@@ -351,11 +352,5 @@ class Scene:
 
 
 def _yaml():
-    try:
-        import yaml
-    except ImportError:  # pragma: no cover - depends on the environment
-        raise SceneError(
-            "scene YAML needs PyYAML: pip install 'svbrdf-render[io]' (or use Scene.from_dict)"
-        ) from None
-    return yaml
+    return require("yaml", "PyYAML", "scene YAML (or use Scene.from_dict)")
 
