@@ -18,6 +18,7 @@ stages through ``torch.compile`` (one fused kernel per shape; the first call com
 
 from __future__ import annotations
 
+import types
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -219,6 +220,8 @@ def _build_finish(fx: dict[str, dict[str, Any]]) -> Callable[..., Tensor]:
 
 _PLANS: dict[str, RenderPlan] = {}
 _COMPILED: dict[str, Callable[..., Tensor]] = {}
+#: The effects ``shade`` reads (the rest are image stages, run by ``finish``).
+_SHADE_EFFECTS = frozenset({"diffuse", "specular", "fresnel", "masking", "cosine", "falloff"})
 
 
 def build_plan(effects: dict[str, dict[str, Any]]) -> RenderPlan:
@@ -236,15 +239,77 @@ def build_plan(effects: dict[str, dict[str, Any]]) -> RenderPlan:
     return plan
 
 
+def _is_compile_failure(exc: Exception) -> bool:
+    """True for a failure of the compiler itself (no C++ toolchain, Inductor), not the inputs."""
+    try:
+        from torch._dynamo.exc import BackendCompilerFailed
+    except ImportError:  # pragma: no cover - torch without dynamo
+        return False
+    return isinstance(exc, BackendCompilerFailed)
+
+
+def _reason(exc: Exception) -> str:
+    """One line naming why compiling failed (the backend's own exception where it has one)."""
+    inner = getattr(exc, "inner_exception", None)
+    exc = inner if isinstance(inner, Exception) else exc
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    name = type(exc).__name__
+    if not lines:
+        return name
+    return lines[0] if lines[0].startswith(name) else f"{name}: {lines[0]}"
+
+
+def _own_code(fn: Callable[..., Tensor]) -> Callable[..., Tensor]:
+    """``fn`` with a code object of its own (same bytecode, closure and globals).
+
+    Dynamo keeps compiled graphs, and counts them against ``recompile_limit`` (8), per
+    *code object*. Every plan's ``shade`` is the same nested function with other closure
+    values, so without this all plans would share one cache of 8 entries: from the ninth
+    plan/shape/dtype/grad-mode combination in a process on, Dynamo would stop compiling
+    and the "compiled" backend would silently run eager.
+    """
+    own = types.FunctionType(
+        fn.__code__.replace(), fn.__globals__, fn.__name__, fn.__defaults__, fn.__closure__
+    )
+    own.__kwdefaults__ = fn.__kwdefaults__
+    own.__qualname__ = fn.__qualname__
+    return own
+
+
 def _compiled_shade(plan: RenderPlan) -> Callable[..., Tensor]:
-    key = repr(plan.stages) + repr(sorted((k, sorted(v.items())) for k, v in plan.effects.items()))
+    """``plan.shade`` through ``torch.compile``, cached per shading configuration.
+
+    ``torch.compile`` compiles lazily, so a platform that cannot compile (no C++ compiler,
+    unsupported Python) fails at the first *call*; that call, and every later one with these
+    shading effects, then runs the eager stages instead, with one warning. Compilation is
+    static in shape (``dynamic=False``): new tensors of a seen shape reuse the compiled
+    kernels; a new shape (or dtype, grad mode, point/directional mix) compiles once more,
+    up to Dynamo's ``recompile_limit`` per shading configuration (see :func:`_own_code`).
+    """
+    # Keyed by what ``shade`` depends on: plans that differ only in image effects share it.
+    key = repr([(k, sorted(v.items())) for k, v in plan.effects.items() if k in _SHADE_EFFECTS])
     fn = _COMPILED.get(key)
     if fn is None:
         try:
-            fn = torch.compile(plan.shade, dynamic=False)
-        except Exception as e:  # pragma: no cover - platform without a compiler
+            compiled = torch.compile(_own_code(plan.shade), dynamic=False)
+        except Exception as e:  # pragma: no cover - platform without torch.compile
             warnings.warn(f"torch.compile unavailable ({e}); using the eager backend", stacklevel=3)
             fn = plan.shade
+        else:
+
+            def fn(*args: Any) -> Tensor:
+                try:
+                    return compiled(*args)
+                except Exception as e:
+                    if not _is_compile_failure(e):
+                        raise
+                    warnings.warn(
+                        f"torch.compile failed ({_reason(e)}); using the eager backend",
+                        stacklevel=3,
+                    )
+                    _COMPILED[key] = plan.shade
+                    return plan.shade(*args)
+
         _COMPILED[key] = fn
     return fn
 
