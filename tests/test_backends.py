@@ -12,13 +12,13 @@ cache (Dynamo's per-function recompile limit is not shared between effect sets).
 
 from __future__ import annotations
 
-import importlib
 import math
 import warnings
 
 import pytest
 import torch
 
+import svbrdf_render.renderer as render_module
 from svbrdf_render import (
     DES18_EFFECTS,
     SVBRDF,
@@ -30,9 +30,6 @@ from svbrdf_render import (
     training_scene,
 )
 from svbrdf_render.sampling import cosine_weighted_directions
-
-# The module (the package attribute ``render`` is the function).
-render_module = importlib.import_module("svbrdf_render.render")
 
 pytestmark = pytest.mark.slow  # every test compiles (tens of seconds on 2 CPU cores)
 

@@ -7,12 +7,13 @@ of the effect, while declaring the same effect with neutral parameters adds ops.
 
 from __future__ import annotations
 
-import importlib
 import math
 
 import pytest
 import torch
 
+import svbrdf_render.effects as effects_module
+import svbrdf_render.renderer as render_module
 from conftest import random_svbrdf
 from svbrdf_render import (
     DES18_EFFECTS,
@@ -24,9 +25,6 @@ from svbrdf_render import (
     build_plan,
     render,
 )
-
-effects_module = importlib.import_module("svbrdf_render.effects")
-render_module = importlib.import_module("svbrdf_render.render")  # the module, not the function
 
 ALL = list(EFFECTS)
 IMAGE_EFFECTS = ["vignetting", "exposure", "noise", "clip", "gamma"]

@@ -25,7 +25,7 @@ from .mapfiles import (
 )
 from .maps import MAP_NAMES, SVBRDF
 from .reference import render_reference
-from .render import BACKENDS, build_plan, log_radiance, render
+from .renderer import BACKENDS, build_plan, log_radiance, render
 from .sampling import EVAL_CONFIGS, EVAL_SEED, evaluation_scene, training_scene
 from .scene import DES18_DISTANCE, Camera, Flash, PointLight, Scene
 

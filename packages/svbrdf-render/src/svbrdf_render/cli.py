@@ -164,7 +164,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _cmd_render(args) -> None:
     from .mapfiles import write_image
-    from .render import render
+    from .renderer import render
 
     m = load_material(args.material, args.size)
     scene = _scene_from_args(args)
@@ -177,7 +177,7 @@ def _cmd_render(args) -> None:
 
 def _cmd_preview(args) -> None:
     from .mapfiles import write_image
-    from .render import render
+    from .renderer import render
 
     if args.grid < 1 or args.grid > 16:
         raise CliError(f"--grid must be between 1 and 16, got {args.grid}")

@@ -1,7 +1,7 @@
 """The effects a scene may declare, with their parameters and defaults.
 
 An effect that a scene does not declare is *absent* from the computation: the renderer
-builds a stage only for what is declared (see :mod:`svbrdf_render.render`).
+builds a stage only for what is declared (see :mod:`svbrdf_render.renderer`).
 
 =============  =======  ====================================================================
 effect         phase    parameters (defaults)

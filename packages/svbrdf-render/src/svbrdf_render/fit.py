@@ -19,7 +19,7 @@ from torch import Tensor
 from .effects import DES18_EFFECTS
 from .errors import MapError
 from .maps import SVBRDF
-from .render import render
+from .renderer import render
 from .scene import DES18_DISTANCE, Camera, PointLight, Scene
 
 __all__ = ["FlashFit", "fit_flash"]

@@ -164,7 +164,8 @@ def _build_shade(fx: dict[str, dict[str, Any]]) -> Callable[..., Tensor]:
             if falloff is not None and not (isinstance(w, float) and w == 0.0):
                 eff_d2 = d2 if isinstance(w, float) else w * d2 + (1 - w)
                 radiance = radiance / eff_d2.clamp_min(min_d2)
-            radiance = torch.where(visible, radiance, torch.zeros((), dtype=radiance.dtype, device=radiance.device))
+            zero = torch.zeros((), dtype=radiance.dtype, device=radiance.device)
+            radiance = torch.where(visible, radiance, zero)
             total = radiance if total is None else total + radiance
         return total
 
