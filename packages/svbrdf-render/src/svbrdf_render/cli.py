@@ -38,7 +38,8 @@ example:
 
 The light moves over a --grid x --grid lattice at height --height above the patch,
 spanning [-spread, spread] in x and y; the camera stays on the axis. All configurations
-render in one batched call.
+render in one batched call. The default intensity, pi * height^2, brings a white
+Lambertian patch right under a light to 1.0.
 """
 
 
@@ -182,6 +183,9 @@ def _cmd_preview(args) -> None:
     if args.grid < 1 or args.grid > 16:
         raise CliError(f"--grid must be between 1 and 16, got {args.grid}")
     m = load_material(args.material, args.size)
+    if args.intensity is None and not args.scene:
+        # A white Lambertian patch right under a light then reaches 1.0.
+        args.intensity = math.pi * args.height**2
     base = _scene_from_args(args)
     t = torch.linspace(-args.spread, args.spread, args.grid) if args.grid > 1 else torch.zeros(1)
     ys, xs = torch.meshgrid(-t, t, indexing="ij")  # top row = light above the top edge
