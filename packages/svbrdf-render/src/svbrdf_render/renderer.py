@@ -27,7 +27,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from . import brdf
+from . import brdf, fused
 from .errors import MapError
 from .geometry import cross_norm_sq, dot, safe_normalize, surface_positions
 from .maps import SVBRDF
@@ -277,42 +277,98 @@ def _own_code(fn: Callable[..., Tensor]) -> Callable[..., Tensor]:
     return own
 
 
-def _compiled_shade(plan: RenderPlan) -> Callable[..., Tensor]:
-    """``plan.shade`` through ``torch.compile``, cached per shading configuration.
+def _compile_with_fallback(key: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+    """``fn`` through ``torch.compile``, cached under ``key``, falling back to ``fn``.
 
     ``torch.compile`` compiles lazily, so a platform that cannot compile (no C++ compiler,
-    unsupported Python) fails at the first *call*; that call, and every later one with these
-    shading effects, then runs the eager stages instead, with one warning. Compilation is
-    static in shape (``dynamic=False``): new tensors of a seen shape reuse the compiled
-    kernels; a new shape (or dtype, grad mode, point/directional mix) compiles once more,
-    up to Dynamo's ``recompile_limit`` per shading configuration (see :func:`_own_code`).
+    unsupported Python) fails at the first *call*; that call, and every later one under
+    ``key``, then runs ``fn`` eagerly, with one warning. Compilation is static in shape
+    (``dynamic=False``): new tensors of a seen shape reuse the compiled kernels; a new shape
+    (or dtype, grad mode, point/directional mix) compiles once more, up to Dynamo's
+    ``recompile_limit`` per function (see :func:`_own_code`).
     """
-    # Keyed by what ``shade`` depends on: plans that differ only in image effects share it.
-    key = repr([(k, sorted(v.items())) for k, v in plan.effects.items() if k in _SHADE_EFFECTS])
-    fn = _COMPILED.get(key)
-    if fn is None:
-        try:
-            compiled = torch.compile(_own_code(plan.shade), dynamic=False)
-        except Exception as e:  # pragma: no cover - platform without torch.compile
-            warnings.warn(f"torch.compile unavailable ({e}); using the eager backend", stacklevel=3)
-            fn = plan.shade
-        else:
-
-            def fn(*args: Any) -> Tensor:
-                try:
-                    return compiled(*args)
-                except Exception as e:
-                    if not _is_compile_failure(e):
-                        raise
-                    warnings.warn(
-                        f"torch.compile failed ({_reason(e)}); using the eager backend",
-                        stacklevel=3,
-                    )
-                    _COMPILED[key] = plan.shade
-                    return plan.shade(*args)
-
+    cached = _COMPILED.get(key)
+    if cached is not None:
+        return cached
+    try:
+        compiled = torch.compile(_own_code(fn), dynamic=False)
+    except Exception as e:  # pragma: no cover - platform without torch.compile
+        warnings.warn(f"torch.compile unavailable ({e}); using the eager backend", stacklevel=3)
         _COMPILED[key] = fn
-    return fn
+        return fn
+
+    def run(*args: Any) -> Any:
+        try:
+            return compiled(*args)
+        except Exception as e:
+            if not _is_compile_failure(e):
+                raise
+            warnings.warn(f"torch.compile failed ({_reason(e)}); using the eager backend", stacklevel=3)
+            _COMPILED[key] = fn
+            return fn(*args)
+
+    _COMPILED[key] = run
+    return run
+
+
+def _shade_key(plan: RenderPlan) -> str:
+    # What ``shade`` depends on: plans that differ only in image effects share it.
+    return repr([(k, sorted(v.items())) for k, v in plan.effects.items() if k in _SHADE_EFFECTS])
+
+
+def _compiled_shade(plan: RenderPlan) -> Callable[..., Tensor]:
+    """``plan.shade`` through ``torch.compile``, cached per shading configuration."""
+    return _compile_with_fallback("shade" + _shade_key(plan), plan.shade)
+
+
+def _compiled_des18_backward(plan: RenderPlan) -> Callable[..., tuple[Tensor, ...]]:
+    """The hand-derived backward of :mod:`svbrdf_render.fused`, compiled for this plan."""
+    effects = plan.effects
+
+    def backward(grad, normal, diffuse, roughness, specular, p, geo):
+        return fused.des18_shading_grads(
+            effects, grad, normal, diffuse, roughness, specular, p, geo, _to_point, _unit
+        )
+
+    return _compile_with_fallback("des18-backward" + _shade_key(plan), backward)
+
+
+class _FusedShade(torch.autograd.Function):
+    """Compiled shading whose backward recomputes instead of saving intermediates."""
+
+    @staticmethod
+    def forward(ctx, normal, diffuse, roughness, specular, p, geo, forward_fn, backward_fn):
+        ctx.save_for_backward(normal, diffuse, roughness, specular)
+        ctx.extra = (p, geo, backward_fn)
+        return forward_fn(normal, diffuse, roughness, specular, p, geo)
+
+    @staticmethod
+    def backward(ctx, grad):
+        normal, diffuse, roughness, specular = ctx.saved_tensors
+        p, geo, backward_fn = ctx.extra
+        grads = backward_fn(grad.contiguous(), normal, diffuse, roughness, specular, p, geo)
+        return (*grads, None, None, None, None)
+
+
+def _geometry_requires_grad(geo: _Geometry) -> bool:
+    tensors = [geo.cam, geo.cam_w]
+    for light in geo.lights:
+        tensors.extend(light)
+    return any(isinstance(t, Tensor) and t.requires_grad for t in tensors)
+
+
+def _shade_compiled(plan: RenderPlan, maps: list[Tensor], p: Tensor, geo: _Geometry) -> Tensor:
+    """The compiled backend: the hand-derived backward for the Des18 shading when only the
+    maps need gradients, autograd through the compiled stages otherwise."""
+    forward_fn = _compiled_shade(plan)
+    if (
+        fused.supports(plan.effects)
+        and torch.is_grad_enabled()
+        and any(m.requires_grad for m in maps)
+        and not _geometry_requires_grad(geo)
+    ):
+        return _FusedShade.apply(*maps, p, geo, forward_fn, _compiled_des18_backward(plan))
+    return forward_fn(*maps, p, geo)
 
 
 def _compute_dtype(dtype: torch.dtype) -> torch.dtype:
@@ -367,8 +423,10 @@ def render(
         p = surface_positions(h, w, dtype=dtype, device=device)
         geo = _geometry(scene, shape, device, dtype)
         plan = build_plan(scene.effects)
-        shade = _compiled_shade(plan) if backend == "compiled" else plan.shade
-        radiance = shade(*maps, p, geo)
+        if backend == "compiled":
+            radiance = _shade_compiled(plan, maps, p, geo)
+        else:
+            radiance = plan.shade(*maps, p, geo)
         radiance = radiance.expand(b, *radiance.shape[1:]) if radiance.shape[0] == 1 and b > 1 else radiance
         return plan.finish(radiance, p, geo, generator)
 
