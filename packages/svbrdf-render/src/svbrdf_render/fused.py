@@ -28,7 +28,7 @@ from typing import Any
 
 import torch
 
-from .geometry import MIN_NORM_SQ, cross_norm_sq, dot, safe_normalize
+from .geometry import cross_norm_sq, dot, safe_normalize_parts, toward, unit_and_sq
 
 __all__ = ["supports", "des18_shading_grads"]
 
@@ -46,19 +46,15 @@ def supports(effects: dict[str, dict[str, Any]]) -> bool:
     )
 
 
-def des18_shading_grads(effects, grad, normal, diffuse, roughness, specular, p, geo, to_point, unit):
+def des18_shading_grads(effects, grad, normal, diffuse, roughness, specular, p, geo):
     """Gradients of ``sum(grad * shade(...))`` with respect to the four maps."""
     spec = effects["specular"]
     a0 = spec["alpha_min"]
     min_d2 = effects["falloff"]["min_distance"] ** 2
 
     # -- surface (as in the forward pass) ---------------------------------------------------
-    finite = torch.isfinite(normal).all(dim=-3, keepdim=True)
-    n0 = torch.where(finite, normal, torch.zeros((), dtype=normal.dtype, device=normal.device))
-    sq = dot(n0, n0, -3)
-    valid = finite & (sq > MIN_NORM_SQ)
-    n = safe_normalize(normal, dim=-3)
-    v, _ = unit(to_point(geo.cam, geo.cam_w, p))
+    n, valid, sq = safe_normalize_parts(normal, dim=-3)
+    v, _ = unit_and_sq(toward(geo.cam, geo.cam_w, p))
     cos_v = dot(n, v, -3)
     front = cos_v > 0
     cv = cos_v.clamp_min(0)
@@ -77,11 +73,11 @@ def des18_shading_grads(effects, grad, normal, diffuse, roughness, specular, p, 
 
     g_d = g_s = g_alpha = g_n = None
     for pos, w, rgb in geo.lights:
-        l, d2 = unit(to_point(pos, w, p))  # noqa: E741 - the math's name
+        l, d2 = unit_and_sq(toward(pos, w, p))  # noqa: E741 - the math's name
         cos_l = dot(n, l, -3)
         visible = front & (cos_l > 0)
         cl = cos_l.clamp_min(0)
-        h, _ = unit(l + v)
+        h, _ = unit_and_sq(l + v)
         nh = dot(n, h, -3)
         t = nh * nh * a2 + cross_norm_sq(n, h, -3)
         t2 = (t * t).clamp_min(_TINY)
@@ -122,7 +118,7 @@ def des18_shading_grads(effects, grad, normal, diffuse, roughness, specular, p, 
 
     g_n = g_n.sum_to_size(normal.shape)
     radial = dot(g_n, n, -3)
-    inv_len = torch.rsqrt(torch.where(valid, sq, torch.ones_like(sq)))
+    inv_len = torch.rsqrt(sq)  # sq is 1 where the fallback normal was used
     zero = torch.zeros((), dtype=normal.dtype, device=normal.device)
     g_normal = torch.where(valid, (g_n - radial * n) * inv_len, zero)
     g_rough = (g_alpha * dalpha_dr).sum_to_size(roughness.shape)

@@ -29,14 +29,20 @@ from torch import Tensor
 
 from . import brdf, fused
 from .errors import MapError
-from .geometry import cross_norm_sq, dot, safe_normalize, surface_positions
+from .geometry import (
+    cross_norm_sq,
+    dot,
+    safe_normalize,
+    surface_positions,
+    toward,
+    unit_and_sq,
+)
 from .maps import SVBRDF
 from .scene import Scene
 
 __all__ = ["render", "log_radiance", "RenderPlan", "build_plan", "BACKENDS"]
 
 BACKENDS = ("eager", "compiled")
-_TINY = 1e-12
 _GAMMA_FLOOR = 1e-8
 
 
@@ -87,19 +93,6 @@ def _geometry(scene: Scene, shape: torch.Size, device, dtype) -> _Geometry:
     )
 
 
-def _to_point(pos: Tensor, w: Tensor | float, p: Tensor) -> Tensor:
-    """Vector from the surface points ``p`` towards ``pos`` (or ``pos`` itself at infinity)."""
-    if isinstance(w, float):
-        return pos - p if w == 1.0 else pos.expand_as(pos)
-    return pos - w * p
-
-
-def _unit(vec: Tensor) -> tuple[Tensor, Tensor]:
-    """``vec / |vec|`` and ``|vec|^2``; a zero vector stays zero (its cosines are 0: masked)."""
-    d2 = dot(vec, vec, -3)
-    return vec * torch.rsqrt(d2.clamp_min(_TINY)), d2
-
-
 @dataclass(frozen=True)
 class RenderPlan:
     """The stages a scene's effects declare, ready to run.
@@ -127,7 +120,7 @@ def _build_shade(fx: dict[str, dict[str, Any]]) -> Callable[..., Tensor]:
     def shade(normal, diffuse, roughness, specular, p, geo: _Geometry) -> Tensor:
         # -- surface ------------------------------------------------------------------
         n = safe_normalize(normal, dim=-3)
-        v, _ = _unit(_to_point(geo.cam, geo.cam_w, p))
+        v, _ = unit_and_sq(toward(geo.cam, geo.cam_w, p))
         cos_v = dot(n, v, -3)
         front = cos_v > 0
         cv = cos_v.clamp_min(0)
@@ -138,14 +131,14 @@ def _build_shade(fx: dict[str, dict[str, Any]]) -> Callable[..., Tensor]:
         total = None
         for pos, w, rgb in geo.lights:
             # -- light geometry -----------------------------------------------------
-            l, d2 = _unit(_to_point(pos, w, p))  # noqa: E741 - the math's name
+            l, d2 = unit_and_sq(toward(pos, w, p))  # noqa: E741 - the math's name
             cos_l = dot(n, l, -3)
             visible = front & (cos_l > 0)
             cl = cos_l.clamp_min(0)
             # -- BRDF terms ---------------------------------------------------------
             f = kd
             if spec is not None:
-                h, _ = _unit(l + v)
+                h, _ = unit_and_sq(l + v)
                 lobe = brdf.ggx_d(dot(n, h, -3), cross_norm_sq(n, h, -3), alpha) * 0.25
                 if masking_model is not None:
                     sin2_l = cross_norm_sq(n, l, -3) if exact_masking else None
@@ -181,8 +174,8 @@ def _build_finish(fx: dict[str, dict[str, Any]]) -> Callable[..., Tensor]:
         def vignetting(x, p, geo, gen):
             # cos of the angle between the camera axis (towards the patch centre) and the
             # ray to each pixel; 1 everywhere for a directional camera.
-            v, _ = _unit(_to_point(geo.cam, geo.cam_w, p))
-            axis, _ = _unit(geo.cam)
+            v, _ = unit_and_sq(toward(geo.cam, geo.cam_w, p))
+            axis, _ = unit_and_sq(geo.cam)
             c = dot(v, axis, -3).clamp(0, 1)
             c2 = c * c
             return x * (1 - strength * (1 - c2 * c2))
@@ -327,7 +320,7 @@ def _compiled_des18_backward(plan: RenderPlan) -> Callable[..., tuple[Tensor, ..
 
     def backward(grad, normal, diffuse, roughness, specular, p, geo):
         return fused.des18_shading_grads(
-            effects, grad, normal, diffuse, roughness, specular, p, geo, _to_point, _unit
+            effects, grad, normal, diffuse, roughness, specular, p, geo
         )
 
     return _compile_with_fallback("des18-backward" + _shade_key(plan), backward)
