@@ -1,0 +1,1 @@
+"""svbrdf-models (being written)."""

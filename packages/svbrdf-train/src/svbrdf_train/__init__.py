@@ -1,0 +1,6 @@
+"""svbrdf-train: training data, losses, recipes and the trainer of the svbrdf toolkit.
+
+Data lives in :mod:`svbrdf_train.data`. Nothing here imports mlflow at import time.
+"""
+
+__version__ = "0.1.0"

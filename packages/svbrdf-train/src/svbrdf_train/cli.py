@@ -1,0 +1,70 @@
+"""``svbrdf-train``: make training data, train generators, predict maps from photos.
+
+Subcommands live in :mod:`svbrdf_train.commands`, one module per topic; this file only
+assembles them and turns user errors into a one-line message with exit code 2.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from svbrdf_render import SVBRDFError
+
+
+class _Group(click.Group):
+    """A click group whose commands report SVBRDFError/OSError as one line, exit code 2."""
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except SVBRDFError as e:
+            click.echo(f"svbrdf-train: error: {e}", err=True)
+            ctx.exit(2)
+        except OSError as e:
+            where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+            click.echo(f"svbrdf-train: error: {where}{e.strerror or e}", err=True)
+            ctx.exit(2)
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="svbrdf-train")
+def cli():
+    """Training data and training for single-image SVBRDF recovery.
+
+    \b
+    Start with:
+      svbrdf-train data sheet -o sheet.png          # look at the procedural materials
+      svbrdf-train data make --count 1000 --resolution 256 --out train.h5
+      svbrdf-train data import ../shared/data/des18-dev --out test.h5
+    """
+
+
+@cli.group(cls=_Group)
+def data():
+    """Make, import and inspect training data (procedural materials, Des18, HDF5 shards)."""
+
+
+def _register() -> None:
+    from .commands import data_shards, data_sheet
+
+    for module in (data_sheet, data_shards):
+        for command in module.COMMANDS:
+            data.add_command(command)
+
+
+_register()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``svbrdf-train`` script."""
+    try:
+        cli.main(args=argv, prog_name="svbrdf-train", standalone_mode=True)
+    except SystemExit as e:
+        return int(e.code or 0) if not isinstance(e.code, str) else 2
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

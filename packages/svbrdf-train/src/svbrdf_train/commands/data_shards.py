@@ -1,0 +1,3 @@
+"""Placeholder: filled in by the data work (issue 4)."""
+
+COMMANDS: list = []
