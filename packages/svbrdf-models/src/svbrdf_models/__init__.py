@@ -1,1 +1,84 @@
-"""svbrdf-models (being written)."""
+"""svbrdf-models: generators, attention modules and discriminators, extensible by plugins.
+
+Public API (timm style: list, describe, create)::
+
+    import svbrdf_models as sm
+    sm.list_models("generator")                 # ['no-attn', 'ours', 'unet', ...]
+    sm.describe("generator", "ours").fields     # config fields with defaults and docs
+    g = sm.create_generator("ours", {"preset": "small", "attention": "cbam"})
+    maps = g(photo)                             # photo (B, 3, H, W) -> svbrdf_render.SVBRDF
+    d = sm.create_discriminator("patchgan", {"renderings": 9})
+    logits = d(maps=maps, renderings=svbrdf_render.render(maps, scene))
+
+A plugin registers a :class:`ModelSpec` under one of the entry-point groups
+``svbrdf.generators``, ``svbrdf.attention`` or ``svbrdf.discriminators``; the built-ins use
+the same groups. Nothing is imported until a name is described or created.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from ._config import FieldInfo, build_config, config_to_dict, param
+from ._registry import (
+    KINDS,
+    ModelInfo,
+    ModelSpec,
+    Registry,
+    create,
+    create_attention,
+    create_discriminator,
+    create_generator,
+    default_registry,
+    describe,
+    list_models,
+    resolve_config,
+)
+from .errors import ConfigError, DuplicateNameError, PluginLoadError, RegistryError, UnknownNameError
+
+__version__ = "0.1.0"
+
+# The built-in networks load on first access, like any plugin.
+_LAZY = {
+    "UNetGenerator": "generators",
+    "GeneratorConfig": "generators",
+    "maps_from_output": "generators",
+    "encode_photo": "generators",
+    "AttentionModule": "attention",
+    "MultiScaleAttention": "attention",
+    "PatchGAN": "discriminators",
+    "PatchGANDiscriminator": "discriminators",
+    "MultiGANDiscriminator": "discriminators",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module 'svbrdf_models' has no attribute {name!r}")
+
+
+__all__ = [
+    "KINDS",
+    "ConfigError",
+    "DuplicateNameError",
+    "FieldInfo",
+    "ModelInfo",
+    "ModelSpec",
+    "PluginLoadError",
+    "Registry",
+    "RegistryError",
+    "UnknownNameError",
+    "build_config",
+    "config_to_dict",
+    "create",
+    "create_attention",
+    "create_discriminator",
+    "create_generator",
+    "default_registry",
+    "describe",
+    "list_models",
+    "param",
+    "resolve_config",
+    *_LAZY,
+]

@@ -1,0 +1,267 @@
+"""Generators: a flash photo ``(B, 3, H, W)`` in, the four maps as an SVBRDF out.
+
+One network class, :class:`UNetGenerator`, serves every built-in name through its config:
+
+==========  =================================================================
+name        what
+==========  =================================================================
+``ours``    the paper: U-Net + global track, multi-scale attention per level
+``unet``    the same without the global track
+``no-attn`` ``ours`` with the ``none`` attention module ("w/o attention");
+            this is Deschaintre et al. 2018's network
+==========  =================================================================
+
+Down block (level l): conv 4x4/2 -> attention -> InstanceNorm -> (+ FC output of the global
+track at level l) -> LeakyReLU(0.2). The FC of level l takes [FC output of level l-1,
+spatial mean of level l's attention output] and passes through SELU (as in Deschaintre 2018).
+Up block: deconv 4x4/2 -> InstanceNorm -> LeakyReLU(0.2) -> dropout, fed with the previous
+up block and the skip of equal size. The last up block produces 9 channels through tanh:
+normal x, y (z = 1 before normalising, so z > 0), diffuse 3, roughness 1, specular 3, the
+albedos and roughness mapped from [-1, 1] to [0, 1].
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from svbrdf_render import SVBRDF
+
+from ._config import param
+from ._registry import ModelSpec, create_attention
+
+__all__ = ["GeneratorConfig", "UNetGenerator", "encode_photo", "OURS", "UNET", "NO_ATTN", "PRESETS"]
+
+#: Output channels of the last up block: normal xy, diffuse, roughness, specular.
+OUTPUT_CHANNELS = 9
+#: Offset of the log encoding of input photos (Deschaintre 2018 uses the same).
+LOG_EPS = 0.01
+
+
+@dataclass(frozen=True)
+class GeneratorConfig:
+    depth: int = param(8, "U-Net levels; each halves the size, so H and W must be multiples of 2**depth")
+    base_channels: int = param(64, "channels of the first down convolution; doubled per level")
+    max_channels: int = param(512, "cap on the channels of any down convolution")
+    attention: str | tuple[str, ...] = param(
+        "multiscale", "registered attention module after each down conv: one name, or one name per level"
+    )
+    attention_config: dict = param({}, "config dict passed to the attention module(s)")
+    global_track: bool = param(True, "Deschaintre's fully connected global track beside the encoder")
+    dropout: float = param(0.5, "dropout probability of the up blocks that use it")
+    dropout_levels: int = param(3, "how many of the innermost up blocks apply dropout (pix2pix: 3)")
+    init_std: float = param(
+        0.02,
+        "std of the normal init of the U-Net's conv and FC weights (pix2pix); attention modules keep "
+        "their own init; 0 keeps torch's",
+    )
+
+    def __post_init__(self):
+        if self.depth < 2:
+            raise ValueError(f"depth must be at least 2, got {self.depth}")
+        if self.base_channels < 1 or self.max_channels < self.base_channels:
+            raise ValueError(
+                f"need 1 <= base_channels <= max_channels, got {self.base_channels} and {self.max_channels}"
+            )
+        if not isinstance(self.attention, str) and len(self.attention) != self.depth:
+            raise ValueError(
+                f"attention lists {len(self.attention)} names for {self.depth} levels; give one name "
+                "or exactly one per level"
+            )
+        if not 0.0 <= self.dropout < 1.0:
+            raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+        if not 0 <= self.dropout_levels <= self.depth:
+            raise ValueError(f"dropout_levels must be in [0, depth], got {self.dropout_levels}")
+
+    def level_attention(self) -> tuple[str, ...]:
+        """The attention module name of each level, outermost first."""
+        if isinstance(self.attention, str):
+            return (self.attention,) * self.depth
+        return tuple(self.attention)
+
+
+#: Named partial configs. ``paper`` is the default (8 levels x 64 channels at 256x256);
+#: ``small`` trains on a CPU in minutes at 128-256 px; ``tiny`` is for tests (32-64 px).
+PRESETS = {
+    "paper": {},
+    "small": {"depth": 6, "base_channels": 16, "max_channels": 128},
+    "tiny": {"depth": 4, "base_channels": 8, "max_channels": 32},
+}
+
+
+def encode_photo(photo: Tensor) -> Tensor:
+    """Linear radiance ``(B, 3, H, W)``, nominally in [0, 1] -> log-encoded, [0, 1] -> [-1, 1].
+
+    Flash photos span orders of magnitude between the highlight and the corners; the log
+    keeps both in range. Negative values (noise) are clamped before the log.
+    """
+    lo, hi = math.log(LOG_EPS), math.log(1.0 + LOG_EPS)
+    return (torch.log(photo.clamp_min(0.0) + LOG_EPS) - lo) * (2.0 / (hi - lo)) - 1.0
+
+
+class DownBlock(nn.Module):
+    """conv 4x4/2 -> attention -> InstanceNorm -> (+ global FC) -> LeakyReLU(0.2).
+
+    The innermost level skips the norm: at the paper's 256 px it is 1x1, where instance
+    normalisation would zero every activation (pix2pix does the same).
+    """
+
+    def __init__(self, in_ch: int, conv_ch: int, attention: nn.Module, *, norm: bool, global_in: int | None):
+        super().__init__()
+        self.conv = nn.Conv2d(in_ch, conv_ch, 4, stride=2, padding=1)
+        self.attention = attention
+        out_ch = attention.out_channels
+        self.out_channels = out_ch
+        self.norm = nn.InstanceNorm2d(out_ch) if norm else nn.Identity()
+        # global_in: size of the previous level's global vector (0 at level 1), None without a track.
+        self.fc = nn.Linear(global_in + out_ch, out_ch) if global_in is not None else None
+
+    def forward(self, x: Tensor, g: Tensor | None) -> tuple[Tensor, Tensor | None]:
+        h = self.attention(self.conv(x))
+        y = self.norm(h)
+        if self.fc is not None:
+            mean = h.mean(dim=(2, 3))
+            g = F.selu(self.fc(mean if g is None else torch.cat([g, mean], dim=1)))
+            y = y + g[:, :, None, None]
+        return F.leaky_relu(y, 0.2), g
+
+
+class UpBlock(nn.Module):
+    """deconv 4x4/2 -> InstanceNorm -> LeakyReLU(0.2) -> dropout."""
+
+    def __init__(self, in_ch: int, out_ch: int, dropout: float):
+        super().__init__()
+        self.deconv = nn.ConvTranspose2d(in_ch, out_ch, 4, stride=2, padding=1)
+        self.norm = nn.InstanceNorm2d(out_ch)
+        self.dropout = nn.Dropout(dropout) if dropout > 0 else nn.Identity()
+
+    def forward(self, x: Tensor) -> Tensor:
+        return self.dropout(F.leaky_relu(self.norm(self.deconv(x)), 0.2))
+
+
+class UNetGenerator(nn.Module):
+    """U-Net generator with optional global track and a registered attention module per level.
+
+    Args:
+        config: a :class:`GeneratorConfig` (build one from a dict with
+            ``svbrdf_models.resolve_config("generator", name, {...})``).
+
+    Shapes: photo ``(B, 3, H, W)``, linear radiance, H and W multiples of ``2**depth`` ->
+    :class:`~svbrdf_render.SVBRDF` with maps of the same size: unit normals with z > 0,
+    diffuse, roughness and specular in [0, 1].
+
+    Example:
+        >>> g = UNetGenerator(GeneratorConfig(**PRESETS["tiny"]))
+        >>> g(torch.rand(2, 3, 32, 32)).normal.shape
+        torch.Size([2, 3, 32, 32])
+    """
+
+    def __init__(self, config: GeneratorConfig):
+        super().__init__()
+        self.config = config
+        depth = config.depth
+        conv_ch = [min(config.base_channels * 2**i, config.max_channels) for i in range(depth)]
+        names = config.level_attention()
+
+        self.down = nn.ModuleList()
+        in_ch, g_ch = 3, 0
+        for level in range(depth):
+            att = create_attention(names[level], conv_ch[level], config.attention_config)
+            block = DownBlock(
+                in_ch,
+                conv_ch[level],
+                att,
+                norm=level < depth - 1,
+                global_in=g_ch if config.global_track else None,
+            )
+            self.down.append(block)
+            in_ch = g_ch = block.out_channels
+        skip_ch = [b.out_channels for b in self.down]
+
+        # up[k] restores the size of down level k; up[depth-1] is the innermost.
+        self.up = nn.ModuleList()
+        for k in range(depth):
+            inner = k == depth - 1
+            up_in = skip_ch[k] if inner else conv_ch[k] + skip_ch[k]
+            up_out = OUTPUT_CHANNELS if k == 0 else conv_ch[k - 1]
+            use_dropout = k >= depth - config.dropout_levels and k > 0
+            if k == 0:
+                self.up.append(nn.ConvTranspose2d(up_in, up_out, 4, stride=2, padding=1))
+            else:
+                self.up.append(UpBlock(up_in, up_out, config.dropout if use_dropout else 0.0))
+        if config.init_std > 0:
+            # The generator's own layers only: attention modules (plugins) keep their own init.
+            own = [m for b in self.down for m in (b.conv, b.fc)] + [m for m in self.up]
+            for layer in own:
+                if layer is not None:
+                    layer.apply(lambda m: _init_weights(m, config.init_std))
+
+    def forward(self, photo: Tensor) -> SVBRDF:
+        _check_photo(photo, 2**self.config.depth)
+        x = encode_photo(photo)
+        skips = []
+        g = None
+        for block in self.down:
+            x, g = block(x, g)
+            skips.append(x)
+        y = skips[-1]
+        for k in range(self.config.depth - 1, -1, -1):
+            if k < self.config.depth - 1:
+                y = torch.cat([y, skips[k]], dim=1)
+            y = self.up[k](y)
+        return maps_from_output(torch.tanh(y))
+
+
+def maps_from_output(t: Tensor) -> SVBRDF:
+    """The 9-channel tanh output ``(B, 9, H, W)`` in [-1, 1] -> SVBRDF.
+
+    Normal: (x, y, 1) normalised, so unit length with z > 0 and never degenerate.
+    Albedos and roughness: (t + 1) / 2, within [0, 1].
+    """
+    nxy = t[:, 0:2]
+    n = torch.cat([nxy, torch.ones_like(t[:, :1])], dim=1)
+    n = n * torch.rsqrt(1.0 + (nxy * nxy).sum(dim=1, keepdim=True))
+    rest = (t[:, 2:] + 1.0) * 0.5
+    return SVBRDF(n, rest[:, 0:3], rest[:, 3:4], rest[:, 4:7], validate=False)
+
+
+def _check_photo(photo: Tensor, multiple: int) -> None:
+    if photo.dim() != 4 or photo.shape[1] != 3:
+        raise ValueError(f"generator input: expected a photo of shape (B, 3, H, W), got {tuple(photo.shape)}")
+    h, w = photo.shape[-2:]
+    if h % multiple or w % multiple:
+        raise ValueError(
+            f"generator input: H and W must be multiples of {multiple} (2**depth), got {h}x{w}; "
+            "crop or resize the photo, or use a smaller depth"
+        )
+
+
+def _init_weights(m: nn.Module, std: float) -> None:
+    if isinstance(m, (nn.Conv2d, nn.ConvTranspose2d, nn.Linear)):
+        nn.init.normal_(m.weight, 0.0, std)
+        if m.bias is not None:
+            nn.init.zeros_(m.bias)
+
+
+_DESCRIPTION = "U-Net with global track and multi-scale attention per level (the paper's generator)"
+OURS = ModelSpec("generator", UNetGenerator, GeneratorConfig, _DESCRIPTION, presets=PRESETS)
+UNET = ModelSpec(
+    "generator",
+    UNetGenerator,
+    GeneratorConfig,
+    "ours without the global track (U-Net with multi-scale attention)",
+    defaults={"global_track": False},
+    presets=PRESETS,
+)
+NO_ATTN = ModelSpec(
+    "generator",
+    UNetGenerator,
+    GeneratorConfig,
+    "ours with the 'none' attention module: the w/o-attention ablation (Deschaintre 2018's network)",
+    defaults={"attention": "none"},
+    presets=PRESETS,
+)
