@@ -1,0 +1,89 @@
+"""``svbrdf-models list`` and ``describe``: what a user sees, and errors as one line with exit 2."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from svbrdf_models.cli import main
+
+
+def test_list_shows_every_kind_with_source(capsys):
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    for name in ("ours", "unet", "no-attn", "multiscale", "none", "se", "cbam", "patchgan", "multi"):
+        assert any(line.split()[1:2] == [name] and "svbrdf-models" in line for line in out.splitlines()), name
+
+
+def test_list_detail_reports_parameters_and_time(capsys):
+    assert (
+        main(
+            [
+                "list",
+                "--kind",
+                "attention",
+                "--pattern",
+                "se",
+                "--detail",
+                "--channels",
+                "8",
+                "--repeats",
+                "1",
+            ]
+        )
+        == 0
+    )
+    header, row = capsys.readouterr().out.strip().splitlines()
+    assert "params" in header and "CPU ms" in header
+    cells = row.split()
+    assert cells[:3] == ["attention", "se", "svbrdf-models"]
+    assert cells[3] == "144"  # two 1x1 convs 8 -> 8 -> 8 with biases
+    assert float(cells[4]) > 0
+
+
+def test_list_detail_builds_generators_with_a_preset(capsys):
+    assert (
+        main(
+            [
+                "list",
+                "--kind",
+                "generator",
+                "--pattern",
+                "ours",
+                "--detail",
+                "--preset",
+                "tiny",
+                "--repeats",
+                "1",
+            ]
+        )
+        == 0
+    )
+    row = capsys.readouterr().out.strip().splitlines()[1]
+    assert row.split()[3].endswith("k")  # the tiny preset: thousands of parameters, not millions
+
+
+def test_describe_prints_fields_and_presets(capsys):
+    assert main(["describe", "ours"]) == 0
+    out = capsys.readouterr().out
+    assert "depth: int = 8" in out and "presets:" in out and "tiny" in out
+
+
+def test_unknown_name_exits_2_with_one_line(capsys):
+    assert main(["describe", "multiscal"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("svbrdf-models: error:") and "'multiscale'" in err and err.count("\n") == 1
+
+
+def test_ambiguous_name_asks_for_kind(capsys):
+    # 'multi' is a discriminator and a prefix of nothing else; 'none' is attention only.
+    assert main(["describe", "none"]) == 0
+    assert main(["describe", "none", "--kind", "generator"]) == 2
+    assert "unknown generator 'none'" in capsys.readouterr().err
+
+
+def test_console_script_help():
+    r = subprocess.run(
+        [sys.executable, "-m", "svbrdf_models.cli", "list", "--help"], capture_output=True, text=True
+    )
+    assert r.returncode == 0 and "examples:" in r.stdout and "--detail" in r.stdout
