@@ -123,6 +123,7 @@ def test_generator_under_bfloat16_autocast_gives_valid_maps():
     for m in (maps.diffuse, maps.roughness, maps.specular):
         assert torch.isfinite(m).all() and m.min() >= 0 and m.max() <= 1
     assert torch.isfinite(maps.normal).all()
+    assert maps.normal.dtype == maps.diffuse.dtype == torch.float32
 
 
 @pytest.mark.slow

@@ -221,7 +221,10 @@ def maps_from_output(t: Tensor) -> SVBRDF:
 
     Normal: (x, y, 1) normalised, so unit length with z > 0 and never degenerate.
     Albedos and roughness: (t + 1) / 2, within [0, 1].
+    The maps are float32 whatever the network ran in: under autocast some ops of this head
+    (rsqrt on CUDA) run in float32 and others not, and the maps must share one dtype.
     """
+    t = t.float()
     nxy = t[:, 0:2]
     n = torch.cat([nxy, torch.ones_like(t[:, :1])], dim=1)
     n = n * torch.rsqrt(1.0 + (nxy * nxy).sum(dim=1, keepdim=True))
