@@ -1,0 +1,471 @@
+"""Procedural SVBRDF materials photographed by a simulated phone: training data with no download.
+
+Every sample is a seeded function of ``(seed, index)``: a material of one of six
+:data:`FAMILIES` (or, with probability ``mix``, two of them blended through a soft noise
+mask, as Deschaintre et al. 2018 mix materials), and its photo rendered by svbrdf-render
+under a jittered phone flash (:func:`photo_scene`).
+
+=========  ===================================================================
+family     what it draws
+=========  ===================================================================
+stone      marble with veins, granite, sandstone, slate: domain-warped fBm
+tiles      tiles, bricks, mosaics; grout recessed, rougher, another colour
+cells      leather, cobbles, cracked earth and paint: Worley cells
+wood       rings, fibres, pores; optionally planks with seams
+metal      brushed, polished and scratched, hammered, sandblasted; coloured
+           specular (measured F0), dark diffuse
+fabric     plain, twill and satin weaves of round threads; stripes and checks
+=========  ===================================================================
+
+Example:
+    >>> data = ProceduralMaterials(count=1000, resolution=256, seed=0)
+    >>> sample = data[3]                       # {"input", "maps", "name"}
+    >>> sample["maps"].shape, sample["name"]
+    (torch.Size([10, 256, 256]), 'procedural:0:3')
+    >>> batch = data.batch([3, 4])             # the same samples, stacked, faster
+
+Reproducibility: the output for ``(seed, index, resolution)`` is the same bytes in any
+process, DataLoader worker, thread count and batch (``batch([3, 4])`` equals
+``[data[3], data[4]]`` stacked): each sample draws from generators seeded by a hash of
+``(seed, index)``, never from the global RNG, and the batched fields use only ops that
+compute each sample alike whatever the batch (see :mod:`.procedural_noise`). Across
+machines the bytes agree where torch runs the same CPU kernels (AVX2 and AVX512 builds
+agree; torch's scalar fallback rounds ``grid_sample`` differently in the last bit).
+:data:`GENERATOR_VERSION` changes whenever the output on one machine does.
+
+Maps: heights become normals by central differences in patch units (the patch spans
+``[-1, 1]^2``; normal ``(-dh/dx, -dh/dy, 1)`` normalised, x right, y up, image row 0 at
+``y = +1``), computed on a grid one pixel larger than the image so that edges are exact.
+Diffuse, roughness and specular are clamped to ``[0, 1]``.
+"""
+
+from __future__ import annotations
+
+import math
+import operator
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from torch import Tensor
+from torch.utils.data import Dataset
+
+from svbrdf_render import DES18_EFFECTS, SVBRDF, Camera, Flash, Scene, render
+
+from ..errors import DataError
+from .procedural_families import FAMILY_TABLE, Fields, pixel_grid, stack_choices
+from .procedural_noise import Draw, fbm, smoothstep
+from .procedural_noise import mix as blend
+
+__all__ = [
+    "GENERATOR_VERSION",
+    "FAMILIES",
+    "PhotoSettings",
+    "ProceduralMaterials",
+    "material",
+    "materials",
+    "photo_scene",
+]
+
+#: Changes whenever the output for a given (seed, index, resolution) changes; recorded in shards.
+GENERATOR_VERSION = "1"
+#: The material families, in the order they are drawn from.
+FAMILIES: tuple[str, ...] = tuple(FAMILY_TABLE)
+
+# Streams of random numbers of one sample, so that each part can be drawn on its own.
+_MATERIAL, _PHOTO, _COMPONENT, _MASK = 1, 2, 3, 4
+_MASK64 = (1 << 64) - 1
+#: Pixels generated together (see :func:`materials`).
+_CHUNK_PIXELS = 2 * 256 * 256
+
+
+def _splitmix64(x: int) -> int:
+    x = (x + 0x9E3779B97F4A7C15) & _MASK64
+    x = ((x ^ (x >> 30)) * 0xBF58476D1CE4E5B9) & _MASK64
+    x = ((x ^ (x >> 27)) * 0x94D049BB133111EB) & _MASK64
+    return x ^ (x >> 31)
+
+
+def _key(*parts: int) -> int:
+    """A 63-bit seed from integers, the same in every process (unlike ``hash``)."""
+    h = 0x5EED
+    for p in parts:
+        h = _splitmix64(h ^ _splitmix64(p & _MASK64))
+    return h >> 1
+
+
+# -- the simulated phone photo -------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PhotoSettings:
+    """Jitter ranges of the simulated phone flash photo; each sample draws within them.
+
+    Ranges are ``(low, high)``, drawn uniformly. The default renders *linear* photos (no
+    gamma), the input convention of the networks here and of the Des18 data.
+    """
+
+    fov: tuple[float, float] = (40.0, 58.0)
+    """Full field of view in degrees of the on-axis camera that just frames the patch; the
+    camera distance is ``1 / tan(fov / 2)`` (48.9 degrees: 2.2, the Des18 distance)."""
+    flash_offset: float = 0.2
+    """Largest distance of the flash from the lens, in patch half-widths (drawn uniformly
+    over a disc in the lens plane)."""
+    exposure_ev: tuple[float, float] = (-0.75, 0.75)
+    """Exposure in stops. The flash intensity is ``pi * distance^2``, which shows a white
+    Lambertian patch at 1.0 in the centre at 0 EV."""
+    noise_sigma: tuple[float, float] = (0.002, 0.012)
+    """Standard deviation of the Gaussian read noise."""
+    noise_shot: tuple[float, float] = (0.0, 0.01)
+    """Shot noise: the noise variance grows by this times the signal."""
+    gamma_probability: float = 0.0
+    """Probability that a photo is gamma-encoded (``x ** (1 / gamma)`` after clipping)."""
+    gamma: float = 2.2
+    """The gamma of gamma-encoded photos."""
+
+    def __post_init__(self):
+        for name in ("fov", "exposure_ev", "noise_sigma", "noise_shot"):
+            low, high = getattr(self, name)
+            if not low <= high:
+                raise DataError(f"PhotoSettings.{name}: expected low <= high, got ({low}, {high})")
+        if not (0 < self.fov[0] and self.fov[1] < 180):
+            raise DataError(f"PhotoSettings.fov: expected degrees in (0, 180), got {self.fov}")
+        if self.flash_offset < 0 or self.noise_sigma[0] < 0 or self.noise_shot[0] < 0:
+            raise DataError("PhotoSettings: flash_offset, noise_sigma and noise_shot must be >= 0")
+        if not 0 <= self.gamma_probability <= 1 or self.gamma <= 0:
+            raise DataError(
+                f"PhotoSettings: expected gamma_probability in [0, 1] and gamma > 0, got "
+                f"{self.gamma_probability} and {self.gamma}"
+            )
+
+
+def photo_scene(seed: int, index: int, settings: PhotoSettings | None = None) -> Scene:
+    """The simulated phone flash photo of sample ``index``: camera, flash and effects.
+
+    An on-axis camera at the distance its jittered field of view frames the patch from, a
+    flash of intensity ``pi * distance^2`` offset a little from the lens, and exactly these
+    effects: the Des18 shading (diffuse, specular, fresnel, masking, cosine, falloff),
+    exposure, noise (seeded from ``(seed, index)``, so the photo reproduces), clip, and
+    gamma only for the ``settings.gamma_probability`` share of photos.
+    """
+    s = settings or PhotoSettings()
+    d = Draw(_key(seed, index, _PHOTO))
+    fov = d.uniform(*s.fov)
+    distance = 1.0 / math.tan(math.radians(fov) / 2)
+    radius = s.flash_offset * math.sqrt(d.uniform())  # uniform over the disc
+    cs, sn = d.angle()
+    ev, sigma, shot = d.uniform(*s.exposure_ev), d.uniform(*s.noise_sigma), d.uniform(*s.noise_shot)
+    noise_seed = d.seed()
+    gamma = d.chance(s.gamma_probability)
+    effects: list[Any] = [
+        *DES18_EFFECTS,
+        {"exposure": {"ev": ev}},
+        {"noise": {"sigma": sigma, "shot": shot, "seed": noise_seed}},
+        "clip",
+    ]
+    if gamma:
+        effects.append({"gamma": {"gamma": s.gamma}})
+    camera = Camera(torch.tensor([0.0, 0.0, distance]), fov)
+    flash = Flash(math.pi * distance * distance, torch.tensor([radius * cs, radius * sn, 0.0]))
+    return Scene(camera, (flash,), effects)
+
+
+# -- materials -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Recipe:
+    """What one sample is made of: its family name, components ``(family, seed)``, the seed
+    of the mixing mask and a bump strength."""
+
+    family: str
+    components: tuple[tuple[str, int], ...]
+    mask_seed: int
+    bump: float
+
+
+def _check_families(families: Sequence[str] | None) -> tuple[str, ...]:
+    if families is None:
+        return FAMILIES
+    if isinstance(families, str):
+        families = [families]
+    families = tuple(families)
+    if not families:
+        raise DataError(f"families: expected at least one of {', '.join(FAMILIES)}")
+    unknown = [f for f in families if f not in FAMILY_TABLE]
+    if unknown:
+        raise DataError(
+            f"unknown material famil{'y' if len(unknown) == 1 else 'ies'} "
+            f"{', '.join(repr(f) for f in unknown)}; choose from {', '.join(FAMILIES)}"
+        )
+    return families
+
+
+def _recipe(seed: int, index: int, families: tuple[str, ...], mix_p: float, family: str | None) -> _Recipe:
+    d = Draw(_key(seed, index, _MATERIAL))
+    mixed, first, second = d.chance(mix_p), d.choice(families), d.choice(families)
+    bump = d.log_uniform(0.8, 2.0)
+    if family is not None:
+        names = tuple(family.split("+"))
+        if len(names) > 2:
+            raise DataError(f"family {family!r}: expected one family or two joined by '+'")
+        _check_families(names)
+    else:
+        names = (first, second) if mixed else (first,)
+    components = tuple((name, _key(seed, index, _COMPONENT, slot)) for slot, name in enumerate(names))
+    return _Recipe("+".join(names), components, _key(seed, index, _MASK), bump)
+
+
+def _mask(seeds: list[int], x: Tensor, y: Tensor) -> tuple[Tensor, Tensor]:
+    """Soft masks ``(B, 1, H, W)`` in [0, 1] that blend two materials: thresholded fBm.
+
+    Returns the mask of the albedos and roughness, and a wider one for the heights: two
+    families' surfaces lie at different levels, and a sharp step between them would be a
+    cliff of near-horizontal normals.
+    """
+    choices = []
+    for s in seeds:
+        d = Draw(s)
+        cs, sn = d.angle()
+        choices.append(
+            {
+                "cos": cs,
+                "sin": sn,
+                "freq": d.uniform(0.6, 2.0),
+                "threshold": d.uniform(-0.3, 0.3),
+                "softness": d.log_uniform(0.01, 0.2),
+                "lattice": d.lattice(1),
+            }
+        )
+    p = stack_choices(choices)
+    u = (x * p["cos"] - y * p["sin"]) * p["freq"]
+    v = (x * p["sin"] + y * p["cos"]) * p["freq"]
+    n = fbm(p["lattice"], u, v, 4)
+    t, soft = p["threshold"], p["softness"]
+    return smoothstep(t - soft, t + soft, n), smoothstep(t - soft - 0.1, t + soft + 0.1, n)
+
+
+def _fields(recipes: list[_Recipe], resolution: int) -> Fields:
+    """The (mixed) fields of every recipe on the grid with a one-pixel margin."""
+    x, y = pixel_grid(resolution, margin=1)
+    b = len(recipes)
+    # Jobs: every sample's first component, then the second of the mixed ones.
+    jobs = [r.components[0] for r in recipes]
+    mixed = [i for i, r in enumerate(recipes) if len(r.components) == 2]
+    jobs += [recipes[i].components[1] for i in mixed]
+    # One batched computation per family; then back to job order.
+    order: list[int] = []
+    parts: list[Fields] = []
+    for name in dict.fromkeys(f for f, _ in jobs):
+        members = [j for j, (f, _) in enumerate(jobs) if f == name]
+        family = FAMILY_TABLE[name]
+        choices = stack_choices([family.draw(Draw(jobs[j][1])) for j in members])
+        parts.append(family.fields(choices, x, y))
+        order += members
+    inverse = torch.empty(len(jobs), dtype=torch.long)
+    inverse[torch.tensor(order)] = torch.arange(len(jobs))
+    maps = []
+    for k in range(4):
+        t = torch.cat([p[k].expand(-1, -1, resolution + 2, resolution + 2) for p in parts])
+        maps.append(t.index_select(0, inverse))
+    if mixed:
+        mask, height_mask = _mask([recipes[i].mask_seed for i in mixed], x, y)
+        idx = torch.tensor(mixed)
+        for k in range(4):
+            first, second = maps[k][idx], maps[k][b:]
+            m = height_mask if k == 0 else mask
+            maps[k] = maps[k][:b].index_copy(0, idx, blend(first, second, m))
+    else:
+        maps = [t[:b] for t in maps]
+    return Fields(*maps, {})
+
+
+def _normals(height: Tensor) -> Tensor:
+    """Unit normals ``(B, 3, H, W)`` of heights ``(B, 1, H + 2, W + 2)`` in patch units."""
+    h, w = height.shape[-2] - 2, height.shape[-1] - 2
+    # Central differences over two pixels of 2/W (2/H) patch units; rows go down, y up.
+    dhdx = (height[..., 1:-1, 2:] - height[..., 1:-1, :-2]) * (w / 4)
+    dhdy = (height[..., :-2, 1:-1] - height[..., 2:, 1:-1]) * (h / 4)
+    length = torch.sqrt(dhdx * dhdx + dhdy * dhdy + 1)
+    return torch.cat([-dhdx / length, -dhdy / length, 1 / length], dim=1)
+
+
+def _check_index(index, count: int | None = None) -> int:
+    try:
+        i = operator.index(index)
+    except TypeError:
+        raise TypeError(f"sample index: expected an integer, got {index!r}") from None
+    if i < 0 or (count is not None and i >= count):
+        raise IndexError(f"sample index {i} out of range for {count} samples")
+    return i
+
+
+def _check_resolution(resolution: int) -> int:
+    r = operator.index(resolution)
+    if r < 2:
+        raise DataError(f"resolution: expected at least 2 pixels, got {r}")
+    return r
+
+
+def _packed(
+    seed: int,
+    indices: Sequence[int],
+    resolution: int,
+    families: Sequence[str] | None,
+    mix: float,
+    family: str | None,
+) -> tuple[Tensor, list[str]]:
+    """:func:`materials` as one ``(B, 10, R, R)`` tensor in the ``SVBRDF.pack`` layout."""
+    families = _check_families(families)
+    resolution = _check_resolution(resolution)
+    if not 0 <= mix <= 1:
+        raise DataError(f"mix: expected a probability in [0, 1], got {mix}")
+    indices = [_check_index(i) for i in indices]
+    if not indices:
+        raise DataError("materials: expected at least one sample index")
+    recipes = [_recipe(seed, i, families, mix, family) for i in indices]
+    # Chunks of about _CHUNK_PIXELS: larger batches spill the noise octaves out of the
+    # caches and run slower (measured: 2 samples at 256 x 256 are fastest on 2 cores).
+    chunk = max(1, _CHUNK_PIXELS // (resolution * resolution))
+    crop = (..., slice(1, -1), slice(1, -1))
+    parts = []
+    with torch.no_grad():
+        for first in range(0, len(recipes), chunk):
+            part = recipes[first : first + chunk]
+            f = _fields(part, resolution)
+            bump = torch.tensor([r.bump for r in part], dtype=torch.float32).view(-1, 1, 1, 1)
+            maps = [
+                _normals(f.height * bump),
+                f.diffuse[crop].clamp(0, 1),
+                f.roughness[crop].clamp(0, 1),
+                f.specular[crop].clamp(0, 1),
+            ]
+            parts.append(torch.cat(maps, dim=1))
+    return torch.cat(parts), [r.family for r in recipes]
+
+
+def materials(
+    seed: int,
+    indices: Sequence[int],
+    resolution: int,
+    *,
+    families: Sequence[str] | None = None,
+    mix: float = 0.3,
+    family: str | None = None,
+) -> tuple[SVBRDF, list[str]]:
+    """The maps of samples ``indices`` of ``seed``, batched, and their family names.
+
+    Args:
+        families: the families to draw from (default: all of :data:`FAMILIES`).
+        mix: probability that a sample blends two materials (named ``"a+b"``).
+        family: force this family (or ``"a+b"``) for every sample instead of drawing one.
+
+    Returns:
+        ``(SVBRDF of (B, C, R, R), names)``; float32, values in range, unit normals.
+    """
+    packed, names = _packed(seed, indices, resolution, families, mix, family)
+    maps = SVBRDF.unpack(packed, validate=False)
+    return SVBRDF(*(t.contiguous() for t in maps.maps().values()), validate=False), names
+
+
+def material(
+    seed: int,
+    index: int,
+    resolution: int,
+    family: str | None = None,
+    *,
+    families: Sequence[str] | None = None,
+    mix: float = 0.3,
+) -> tuple[SVBRDF, str]:
+    """The maps of one sample (batch of one) and its family name, e.g. ``"tiles"`` or
+    ``"stone+metal"``. ``family`` forces the family; see :func:`materials`."""
+    svbrdf, names = materials(seed, [index], resolution, families=families, mix=mix, family=family)
+    return svbrdf, names[0]
+
+
+# -- the data set --------------------------------------------------------------------------
+
+
+class ProceduralMaterials(Dataset):
+    """``count`` procedural samples in the common sample layout (:mod:`.sample`).
+
+    Args:
+        count: number of samples (indices ``0 .. count - 1``).
+        resolution: square size of the maps and the photo, in pixels (any size).
+        seed: selects the whole data set; sample ``i`` depends on ``(seed, i)`` only.
+        families: families to draw from (default all :data:`FAMILIES`).
+        mix: probability that a sample blends two materials through a mask.
+        photo: the jitter of the simulated phone photo (default :class:`PhotoSettings`).
+
+    Each item is ``{"input": (3, R, R) linear photo in [0, 1], "maps": (10, R, R),
+    "name": "procedural:<seed>:<index>"}``; :meth:`batch` returns the same, stacked.
+    """
+
+    def __init__(
+        self,
+        count: int,
+        resolution: int = 256,
+        seed: int = 0,
+        families: Sequence[str] | None = None,
+        mix: float = 0.3,
+        photo: PhotoSettings | None = None,
+    ):
+        count = operator.index(count)
+        if count < 0:
+            raise DataError(f"count: expected a number of samples >= 0, got {count}")
+        if not 0 <= mix <= 1:
+            raise DataError(f"mix: expected a probability in [0, 1], got {mix}")
+        self.count = count
+        self.resolution = _check_resolution(resolution)
+        self.seed = operator.index(seed)
+        self.families = _check_families(families)
+        self.mix = float(mix)
+        self.photo = photo or PhotoSettings()
+
+    def __len__(self) -> int:
+        return self.count
+
+    def __repr__(self) -> str:
+        return (
+            f"ProceduralMaterials(count={self.count}, resolution={self.resolution}, seed={self.seed}, "
+            f"families={list(self.families)}, mix={self.mix})"
+        )
+
+    def family(self, index: int) -> str:
+        """The family name of sample ``index`` (cheap: nothing is generated)."""
+        i = _check_index(index, self.count)
+        return _recipe(self.seed, i, self.families, self.mix, None).family
+
+    def scene(self, index: int) -> Scene:
+        """The simulated phone flash that photographs sample ``index``."""
+        return photo_scene(self.seed, _check_index(index, self.count), self.photo)
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        b = self.batch([index])
+        return {"input": b["input"][0], "maps": b["maps"][0], "name": b["name"][0]}
+
+    def __getitems__(self, indices: Sequence[int]) -> list[dict[str, Any]]:
+        """What a DataLoader fetches for one batch: generated together (see :meth:`batch`)."""
+        b = self.batch(indices)
+        return [
+            {"input": b["input"][k], "maps": b["maps"][k], "name": b["name"][k]} for k in range(len(indices))
+        ]
+
+    def batch(self, indices: Sequence[int]) -> dict[str, Any]:
+        """Samples ``indices`` stacked: ``input`` ``(B, 3, R, R)``, ``maps`` ``(B, 10, R, R)``,
+        ``name`` a list. The same values as one by one, in less time."""
+        indices = [_check_index(i, self.count) for i in indices]
+        packed, _ = _packed(self.seed, indices, self.resolution, self.families, self.mix, None)
+        with torch.no_grad():
+            # One render per sample: each photo has its own exposure and noise seed (scene
+            # parameters, not per-sample tensors), and costs no more than a batched render.
+            photos = [
+                render(SVBRDF.unpack(packed[k : k + 1], validate=False), self.scene(i))
+                for k, i in enumerate(indices)
+            ]
+        return {
+            "input": torch.cat(photos),
+            "maps": packed,
+            "name": [f"procedural:{self.seed}:{i}" for i in indices],
+        }

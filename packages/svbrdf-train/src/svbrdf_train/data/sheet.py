@@ -1,0 +1,130 @@
+"""Contact sheets: a batch of samples as one picture, to judge a data set at a glance.
+
+One row per sample, one column per picture::
+
+    label | input | normal | diffuse | roughness | specular
+
+For viewing, not for measuring: the photo and the albedos are display-encoded with the
+sRGB curve (they are stored linear), normals shown as ``(n + 1) / 2``, roughness as grey.
+Text is drawn with Pillow's default font (Pillow comes with svbrdf-render's ``io`` extra).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from svbrdf_render.mapfiles import linear_to_srgb
+
+from ..errors import DataError
+
+__all__ = ["contact_sheet", "COLUMNS"]
+
+#: Column titles, left to right (after the label column).
+COLUMNS = ("input", "normal", "diffuse", "roughness", "specular")
+_BACKGROUND = 30  # 8-bit grey behind the tiles
+_TEXT = (235, 235, 235)
+
+
+def _font(size: int):
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=size)
+    except TypeError:  # Pillow < 10.1: one bitmap size only
+        return ImageFont.load_default()
+
+
+def _tiles(batch: dict[str, Any], input_encoding: str) -> list[list[Tensor]]:
+    """Per sample, the five ``(3, H, W)`` display images in [0, 1]."""
+    photos, maps = batch.get("input"), batch.get("maps")
+    if photos is None or maps is None:
+        raise DataError("contact sheet: expected a batch with 'input' and 'maps' (photos and ground truth)")
+    if photos.dim() != 4 or maps.dim() != 4 or maps.shape[1] != 10 or photos.shape[1] != 3:
+        raise DataError(
+            f"contact sheet: expected input (B, 3, H, W) and maps (B, 10, H, W), got "
+            f"{tuple(photos.shape)} and {tuple(maps.shape)}"
+        )
+    photos, maps = photos.detach().float().cpu(), maps.detach().float().cpu()
+    shown = linear_to_srgb(photos) if input_encoding == "linear" else photos.clamp(0, 1)
+    rows = []
+    for k in range(maps.shape[0]):
+        m = maps[k]
+        rows.append(
+            [
+                shown[k],
+                ((m[0:3] + 1) / 2).clamp(0, 1),
+                linear_to_srgb(m[3:6]),
+                m[6:7].clamp(0, 1).expand(3, -1, -1),
+                linear_to_srgb(m[7:10]),
+            ]
+        )
+    return rows
+
+
+def contact_sheet(
+    batch: dict[str, Any],
+    labels: Sequence[str] | None = None,
+    *,
+    gap: int = 4,
+    input_encoding: str = "linear",
+) -> Tensor:
+    """One picture of a batch: a header of column titles, then a row per sample.
+
+    Args:
+        batch: a collated batch (``input`` ``(B, 3, H, W)``, ``maps`` ``(B, 10, H, W)``,
+            optionally ``name``), e.g. ``ProceduralMaterials.batch``.
+        labels: one line of text per row (default: the batch's names).
+        gap: pixels between tiles.
+        input_encoding: ``"linear"`` (default) photos are sRGB-encoded for display,
+            ``"srgb"`` ones shown as they are.
+
+    Returns:
+        ``(3, H', W')`` display-encoded values in [0, 1] (8-bit steps), ready for
+        ``svbrdf_render.write_image``.
+    """
+    from PIL import Image, ImageDraw
+
+    if input_encoding not in ("linear", "srgb"):
+        raise DataError(f"contact sheet: input_encoding must be 'linear' or 'srgb', got {input_encoding!r}")
+    rows = _tiles(batch, input_encoding)
+    n = len(rows)
+    if labels is None:
+        names = batch.get("name")
+        labels = [str(s) for s in names] if names is not None else [str(k) for k in range(n)]
+    labels = list(labels)
+    if len(labels) != n:
+        raise DataError(f"contact sheet: {len(labels)} labels for {n} samples")
+    h, w = rows[0][0].shape[-2:]
+    font = _font(max(10, min(h, w) // 14))
+    draw = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+
+    def text_size(s: str) -> tuple[int, int]:
+        left, top, right, bottom = draw.textbbox((0, 0), s, font=font)
+        return right - left, bottom - top
+
+    label_w = max(text_size(s)[0] for s in labels) + 2 * gap
+    header_h = max(text_size(c)[1] for c in COLUMNS) + 3 * gap
+    width = label_w + len(COLUMNS) * (w + gap) + gap
+    height = header_h + n * (h + gap)
+    canvas = np.full((height, width, 3), _BACKGROUND, dtype=np.uint8)
+    for r, tiles in enumerate(rows):
+        top = header_h + r * (h + gap)
+        for c, tile in enumerate(tiles):
+            left = label_w + c * (w + gap) + gap
+            pixels = (tile.permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
+            canvas[top : top + h, left : left + w] = pixels
+    image = Image.fromarray(canvas)
+    draw = ImageDraw.Draw(image)
+    for c, title in enumerate(COLUMNS):
+        tw, _ = text_size(title)
+        draw.text((label_w + c * (w + gap) + gap + (w - tw) // 2, gap), title, fill=_TEXT, font=font)
+    for r, label in enumerate(labels):
+        _, th = text_size(label)
+        draw.text((gap, header_h + r * (h + gap) + (h - th) // 2), label, fill=_TEXT, font=font)
+    out = torch.from_numpy(np.asarray(image).copy()).permute(2, 0, 1).float() / 255
+    return out
