@@ -1,0 +1,32 @@
+"""svbrdf-train's dependencies and imports: h5py and mlflow only when used."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from importlib.metadata import requires
+
+
+def test_dependencies():
+    reqs = requires("svbrdf-train") or []
+    names = {r.split(">")[0].split("=")[0].split("[")[0].split(";")[0].strip() for r in reqs}
+    assert {"svbrdf-render", "svbrdf-models", "h5py", "pyyaml", "click", "torch"} <= names
+    assert not {"svbrdf-bench", "scikit-image"} & names
+
+
+def test_data_package_loads_h5py_only_with_shards():
+    code = (
+        "import sys, svbrdf_train.data as d\n"
+        "before = 'h5py' in sys.modules\n"
+        "d.ShardDataset\n"
+        "print(before, 'h5py' in sys.modules, 'mlflow' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["False", "True", "False"]
+
+
+def test_public_names_resolve():
+    import svbrdf_train.data as d
+
+    for name in d.__all__:
+        assert getattr(d, name) is not None
