@@ -69,26 +69,35 @@ def _config(kind: str, name: str, preset: str | None, extra: dict | None = None)
     return cfg
 
 
+def _measure(module: torch.nn.Module, call, args, device) -> tuple[int, float, float]:
+    """Parameters, inference ms and forward+backward ms of ``call()`` (a tensor or a list of them)."""
+
+    def outputs():
+        out = call()
+        return out if isinstance(out, list) else [out]
+
+    def infer():
+        with torch.inference_mode(), _amp(args, device):
+            outputs()
+
+    def train():
+        module.zero_grad(set_to_none=True)
+        with _amp(args, device):
+            loss = sum(o.float().mean() for o in outputs())
+        loss.backward()
+
+    module.eval()
+    t_inf = _time(infer, args.repeats, device)
+    module.train()
+    t_train = _time(train, args.repeats, device)
+    return sum(p.numel() for p in module.parameters()), t_inf, t_train
+
+
 def measure_generator(name: str, args, device, extra: dict | None = None) -> tuple[int, float, float]:
     torch.manual_seed(0)
     g = sm.create("generator", name, _config("generator", name, args.preset, extra)).to(device)
     x = torch.rand(args.batch, 3, args.size, args.size, device=device)
-
-    def infer():
-        with torch.inference_mode(), _amp(args, device):
-            g(x)
-
-    def train():
-        g.zero_grad(set_to_none=True)
-        with _amp(args, device):
-            loss = g(x).pack().float().mean()
-        loss.backward()
-
-    g.eval()
-    t_inf = _time(infer, args.repeats, device)
-    g.train()
-    t_train = _time(train, args.repeats, device)
-    return sum(p.numel() for p in g.parameters()), t_inf, t_train
+    return _measure(g, lambda: g(x).pack(), args, device)
 
 
 def measure_discriminator(name: str, args, device) -> tuple[int, float, float]:
@@ -97,22 +106,7 @@ def measure_discriminator(name: str, args, device) -> tuple[int, float, float]:
     n = getattr(getattr(d, "config", None), "renderings", args.renderings)
     maps = SVBRDF.constant(args.batch, args.size, device=device)
     r = torch.rand(args.batch, n, 3, args.size, args.size, device=device)
-
-    def infer():
-        with torch.inference_mode(), _amp(args, device):
-            d(maps=maps, renderings=r)
-
-    def train():
-        d.zero_grad(set_to_none=True)
-        with _amp(args, device):
-            loss = sum(o.float().mean() for o in d(maps=maps, renderings=r))
-        loss.backward()
-
-    d.eval()
-    t_inf = _time(infer, args.repeats, device)
-    d.train()
-    t_train = _time(train, args.repeats, device)
-    return sum(p.numel() for p in d.parameters()), t_inf, t_train
+    return _measure(d, lambda: d(maps=maps, renderings=r), args, device)
 
 
 def _row(label: str, source: str, params: int, t_inf: float, t_train: float, batch: int) -> str:

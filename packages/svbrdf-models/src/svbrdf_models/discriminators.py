@@ -76,8 +76,9 @@ def _norm(kind: str, channels: int) -> nn.Module:
 
 
 @dataclass(frozen=True)
-class PatchGANConfig:
-    renderings: int = param(9, "N: renderings per map set, concatenated along channels (3N input channels)")
+class MultiGANConfig:
+    """The PatchGAN layout, shared by both discriminators (``multi`` builds one per map)."""
+
     base_channels: int = param(64, "channels of the first layer (doubled per layer up to 8x)")
     layers: int = param(3, "strided layers after the first; 3 gives the 70x70 receptive field")
     norm: str = param(
@@ -86,8 +87,18 @@ class PatchGANConfig:
     init_std: float = param(0.02, "std of the normal init of conv weights (pix2pix); 0 keeps torch's")
 
     def __post_init__(self):
-        if self.renderings < 1 or self.base_channels < 1 or self.layers < 1:
-            raise ValueError("renderings, base_channels and layers must be positive")
+        if self.base_channels < 1 or self.layers < 1:
+            raise ValueError("base_channels and layers must be positive")
+
+
+@dataclass(frozen=True)
+class PatchGANConfig(MultiGANConfig):
+    renderings: int = param(9, "N: renderings per map set, concatenated along channels (3N input channels)")
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.renderings < 1:
+            raise ValueError(f"renderings must be positive, got {self.renderings}")
 
 
 def _check_renderings(renderings: Tensor, n: int) -> None:
@@ -116,20 +127,6 @@ class PatchGANDiscriminator(nn.Module):
             raise ValueError("discriminator 'patchgan' judges renderings: pass renderings=(B, N, 3, H, W)")
         _check_renderings(renderings, self.config.renderings)
         return [self.net(renderings.flatten(1, 2))]
-
-
-@dataclass(frozen=True)
-class MultiGANConfig:
-    base_channels: int = param(64, "channels of the first layer of each per-map PatchGAN")
-    layers: int = param(3, "strided layers after the first; 3 gives the 70x70 receptive field")
-    norm: str = param(
-        "instance", "normalisation after each inner conv", choices=("instance", "batch", "none")
-    )
-    init_std: float = param(0.02, "std of the normal init of conv weights (pix2pix); 0 keeps torch's")
-
-    def __post_init__(self):
-        if self.base_channels < 1 or self.layers < 1:
-            raise ValueError("base_channels and layers must be positive")
 
 
 class MultiGANDiscriminator(nn.Module):
