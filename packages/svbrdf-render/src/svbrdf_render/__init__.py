@@ -16,9 +16,11 @@ from .errors import MapError, MapFileError, SceneError, SVBRDFError
 from .fit import FlashFit, fit_flash
 from .geometry import safe_normalize, surface_positions
 from .mapfiles import (
+    linear_to_srgb,
     read_des18,
     read_image,
     read_map_folder,
+    srgb_to_linear,
     write_des18,
     write_image,
     write_map_folder,
@@ -62,6 +64,8 @@ __all__ = [
     "render_reference",
     "resolve_effects",
     "safe_normalize",
+    "srgb_to_linear",
+    "linear_to_srgb",
     "surface_positions",
     "training_scene",
     "write_des18",

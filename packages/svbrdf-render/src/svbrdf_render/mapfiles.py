@@ -17,6 +17,7 @@ count, non-square tiles, translucent alpha) is a :class:`MapFileError` naming th
 
 from __future__ import annotations
 
+import os
 import struct
 from pathlib import Path
 from typing import NamedTuple
@@ -169,7 +170,8 @@ def write_image(path, image: Tensor, *, bits: int = 8) -> Path:
         raise ValueError(f"write_image: expected (1|3, H, W) or (H, W), got {tuple(image.shape)}")
     arr = t.nan_to_num(0.0).clamp(0, 1).permute(1, 2, 0).numpy()
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
+    # One temporary name per process, so two writers of the same target never share a file.
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
         if bits == 16:
             png = _pypng()
