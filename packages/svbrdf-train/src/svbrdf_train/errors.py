@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from svbrdf_render import SVBRDFError
 
-__all__ = ["DataError", "ShardError"]
+__all__ = ["DataError", "ShardError", "RecipeError"]
 
 
 class DataError(SVBRDFError):
@@ -14,3 +14,7 @@ class DataError(SVBRDFError):
 
 class ShardError(DataError):
     """An HDF5 shard that is truncated, corrupted, incomplete or inconsistent with its siblings."""
+
+
+class RecipeError(SVBRDFError):
+    """A recipe that cannot be used: unknown name, section or field, or a bad value; names the file."""

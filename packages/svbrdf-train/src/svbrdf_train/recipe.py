@@ -1,0 +1,399 @@
+"""Recipes: named, complete training configurations, read from YAML.
+
+A recipe file holds the sections below; a recipe may start from another (``base: ours``)
+and change only what differs, and lists ``sizes``: dotted overrides that turn the paper's
+configuration into ones that finish in minutes on a CPU::
+
+    description: the paper's model
+    generator: {name: ours, config: {}}
+    discriminator: {name: patchgan, config: {renderings: 9}}
+    loss: {adv: 0.1, render: 0.5, svbrdf: 0.5}
+    sizes:
+      cpu: {generator.config.preset: small, train.resolution: 128}
+
+Recipes are found by name through the entry-point group ``svbrdf.recipes`` (each entry
+names a YAML file path; svbrdf-train registers its own that way), or given as a path. Any
+field can be overridden with ``--set section.field=value`` (the value is read as YAML).
+Unknown sections and fields are errors naming the field and the file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import importlib.metadata
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from svbrdf_models import ConfigError, RegistryError, build_config, param, resolve_config
+
+from .errors import RecipeError
+
+__all__ = [
+    "SIZES",
+    "RECIPE_GROUP",
+    "NetworkSection",
+    "LossSection",
+    "OptimSection",
+    "DataSection",
+    "TrainSection",
+    "Recipe",
+    "list_recipes",
+    "recipe_path",
+    "load_recipe",
+    "parse_overrides",
+]
+
+RECIPE_GROUP = "svbrdf.recipes"
+#: Sizes every built-in recipe has: the paper's, one for a CPU in minutes, one for tests.
+SIZES = ("paper", "cpu", "smoke")
+
+
+@dataclass(frozen=True)
+class NetworkSection:
+    name: str = param("ours", "registered name (svbrdf-models list)")
+    config: dict = param({}, "config dict of that network; may hold 'preset'")
+
+
+@dataclass(frozen=True)
+class LossSection:
+    adv: float = param(0.1, "lambda1: weight of the adversarial loss (0: no discriminator is trained)")
+    render: float = param(0.5, "lambda2: weight of the log rendering loss")
+    svbrdf: float = param(0.5, "lambda3: weight of the L1 map loss")
+    gan: str = param(
+        "bce", "adversarial objective: bce (eq. 3, non-saturating) or lsgan", choices=("bce", "lsgan")
+    )
+    maps: dict = param(
+        {"normal": 1.0, "diffuse": 1.0, "roughness": 0.5, "specular": 0.5},
+        "per-map weights of the L1 map loss",
+    )
+    eps: float = param(0.01, "offset of the log in the rendering loss")
+
+    def __post_init__(self):
+        for name in ("adv", "render", "svbrdf", "eps"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be a non-negative number, got {getattr(self, name)}")
+        if self.adv + self.render + self.svbrdf <= 0:
+            raise ValueError("at least one of adv, render and svbrdf must be positive")
+        unknown = set(self.maps) - {"normal", "diffuse", "roughness", "specular"}
+        if unknown:
+            raise ValueError(
+                f"maps: unknown map {sorted(unknown)}; maps are normal, diffuse, roughness, specular"
+            )
+
+
+@dataclass(frozen=True)
+class OptimSection:
+    lr: float = param(2e-5, "Adam learning rate of the generator")
+    d_lr: float = param(2e-5, "Adam learning rate of the discriminator")
+    betas: tuple[float, float] = param((0.5, 0.999), "Adam betas")
+    g_steps_per_d: int = param(5, "generator steps per discriminator step (paper: 5)")
+    decay_every_epochs: int = param(2, "step decay period in epochs (paper: 2)")
+    decay: float = param(0.5, "learning-rate factor at each decay step (paper: halved)")
+
+    def __post_init__(self):
+        if not (self.lr > 0 and self.d_lr > 0 and self.g_steps_per_d >= 1 and self.decay_every_epochs >= 1):
+            raise ValueError("lr and d_lr must be positive; g_steps_per_d and decay_every_epochs at least 1")
+        if not 0 < self.decay <= 1:
+            raise ValueError(f"decay must be in (0, 1], got {self.decay}")
+
+
+@dataclass(frozen=True)
+class DataSection:
+    source: str = param(
+        "procedural",
+        "procedural (generated), shards (HDF5 files) or des18 (a folder of strips)",
+        choices=("procedural", "shards", "des18"),
+    )
+    path: str | tuple[str, ...] | None = param(None, "shard file(s) or Des18 folder; unused for procedural")
+    count: int = param(200_000, "procedural samples per epoch (the paper trains on ~200k)")
+    seed: int = param(0, "procedural data seed; validation uses seed + 1, so the two never overlap")
+    validation: int = param(64, "held-out samples for periodic validation")
+    workers: int = param(0, "DataLoader worker processes")
+
+    def __post_init__(self):
+        if self.source != "procedural" and not self.path:
+            raise ValueError(f"source {self.source!r} needs a path (--set data.path=...)")
+        if self.count < 1 or self.validation < 0 or self.workers < 0:
+            raise ValueError("count must be positive; validation and workers non-negative")
+
+
+@dataclass(frozen=True)
+class TrainSection:
+    resolution: int = param(256, "training crop size in pixels")
+    batch: int = param(8, "samples per step")
+    epochs: int = param(20, "passes over the data")
+    max_steps: int | None = param(None, "stop after this many generator steps (None: no limit)")
+    max_minutes: float | None = param(None, "stop after this much training time (None: no limit)")
+    renderings: int = param(9, "light/view configurations per sample for the rendering loss and D")
+    seed: int = param(0, "seed of initialisation, sampling and dropout")
+    log_every: int = param(10, "log losses every this many steps")
+    validate_every: int = param(500, "validate every this many steps (and at the end)")
+    checkpoint_every: int = param(500, "write a checkpoint every this many steps (and at the end)")
+
+    def __post_init__(self):
+        if min(self.resolution, self.batch, self.epochs, self.renderings) < 1:
+            raise ValueError("resolution, batch, epochs and renderings must be positive")
+        if min(self.log_every, self.validate_every, self.checkpoint_every) < 1:
+            raise ValueError("log_every, validate_every and checkpoint_every must be positive")
+
+
+_SECTIONS: dict[str, type] = {
+    "generator": NetworkSection,
+    "discriminator": NetworkSection,
+    "loss": LossSection,
+    "optim": OptimSection,
+    "data": DataSection,
+    "train": TrainSection,
+}
+_TOP_LEVEL = {*_SECTIONS, "description", "base", "sizes"}
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """A resolved recipe: every field known, nothing left to defaults elsewhere."""
+
+    name: str
+    size: str
+    description: str
+    generator: NetworkSection
+    discriminator: NetworkSection | None
+    loss: LossSection
+    optim: OptimSection
+    data: DataSection
+    train: TrainSection
+    source: str
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data (for MLflow params and the YAML artifact); tuples become lists."""
+
+        def plain(v):
+            if dataclasses.is_dataclass(v):
+                return {f.name: plain(getattr(v, f.name)) for f in dataclasses.fields(v)}
+            if isinstance(v, (tuple, list)):
+                return [plain(x) for x in v]
+            if isinstance(v, Mapping):
+                return {k: plain(x) for k, x in v.items()}
+            return v
+
+        return plain(self)
+
+
+# -- finding recipes ------------------------------------------------------------------------
+
+
+def _entry_points() -> dict[str, list[Any]]:
+    found: dict[str, list[Any]] = {}
+    for ep in importlib.metadata.entry_points(group=RECIPE_GROUP):
+        same = found.setdefault(ep.name, [])
+        if not any(e.value == ep.value for e in same):
+            same.append(ep)
+    return found
+
+
+def list_recipes() -> list[str]:
+    """Names of the registered recipes (built-ins and plugins), sorted."""
+    return sorted(_entry_points())
+
+
+def recipe_path(name_or_path: str | Path) -> Path:
+    """The YAML file of a registered recipe name, or the given path if it is a file."""
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or p.is_file():
+        if not p.is_file():
+            raise RecipeError(f"{p}: recipe file not found")
+        return p
+    eps = _entry_points()
+    entries = eps.get(str(name_or_path))
+    if not entries:
+        close = difflib.get_close_matches(str(name_or_path), list(eps), n=3, cutoff=0.5)
+        hint = f" Did you mean {' or '.join(map(repr, close))}?" if close else ""
+        raise RecipeError(
+            f"unknown recipe {str(name_or_path)!r}.{hint} Recipes: {', '.join(sorted(eps)) or 'none'}; "
+            "or give the path of a YAML file."
+        )
+    if len(entries) > 1:
+        who = " and ".join(f"{e.dist.name if e.dist else '?'} ({e.value})" for e in entries)
+        raise RecipeError(f"recipe {name_or_path!r} is registered by {who}; uninstall or rename one")
+    try:
+        target = entries[0].load()
+    except Exception as e:  # a plugin can fail in any way on import
+        raise RecipeError(f"recipe {name_or_path!r} ({entries[0].value}) failed to load: {e}") from e
+    return Path(target)
+
+
+# -- reading ----------------------------------------------------------------------------------
+
+
+def _read_yaml(path: Path) -> dict[str, Any]:
+    import yaml
+
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as e:
+        raise RecipeError(f"{path}: not valid YAML: {e}") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise RecipeError(f"{path}: a recipe is a mapping of sections, got {type(data).__name__}")
+    unknown = set(data) - _TOP_LEVEL
+    if unknown:
+        key = sorted(unknown)[0]
+        raise RecipeError(
+            f"{path}: unknown section {key!r}{_suggest(key, _TOP_LEVEL)}; "
+            f"sections: {', '.join(sorted(_TOP_LEVEL))}"
+        )
+    return data
+
+
+def _suggest(key: str, options: Iterable[str]) -> str:
+    close = difflib.get_close_matches(key, list(options), n=1, cutoff=0.5)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _merge(base: dict[str, Any], top: Mapping[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in top.items():
+        if isinstance(v, Mapping) and isinstance(out.get(k), Mapping) and k != "config":
+            out[k] = _merge(dict(out[k]), v)
+        else:
+            out[k] = v
+    return out
+
+
+def _resolve_file(path: Path, seen: tuple[Path, ...] = ()) -> tuple[dict[str, Any], dict[str, dict]]:
+    """The merged sections of a recipe file and its bases, and its sizes (bases' sizes too)."""
+    if path.resolve() in seen:
+        chain = " -> ".join(str(p) for p in (*seen, path))
+        raise RecipeError(f"{path}: recipes base on each other in a loop: {chain}")
+    data = _read_yaml(path)
+    sections: dict[str, Any] = {}
+    sizes: dict[str, dict] = {}
+    if "base" in data:
+        base_path = recipe_path(data["base"])
+        sections, sizes = _resolve_file(base_path, (*seen, path.resolve()))
+    own = {k: v for k, v in data.items() if k not in ("base", "sizes")}
+    sections = _merge(sections, own)
+    for size, overrides in (data.get("sizes") or {}).items():
+        if not isinstance(overrides, Mapping):
+            raise RecipeError(f"{path}: sizes.{size} must map dotted fields to values")
+        sizes[size] = {**sizes.get(size, {}), **overrides}
+    return sections, sizes
+
+
+def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
+    """``["loss.adv=0", "train.batch=4"]`` -> ``{"loss.adv": 0, "train.batch": 4}``; values are YAML."""
+    import yaml
+
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        if not sep or "." not in key:
+            raise RecipeError(f"--set {item!r}: expected section.field=value, e.g. --set loss.adv=0")
+        try:
+            out[key.strip()] = yaml.safe_load(raw)
+        except yaml.YAMLError as e:
+            raise RecipeError(f"--set {item!r}: the value is not valid YAML: {e}") from None
+    return out
+
+
+def _apply(
+    sections: dict[str, Any], overrides: Mapping[str, Any], where: str, *, skip_disabled: bool = False
+) -> dict[str, Any]:
+    """Dotted ``overrides`` applied to ``sections``. With ``skip_disabled`` (sizes), a section the
+    recipe set to null (``discriminator: null``) stays off instead of being re-created."""
+    sections = {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in sections.items()}
+    for dotted, value in overrides.items():
+        section, _, rest = dotted.partition(".")
+        if section not in _SECTIONS:
+            raise RecipeError(
+                f"{where}: {dotted!r}: unknown section {section!r}{_suggest(section, _SECTIONS)}"
+            )
+        cls = _SECTIONS[section]
+        field, _, sub = rest.partition(".")
+        names = [f.name for f in dataclasses.fields(cls)]
+        if field not in names:
+            raise RecipeError(
+                f"{where}: {dotted!r}: unknown field {field!r} of section {section!r}"
+                f"{_suggest(field, names)}; "
+                f"fields: {', '.join(names)}"
+            )
+        if section in sections and sections[section] is None:
+            if skip_disabled:
+                continue
+            sections[section] = {}
+        target = sections.setdefault(section, {})
+        if sub:  # into a dict field, e.g. generator.config.preset or loss.maps.normal
+            inner = dict(target.get(field) or {})
+            node = inner
+            keys = sub.split(".")
+            for k in keys[:-1]:
+                node = node.setdefault(k, {})
+            node[keys[-1]] = value
+            target[field] = inner
+        else:
+            target[field] = value
+    return sections
+
+
+def load_recipe(
+    name_or_path: str | Path, size: str = "paper", overrides: Mapping[str, Any] | None = None
+) -> Recipe:
+    """Read, merge and check a recipe: the file, its bases, the chosen size, then ``overrides``.
+
+    Raises:
+        RecipeError: an unknown recipe, section, field or size, or a value of the wrong type,
+            naming the field and the file.
+    """
+    path = recipe_path(name_or_path)
+    sections, sizes = _resolve_file(path)
+    if size != "paper":
+        if size not in sizes:
+            raise RecipeError(
+                f"{path}: no size {size!r}{_suggest(size, sizes)}; "
+                f"sizes: paper, {', '.join(sizes) or '(none)'}"
+            )
+        sections = _apply(sections, sizes[size], f"{path} (sizes.{size})", skip_disabled=True)
+    sections = _apply(sections, overrides or {}, f"--set (recipe {path})")
+    name = Path(path).stem if Path(str(name_or_path)).suffix else str(name_or_path)
+
+    def build(section: str):
+        values = sections.get(section)
+        if values is None:
+            return None
+        if not isinstance(values, Mapping):
+            raise RecipeError(f"{path}: section {section!r} must be a mapping, got {values!r}")
+        try:
+            return build_config(_SECTIONS[section], values, what=f"{path}: section {section!r}")
+        except ConfigError as e:
+            raise RecipeError(str(e)) from None
+
+    loss = build("loss") or LossSection()
+    discriminator = build("discriminator") if "discriminator" in sections else None
+    if loss.adv > 0 and discriminator is None:
+        raise RecipeError(
+            f"{path}: loss.adv is {loss.adv} but no discriminator is set; set one or loss.adv=0"
+        )
+    if loss.adv == 0:
+        discriminator = None  # never built nor trained without an adversarial term
+    # Check the network configs against the registry now, so a typo names this file.
+    for kind, section in (("generator", build("generator")), ("discriminator", discriminator)):
+        if section is not None:
+            try:
+                resolve_config(kind, section.name, section.config)
+            except RegistryError as e:
+                raise RecipeError(f"{path}: {kind}: {e}") from None
+    return Recipe(
+        name=name,
+        size=size,
+        description=str(sections.get("description", "")),
+        generator=build("generator") or NetworkSection(),
+        discriminator=discriminator,
+        loss=loss,
+        optim=build("optim") or OptimSection(),
+        data=build("data") or DataSection(),
+        train=build("train") or TrainSection(),
+        source=str(path),
+    )

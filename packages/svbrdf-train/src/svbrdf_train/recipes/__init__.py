@@ -1,0 +1,15 @@
+"""The built-in recipes: YAML files beside this module, registered under ``svbrdf.recipes``.
+
+Each constant is the path an entry point names; ``svbrdf_train.recipe.load_recipe`` reads it.
+"""
+
+from pathlib import Path
+
+_HERE = Path(__file__).resolve().parent
+
+OURS = _HERE / "ours.yaml"
+NO_ATTN = _HERE / "no-attn.yaml"
+NO_ADV = _HERE / "no-adv.yaml"
+NO_SVBRDF = _HERE / "no-svbrdf.yaml"
+MULTIGAN = _HERE / "multigan.yaml"
+RADN = _HERE / "radn.yaml"

@@ -1,0 +1,128 @@
+"""Recipes: the built-ins at every size, overrides, and errors that name the field and the file."""
+
+from __future__ import annotations
+
+import pytest
+import yaml
+
+from svbrdf_train.errors import RecipeError
+from svbrdf_train.recipe import SIZES, list_recipes, load_recipe, parse_overrides
+
+BUILTIN = ["ours", "no-attn", "no-adv", "no-svbrdf", "multigan", "radn"]
+
+
+def test_builtin_recipes_are_registered():
+    assert set(BUILTIN) <= set(list_recipes())
+
+
+@pytest.mark.parametrize("size", SIZES)
+@pytest.mark.parametrize("name", BUILTIN)
+def test_every_builtin_loads_at_every_size(name, size):
+    r = load_recipe(name, size)
+    assert r.name == name and r.size == size and r.description
+    assert (r.discriminator is None) == (r.loss.adv == 0)
+    if size == "paper":
+        assert (r.train.resolution, r.train.batch, r.train.epochs) == (256, 8, 20)
+        assert r.optim.lr == 2e-5 and r.optim.g_steps_per_d == 5 and r.optim.decay_every_epochs == 2
+    else:
+        assert r.train.resolution < 256 and r.generator.config.get("preset") in ("small", "tiny")
+    assert yaml.safe_load(yaml.safe_dump(r.to_dict())) == r.to_dict()
+
+
+def test_the_ablations_differ_from_ours_in_what_the_paper_says():
+    ours = load_recipe("ours")
+    assert (ours.generator.name, ours.discriminator.name) == ("ours", "patchgan")
+    assert (ours.loss.adv, ours.loss.render, ours.loss.svbrdf) == (0.1, 0.5, 0.5)
+    assert ours.loss.maps == {"normal": 1.0, "diffuse": 1.0, "roughness": 0.5, "specular": 0.5}
+    assert load_recipe("no-attn").generator.name == "no-attn"
+    no_adv = load_recipe("no-adv")
+    assert no_adv.loss.adv == 0 and no_adv.discriminator is None
+    assert load_recipe("no-svbrdf").loss.svbrdf == 0
+    assert load_recipe("multigan").discriminator.name == "multi"
+    radn = load_recipe("radn")
+    assert radn.generator.name == "no-attn" and radn.discriminator is None
+    assert (radn.loss.adv, radn.loss.svbrdf) == (0, 0) and radn.loss.render > 0
+    # Everything not named stays as in ours.
+    assert load_recipe("multigan").optim == ours.optim and load_recipe("no-attn").train == ours.train
+
+
+def test_overrides_from_the_command_line():
+    r = load_recipe("ours", "smoke", parse_overrides(["loss.adv=0", "train.batch=4", "generator.config.attention=se"]))
+    assert r.discriminator is None and r.train.batch == 4
+    assert r.generator.config == {"preset": "tiny", "attention": "se"}
+    r = load_recipe("ours", overrides=parse_overrides(["loss.maps.normal=2", "data.path=[a.h5, b.h5]", "data.source=shards"]))
+    assert r.loss.maps["normal"] == 2 and r.loss.maps["roughness"] == 0.5
+    assert r.data.path == ("a.h5", "b.h5")
+
+
+def test_a_user_file_can_start_from_a_builtin(tmp_path):
+    f = tmp_path / "mine.yaml"
+    f.write_text("base: ours\ndescription: mine\ngenerator: {name: ours, config: {attention: cbam}}\n")
+    r = load_recipe(f, "smoke")
+    assert r.name == "mine" and r.generator.config == {"attention": "cbam", "preset": "tiny"}
+    assert r.source == str(f)
+
+
+def write(tmp_path, text):
+    f = tmp_path / "r.yaml"
+    f.write_text(text)
+    return f
+
+
+def test_unknown_field_in_a_file_names_it_and_the_file(tmp_path):
+    f = write(tmp_path, "base: ours\nloss: {advv: 0.2}\n")
+    with pytest.raises(RecipeError) as e:
+        load_recipe(f)
+    assert "'advv'" in str(e.value) and str(f) in str(e.value) and "'adv'" in str(e.value)
+
+
+def test_unknown_section_names_it(tmp_path):
+    f = write(tmp_path, "base: ours\noptimiser: {lr: 1}\n")
+    with pytest.raises(RecipeError, match="unknown section 'optimiser'.*did you mean 'optim'"):
+        load_recipe(f)
+
+
+def test_unknown_field_on_the_command_line_names_it_and_the_recipe():
+    with pytest.raises(RecipeError) as e:
+        load_recipe("ours", overrides=parse_overrides(["train.bach=4"]))
+    msg = str(e.value)
+    assert "'train.bach'" in msg and "'batch'" in msg and "ours.yaml" in msg
+    with pytest.raises(RecipeError, match="unknown section 'trian'"):
+        load_recipe("ours", overrides=parse_overrides(["trian.batch=4"]))
+    with pytest.raises(RecipeError, match="section.field=value"):
+        parse_overrides(["batch=4"])
+
+
+def test_wrong_types_and_values_name_the_field(tmp_path):
+    with pytest.raises(RecipeError, match="'batch' expects int"):
+        load_recipe("ours", overrides={"train.batch": "eight"})
+    with pytest.raises(RecipeError, match="'gan' must be one of"):
+        load_recipe("ours", overrides={"loss.gan": "wgan"})
+    with pytest.raises(RecipeError, match=r"generator: .*unknown preset 'huge'"):
+        load_recipe("ours", overrides={"generator.config.preset": "huge"})
+    with pytest.raises(RecipeError, match="needs a path"):
+        load_recipe("ours", overrides={"data.source": "shards"})
+
+
+def test_adversarial_weight_needs_a_discriminator():
+    with pytest.raises(RecipeError, match="loss.adv is 0.1 but no discriminator"):
+        load_recipe("no-adv", overrides={"loss.adv": 0.1})
+    # Naming one on the command line turns it back on.
+    r = load_recipe("no-adv", overrides={"loss.adv": 0.1, "discriminator.name": "patchgan"})
+    assert r.discriminator.name == "patchgan"
+
+
+def test_unknown_recipe_size_and_bad_files(tmp_path):
+    with pytest.raises(RecipeError, match="unknown recipe 'our'.*Did you mean 'ours'"):
+        load_recipe("our")
+    with pytest.raises(RecipeError, match="no size 'gpu'"):
+        load_recipe("ours", "gpu")
+    with pytest.raises(RecipeError, match="not valid YAML"):
+        load_recipe(write(tmp_path, "loss: {adv: [\n"))
+    with pytest.raises(RecipeError, match="not found"):
+        load_recipe(tmp_path / "missing.yaml")
+    a, b = tmp_path / "a.yaml", tmp_path / "b.yaml"
+    a.write_text(f"base: {b}\n")
+    b.write_text(f"base: {a}\n")
+    with pytest.raises(RecipeError, match="loop"):
+        load_recipe(a)
