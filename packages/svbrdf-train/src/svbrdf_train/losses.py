@@ -1,0 +1,341 @@
+"""The generator and discriminator losses of the paper (DESIGN.md, "The paper in one screen").
+
+::
+
+    L_G = adv * L_adv + render * L_render + svbrdf * L_svbrdf        (0.1, 0.5, 0.5)
+
+====================================  ================================================================
+function                              what
+====================================  ================================================================
+:func:`map_loss`                      ``L_svbrdf``: weighted L1 per map (normal 1, diffuse 1,
+                                      roughness 0.5, specular 0.5)
+:func:`rendering_loss`                ``L_render``: L1 between log renderings of prediction and target
+                                      under the same light/view configurations
+:func:`discriminator_loss`            the discriminator's GAN objective on real and fake logits
+:func:`generator_adversarial_loss`    ``L_adv``: the generator's GAN objective on fake logits
+:func:`generator_loss`                ``L_G``, every term returned separately for logging
+====================================  ================================================================
+
+GAN objectives (``kind``), both computed from logits:
+
+- ``"bce"``: the paper's eq. 3, the standard GAN. The discriminator minimises
+  ``-log D(real) - log(1 - D(fake))``; the generator the non-saturating ``-log D(fake)``,
+  whose gradient stays near 1 where the discriminator rejects the fake with confidence
+  (the saturating ``log(1 - D(fake))`` has a gradient ``sigmoid(logit)`` that vanishes there).
+  Both use BCE-with-logits (a softplus), finite for any finite logit.
+- ``"lsgan"``: least squares (Mao et al. 2017), targets 1 for real and 0 for fake:
+  discriminator ``(D(real) - 1)^2 + D(fake)^2``, generator ``(D(fake) - 1)^2``, on the raw
+  logits. Its gradient grows linearly with the logit.
+
+The discriminator loss is the *sum* of its real and fake terms (eq. 3), not their mean as in
+pix2pix; halve the discriminator's learning rate to get pix2pix's step.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, fields
+from types import MappingProxyType
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from svbrdf_render import MAP_NAMES, SVBRDF, Scene, log_radiance, render
+
+__all__ = [
+    "MAP_WEIGHTS",
+    "GAN_KINDS",
+    "LossWeights",
+    "map_loss",
+    "rendering_loss",
+    "discriminator_loss",
+    "generator_adversarial_loss",
+    "generator_loss",
+]
+
+#: The paper's per-map weights of ``L_svbrdf`` (read-only).
+MAP_WEIGHTS: Mapping[str, float] = MappingProxyType(
+    {"normal": 1.0, "diffuse": 1.0, "roughness": 0.5, "specular": 0.5}
+)
+#: The GAN objectives :func:`discriminator_loss` and :func:`generator_adversarial_loss` know.
+GAN_KINDS = ("bce", "lsgan")
+
+
+# -- input checks ------------------------------------------------------------------------
+
+
+def _check_weight(what: str, value: float) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{what}: expected a number, got {type(value).__name__} {value!r}")
+    if not math.isfinite(value) or value < 0:
+        raise ValueError(f"{what}: expected a finite weight >= 0, got {value!r}")
+
+
+def _check_same_shape(fn: str, pred: SVBRDF, target: SVBRDF) -> None:
+    for name, t in (("pred", pred), ("target", target)):
+        if not isinstance(t, SVBRDF):
+            raise ValueError(f"{fn}: {name} must be an SVBRDF, got {type(t).__name__}")
+    if pred.shape != target.shape:
+        raise ValueError(
+            f"{fn}: pred and target must have the same (B, H, W); got {pred.shape} and {target.shape}"
+        )
+
+
+def _check_kind(fn: str, kind: str) -> None:
+    if kind not in GAN_KINDS:
+        raise ValueError(f"{fn}: unknown GAN kind {kind!r}; expected one of {', '.join(GAN_KINDS)}")
+
+
+def _check_logits(fn: str, what: str, logits: Sequence[Tensor]) -> None:
+    if isinstance(logits, Tensor):
+        raise ValueError(f"{fn}: {what} must be a list of logit maps (B, 1, h, w), got a single tensor")
+    if len(logits) == 0:
+        raise ValueError(f"{fn}: {what} is empty; expected at least one logit map (B, 1, h, w)")
+    for i, t in enumerate(logits):
+        if not isinstance(t, Tensor) or not t.is_floating_point():
+            got = t.dtype if isinstance(t, Tensor) else type(t).__name__
+            raise ValueError(f"{fn}: {what}[{i}] must be a floating-point tensor, got {got}")
+
+
+def _upcast(t: Tensor) -> Tensor:
+    """float16/bfloat16 logits to float32: ``logit^2`` overflows float16 above ~256."""
+    return t.float() if t.dtype in (torch.float16, torch.bfloat16) else t
+
+
+# -- L_svbrdf ----------------------------------------------------------------------------
+
+
+def map_loss(
+    pred: SVBRDF, target: SVBRDF, weights: Mapping[str, float] = MAP_WEIGHTS
+) -> tuple[Tensor, dict[str, Tensor]]:
+    """``L_svbrdf = sum_m w_m * mean|pred_m - target_m|`` over the maps named in ``weights``.
+
+    Args:
+        pred: predicted maps, ``(B, C, H, W)`` each.
+        target: ground-truth maps of the same ``(B, H, W)``.
+        weights: map name -> weight ``>= 0``; the paper's :data:`MAP_WEIGHTS` by default.
+            Maps not named are left out; a map with weight 0 still gets its L1 term (it is
+            cheap and worth logging) but adds nothing to the total.
+
+    Returns:
+        ``(total, terms)``: the weighted sum (a 0-dim tensor) and ``{map name: mean L1}``,
+        unweighted and still attached to the graph (log them with ``.item()``).
+
+    Raises:
+        ValueError: an unknown map name, a negative or non-finite weight, mismatched shapes.
+
+    Example:
+        >>> total, terms = map_loss(pred, target)
+        >>> sorted(terms)
+        ['diffuse', 'normal', 'roughness', 'specular']
+    """
+    _check_same_shape("map_loss", pred, target)
+    for name, w in weights.items():
+        if name not in MAP_NAMES:
+            raise ValueError(
+                f"map_loss: unknown map {name!r} in the map weights; expected some of {', '.join(MAP_NAMES)}"
+            )
+        _check_weight(f"map_loss: weight of {name!r}", w)
+    if not weights:
+        raise ValueError(f"map_loss: no map weights given; name some of {', '.join(MAP_NAMES)}")
+    terms = {name: (getattr(pred, name) - getattr(target, name)).abs().mean() for name in weights}
+    total = sum(weights[name] * term for name, term in terms.items())
+    return total, terms
+
+
+# -- L_render ----------------------------------------------------------------------------
+
+
+def rendering_loss(
+    pred: SVBRDF, target: SVBRDF, scene: Scene, eps: float = 0.01, backend: str = "eager"
+) -> Tensor:
+    """``L_render = mean |log(R(pred) + eps) - log(R(target) + eps)|`` over the scene's configurations.
+
+    Both map sets are rendered under the *same* scene, so configuration ``k`` of the
+    prediction is compared with configuration ``k`` of the target (sample the scene once per
+    step, e.g. with :func:`svbrdf_render.training_scene`, and pass it here). The target is
+    data: it is rendered under ``torch.no_grad()`` and gets no gradient.
+
+    Numerics: radiance goes through :func:`svbrdf_render.log_radiance` (clamped at 0 before
+    the log), so black renderings give ``log(eps)`` and the gradient per rendered value is at
+    most ``1 / eps``.
+
+    Args:
+        pred: predicted maps, ``(B, C, H, W)`` each.
+        target: ground-truth maps of the same ``(B, H, W)``.
+        scene: ``K`` light/view configurations (configuration shape ``()``, ``(K,)`` or ``(B, K)``).
+        eps: the offset inside the log, ``> 0``.
+        backend: the renderer backend, ``"eager"`` or ``"compiled"``.
+
+    Returns:
+        A 0-dim tensor: the mean over ``(B, K, 3, H, W)``.
+    """
+    _check_same_shape("rendering_loss", pred, target)
+    fake = render(pred, scene, backend=backend)
+    with torch.no_grad():
+        real = render(target, scene, backend=backend)
+    return (log_radiance(fake, eps) - log_radiance(real, eps)).abs().mean()
+
+
+# -- L_adv -------------------------------------------------------------------------------
+
+
+def discriminator_loss(real_logits: list[Tensor], fake_logits: list[Tensor], kind: str = "bce") -> Tensor:
+    """The discriminator's GAN loss: real judged real, fake judged fake.
+
+    ``"bce"``: ``softplus(-real) + softplus(fake)`` = ``-log D(real) - log(1 - D(fake))``.
+    ``"lsgan"``: ``(real - 1)^2 + fake^2``. Each term is the mean over a logit map; the loss
+    is the mean over the list (one map per discriminator head, e.g. one per SVBRDF map).
+
+    Args:
+        real_logits: ``[(B, 1, h, w), ...]``, the discriminator on ground truth.
+        fake_logits: as many maps, the discriminator on (detached) predictions.
+        kind: one of :data:`GAN_KINDS`.
+
+    Returns:
+        A 0-dim tensor. With all logits 0: ``2 log 2`` (``"bce"``) or ``1`` (``"lsgan"``).
+    """
+    _check_kind("discriminator_loss", kind)
+    _check_logits("discriminator_loss", "real_logits", real_logits)
+    _check_logits("discriminator_loss", "fake_logits", fake_logits)
+    if len(real_logits) != len(fake_logits):
+        raise ValueError(
+            f"discriminator_loss: {len(real_logits)} real and {len(fake_logits)} fake logit maps; "
+            "expected one of each per discriminator head"
+        )
+    losses = []
+    for real, fake in zip(real_logits, fake_logits, strict=True):
+        real, fake = _upcast(real), _upcast(fake)
+        if kind == "bce":
+            r = F.binary_cross_entropy_with_logits(real, torch.ones_like(real))
+            f = F.binary_cross_entropy_with_logits(fake, torch.zeros_like(fake))
+        else:
+            r = (real - 1).square().mean()
+            f = fake.square().mean()
+        losses.append(r + f)
+    return torch.stack(losses).mean()
+
+
+def generator_adversarial_loss(fake_logits: list[Tensor], kind: str = "bce") -> Tensor:
+    """``L_adv``: the generator's GAN loss, fake judged real.
+
+    ``"bce"``: the non-saturating ``-log D(fake)`` = ``softplus(-fake)``; its gradient
+    ``-(1 - sigmoid(fake))`` is about -1 where the discriminator is sure the fake is fake
+    (very negative logits), where the saturating ``log(1 - D(fake))`` would give ~0.
+    ``"lsgan"``: ``(fake - 1)^2``. Mean over each logit map, then over the list.
+
+    Args:
+        fake_logits: ``[(B, 1, h, w), ...]``, the discriminator on the prediction (not detached).
+        kind: one of :data:`GAN_KINDS`.
+
+    Returns:
+        A 0-dim tensor. With all logits 0: ``log 2`` (``"bce"``) or ``1`` (``"lsgan"``).
+    """
+    _check_kind("generator_adversarial_loss", kind)
+    _check_logits("generator_adversarial_loss", "fake_logits", fake_logits)
+    losses = []
+    for fake in fake_logits:
+        fake = _upcast(fake)
+        if kind == "bce":
+            losses.append(F.binary_cross_entropy_with_logits(fake, torch.ones_like(fake)))
+        else:
+            losses.append((fake - 1).square().mean())
+    return torch.stack(losses).mean()
+
+
+# -- L_G ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LossWeights:
+    """The weights of the generator loss terms (the paper's lambda_1..3). Set one to 0 to ablate it."""
+
+    adv: float = 0.1
+    """lambda_1: weight of the adversarial loss L_adv (0: no discriminator)."""
+    render: float = 0.5
+    """lambda_2: weight of the log rendering loss L_render (0: no rendering)."""
+    svbrdf: float = 0.5
+    """lambda_3: weight of the per-map L1 loss L_svbrdf."""
+
+    def __post_init__(self):
+        for f in fields(self):
+            _check_weight(f"LossWeights.{f.name}", getattr(self, f.name))
+        if self.adv == 0 and self.render == 0 and self.svbrdf == 0:
+            raise ValueError("LossWeights: every weight is 0, so there is nothing to train; set one > 0")
+
+
+def generator_loss(
+    pred: SVBRDF,
+    target: SVBRDF,
+    *,
+    scene: Scene | None = None,
+    weights: LossWeights = LossWeights(),  # noqa: B008 - frozen, so safe to share
+    map_weights: Mapping[str, float] = MAP_WEIGHTS,
+    fake_logits: list[Tensor] | None = None,
+    gan: str = "bce",
+    eps: float = 0.01,
+    backend: str = "eager",
+) -> tuple[Tensor, dict[str, Tensor]]:
+    """``L_G = adv * L_adv + render * L_render + svbrdf * L_svbrdf``, with every term for logging.
+
+    A term whose weight is 0 is *not computed*: with ``adv == 0`` no logits are needed (the
+    discriminator need not run), with ``render == 0`` nothing is rendered and ``scene`` is
+    not needed, with ``svbrdf == 0`` the maps are not compared. Such a term is absent from
+    the returned dict.
+
+    Args:
+        pred: predicted maps, ``(B, C, H, W)`` each.
+        target: ground-truth maps of the same ``(B, H, W)``.
+        scene: the light/view configurations of the rendering loss; required iff ``render > 0``.
+        weights: the term weights (the paper's 0.1, 0.5, 0.5 by default).
+        map_weights: the per-map weights of ``L_svbrdf`` (:func:`map_loss`).
+        fake_logits: the discriminator's logit maps on ``pred`` (graph attached to ``pred``);
+            required iff ``adv > 0``.
+        gan: the GAN objective, one of :data:`GAN_KINDS`.
+        eps: the offset inside the log of the rendering loss.
+        backend: the renderer backend of the rendering loss.
+
+    Returns:
+        ``(total, terms)``: ``total`` is ``L_G``; ``terms`` holds the *unweighted* terms
+        ``"adv"``, ``"render"``, ``"svbrdf"``, ``"map/<name>"`` of those computed, and
+        ``"total"``; every value is a 0-dim tensor still attached to the graph.
+    """
+    if not isinstance(weights, LossWeights):
+        raise ValueError(f"generator_loss: weights must be a LossWeights, got {type(weights).__name__}")
+    _check_kind("generator_loss", gan)
+    if weights.adv > 0 and fake_logits is None:
+        raise ValueError(
+            f"generator_loss: the adversarial weight is {weights.adv}, so fake_logits (the discriminator's "
+            "logits on pred) are required; pass them, or set LossWeights(adv=0) to train without L_adv"
+        )
+    if weights.adv == 0 and fake_logits is not None:
+        raise ValueError(
+            "generator_loss: fake_logits given but the adversarial weight is 0; "
+            "do not run the discriminator, or set LossWeights(adv=...) > 0"
+        )
+    if weights.render > 0 and scene is None:
+        raise ValueError(
+            f"generator_loss: the rendering weight is {weights.render}, so a scene is required "
+            "(e.g. svbrdf_render.training_scene(batch)); or set LossWeights(render=0)"
+        )
+
+    terms: dict[str, Tensor] = {}
+    total = None
+
+    def add(name: str, weight: float, value: Tensor) -> None:
+        nonlocal total
+        terms[name] = value
+        total = weight * value if total is None else total + weight * value
+
+    if weights.adv > 0:
+        add("adv", weights.adv, generator_adversarial_loss(fake_logits, gan))
+    if weights.render > 0:
+        add("render", weights.render, rendering_loss(pred, target, scene, eps=eps, backend=backend))
+    if weights.svbrdf > 0:
+        svbrdf, per_map = map_loss(pred, target, map_weights)
+        add("svbrdf", weights.svbrdf, svbrdf)
+        terms.update({f"map/{name}": value for name, value in per_map.items()})
+    terms["total"] = total
+    return total, terms
