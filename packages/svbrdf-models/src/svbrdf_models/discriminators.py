@@ -24,6 +24,7 @@ from torch import Tensor, nn
 from svbrdf_render import MAP_NAMES, SVBRDF
 
 from ._config import param
+from ._init import normal_init
 from ._registry import ModelSpec
 
 __all__ = [
@@ -120,7 +121,7 @@ class PatchGANDiscriminator(nn.Module):
         self.config = config
         self.net = PatchGAN(3 * config.renderings, config.base_channels, config.layers, config.norm)
         if config.init_std > 0:
-            self.apply(lambda m: _init_weights(m, config.init_std))
+            normal_init(self, config.init_std)
 
     def forward(self, maps: SVBRDF | None = None, renderings: Tensor | None = None) -> list[Tensor]:
         if renderings is None:
@@ -147,7 +148,7 @@ class MultiGANDiscriminator(nn.Module):
             }
         )
         if config.init_std > 0:
-            self.apply(lambda m: _init_weights(m, config.init_std))
+            normal_init(self, config.init_std)
 
     def forward(self, maps: SVBRDF | None = None, renderings: Tensor | None = None) -> list[Tensor]:
         if maps is None:
@@ -157,13 +158,6 @@ class MultiGANDiscriminator(nn.Module):
             m = getattr(maps, name)
             out.append(self.nets[name](m if name == "normal" else m * 2.0 - 1.0))
         return out
-
-
-def _init_weights(m: nn.Module, std: float) -> None:
-    if isinstance(m, nn.Conv2d):
-        nn.init.normal_(m.weight, 0.0, std)
-        if m.bias is not None:
-            nn.init.zeros_(m.bias)
 
 
 #: ``tiny`` keeps tests fast; ``paper`` is the default.

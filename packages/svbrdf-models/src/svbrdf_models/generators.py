@@ -32,6 +32,7 @@ from torch import Tensor, nn
 from svbrdf_render import SVBRDF
 
 from ._config import param
+from ._init import normal_init
 from ._registry import ModelSpec, create_attention
 
 __all__ = ["GeneratorConfig", "UNetGenerator", "encode_photo", "OURS", "UNET", "NO_ATTN", "PRESETS"]
@@ -198,7 +199,7 @@ class UNetGenerator(nn.Module):
             own = [m for b in self.down for m in (b.conv, b.fc)] + [m for m in self.up]
             for layer in own:
                 if layer is not None:
-                    layer.apply(lambda m: _init_weights(m, config.init_std))
+                    normal_init(layer, config.init_std)
 
     def forward(self, photo: Tensor) -> SVBRDF:
         _check_photo(photo, 2**self.config.depth)
@@ -241,13 +242,6 @@ def _check_photo(photo: Tensor, multiple: int) -> None:
             f"generator input: H and W must be multiples of {multiple} (2**depth), got {h}x{w}; "
             "crop or resize the photo, or use a smaller depth"
         )
-
-
-def _init_weights(m: nn.Module, std: float) -> None:
-    if isinstance(m, (nn.Conv2d, nn.ConvTranspose2d, nn.Linear)):
-        nn.init.normal_(m.weight, 0.0, std)
-        if m.bias is not None:
-            nn.init.zeros_(m.bias)
 
 
 _DESCRIPTION = "U-Net with global track and multi-scale attention per level (the paper's generator)"
