@@ -149,7 +149,13 @@ def map_loss(
 
 
 def rendering_loss(
-    pred: SVBRDF, target: SVBRDF, scene: Scene, eps: float = 0.01, backend: str = "eager"
+    pred: SVBRDF,
+    target: SVBRDF,
+    scene: Scene,
+    eps: float = 0.01,
+    backend: str = "eager",
+    *,
+    rendered: tuple[Tensor, Tensor] | None = None,
 ) -> Tensor:
     """``L_render = mean |log(R(pred) + eps) - log(R(target) + eps)|`` over the scene's configurations.
 
@@ -168,14 +174,26 @@ def rendering_loss(
         scene: ``K`` light/view configurations (configuration shape ``()``, ``(K,)`` or ``(B, K)``).
         eps: the offset inside the log, ``> 0``.
         backend: the renderer backend, ``"eager"`` or ``"compiled"``.
+        rendered: ``(render(pred, scene), render(target, scene))`` when the caller has them
+            already (the trainer renders once for this loss and the discriminator); then
+            ``scene`` and ``backend`` are not used.
 
     Returns:
         A 0-dim tensor: the mean over ``(B, K, 3, H, W)``.
     """
     _check_same_shape("rendering_loss", pred, target)
-    fake = render(pred, scene, backend=backend)
-    with torch.no_grad():
-        real = render(target, scene, backend=backend)
+    if rendered is not None:
+        fake, real = rendered
+        if fake.shape != real.shape or fake.shape[0] != pred.batch_size:
+            raise ValueError(
+                f"rendering_loss: rendered must be two (B, K, 3, H, W) tensors of pred's batch; got "
+                f"{tuple(fake.shape)} and {tuple(real.shape)}"
+            )
+        real = real.detach()
+    else:
+        fake = render(pred, scene, backend=backend)
+        with torch.no_grad():
+            real = render(target, scene, backend=backend)
     return (log_radiance(fake, eps) - log_radiance(real, eps)).abs().mean()
 
 
@@ -277,6 +295,7 @@ def generator_loss(
     gan: str = "bce",
     eps: float = 0.01,
     backend: str = "eager",
+    rendered: tuple[Tensor, Tensor] | None = None,
 ) -> tuple[Tensor, dict[str, Tensor]]:
     """``L_G = adv * L_adv + render * L_render + svbrdf * L_svbrdf``, with every term for logging.
 
@@ -296,6 +315,8 @@ def generator_loss(
         gan: the GAN objective, one of :data:`GAN_KINDS`.
         eps: the offset inside the log of the rendering loss.
         backend: the renderer backend of the rendering loss.
+        rendered: ``(render(pred, scene), render(target, scene))`` if already computed
+            (see :func:`rendering_loss`); saves rendering the prediction twice.
 
     Returns:
         ``(total, terms)``: ``total`` is ``L_G``; ``terms`` holds the *unweighted* terms
@@ -315,7 +336,7 @@ def generator_loss(
             "generator_loss: fake_logits given but the adversarial weight is 0; "
             "do not run the discriminator, or set LossWeights(adv=...) > 0"
         )
-    if weights.render > 0 and scene is None:
+    if weights.render > 0 and scene is None and rendered is None:
         raise ValueError(
             f"generator_loss: the rendering weight is {weights.render}, so a scene is required "
             "(e.g. svbrdf_render.training_scene(batch)); or set LossWeights(render=0)"
@@ -332,7 +353,11 @@ def generator_loss(
     if weights.adv > 0:
         add("adv", weights.adv, generator_adversarial_loss(fake_logits, gan))
     if weights.render > 0:
-        add("render", weights.render, rendering_loss(pred, target, scene, eps=eps, backend=backend))
+        add(
+            "render",
+            weights.render,
+            rendering_loss(pred, target, scene, eps=eps, backend=backend, rendered=rendered),
+        )
     if weights.svbrdf > 0:
         svbrdf, per_map = map_loss(pred, target, map_weights)
         add("svbrdf", weights.svbrdf, svbrdf)

@@ -44,6 +44,9 @@ __all__ = [
     "recipe_path",
     "load_recipe",
     "parse_overrides",
+    "recipe_from_dict",
+    "recipe_differences",
+    "with_overrides",
 ]
 
 RECIPE_GROUP = "svbrdf.recipes"
@@ -293,10 +296,21 @@ def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
         if not sep or "." not in key:
             raise RecipeError(f"--set {item!r}: expected section.field=value, e.g. --set loss.adv=0")
         try:
-            out[key.strip()] = yaml.safe_load(raw)
+            value = yaml.safe_load(raw)
         except yaml.YAMLError as e:
             raise RecipeError(f"--set {item!r}: the value is not valid YAML: {e}") from None
+        out[key.strip()] = _number(value)
     return out
+
+
+def _number(value: Any) -> Any:
+    """YAML 1.1 reads ``1e30`` and ``2e-4`` (no dot) as strings; people mean numbers."""
+    if isinstance(value, str) and value.strip().lower().lstrip("+-").replace(".", "", 1)[:1].isdigit():
+        try:
+            return float(value)
+        except ValueError:
+            return value
+    return value
 
 
 def _apply(
@@ -397,3 +411,57 @@ def load_recipe(
         train=build("train") or TrainSection(),
         source=str(path),
     )
+
+
+def recipe_from_dict(data: Mapping[str, Any], *, where: str = "recipe") -> Recipe:
+    """The :class:`Recipe` that ``Recipe.to_dict()`` wrote (e.g. into a checkpoint)."""
+    try:
+        sections = {
+            name: (None if data.get(name) is None else build_config(cls, data[name], what=f"{where}: {name}"))
+            for name, cls in _SECTIONS.items()
+        }
+    except ConfigError as e:
+        raise RecipeError(str(e)) from None
+    return Recipe(
+        name=str(data.get("name", "recipe")),
+        size=str(data.get("size", "paper")),
+        description=str(data.get("description", "")),
+        source=str(data.get("source", "")),
+        **sections,
+    )
+
+
+def _flat(value: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(value, Mapping):
+        out: dict[str, Any] = {}
+        for k, v in value.items():
+            out.update(_flat(v, f"{prefix}{k}."))
+        return out or {prefix[:-1]: {}}
+    return {prefix[:-1]: value}
+
+
+def recipe_differences(a: Recipe, b: Recipe, ignore: Iterable[str] = ()) -> list[str]:
+    """Dotted fields whose values differ between two recipes (``"loss.adv: 0.1 -> 0.0"``).
+
+    ``ignore`` lists dotted prefixes to leave out (e.g. ``"train.max_steps"``); the recipe's
+    name, size, description and source file are not compared.
+    """
+    fa, fb = _flat(a.to_dict()), _flat(b.to_dict())
+    skip = ("name", "size", "description", "source", *ignore)
+    out = []
+    for key in sorted(set(fa) | set(fb)):
+        if any(key == p or key.startswith(p + ".") for p in skip):
+            continue
+        if fa.get(key, "(unset)") != fb.get(key, "(unset)"):
+            out.append(f"{key}: {fa.get(key, '(unset)')!r} -> {fb.get(key, '(unset)')!r}")
+    return out
+
+
+def with_overrides(recipe: Recipe, overrides: Mapping[str, Any], where: str = "--set") -> Recipe:
+    """``recipe`` with dotted ``overrides`` applied (as ``--set`` does), checked again."""
+    if not overrides:
+        return recipe
+    data = recipe.to_dict()
+    meta = {k: data.pop(k) for k in ("name", "size", "description", "source")}
+    sections = _apply(data, overrides, f"{where} (recipe {meta['source'] or meta['name']})")
+    return recipe_from_dict({**sections, **meta}, where=where)

@@ -22,7 +22,7 @@ from svbrdf_render.mapfiles import linear_to_srgb
 
 from ..errors import DataError
 
-__all__ = ["contact_sheet", "COLUMNS"]
+__all__ = ["contact_sheet", "image_grid", "map_tiles", "COLUMNS"]
 
 #: Column titles, left to right (after the label column).
 COLUMNS = ("input", "normal", "diffuse", "roughness", "specular")
@@ -39,6 +39,18 @@ def _font(size: int):
         return ImageFont.load_default()
 
 
+def map_tiles(maps: Tensor) -> list[Tensor]:
+    """The four maps of one packed sample ``(10, H, W)`` as display images ``(3, H, W)`` in [0, 1]:
+    normal as ``(n + 1) / 2``, albedos sRGB-encoded, roughness grey."""
+    m = maps.detach().float().cpu()
+    return [
+        ((m[0:3] + 1) / 2).clamp(0, 1),
+        linear_to_srgb(m[3:6]),
+        m[6:7].clamp(0, 1).expand(3, -1, -1),
+        linear_to_srgb(m[7:10]),
+    ]
+
+
 def _tiles(batch: dict[str, Any], input_encoding: str) -> list[list[Tensor]]:
     """Per sample, the five ``(3, H, W)`` display images in [0, 1]."""
     photos, maps = batch.get("input"), batch.get("maps")
@@ -49,21 +61,9 @@ def _tiles(batch: dict[str, Any], input_encoding: str) -> list[list[Tensor]]:
             f"contact sheet: expected input (B, 3, H, W) and maps (B, 10, H, W), got "
             f"{tuple(photos.shape)} and {tuple(maps.shape)}"
         )
-    photos, maps = photos.detach().float().cpu(), maps.detach().float().cpu()
+    photos = photos.detach().float().cpu()
     shown = linear_to_srgb(photos) if input_encoding == "linear" else photos.clamp(0, 1)
-    rows = []
-    for k in range(maps.shape[0]):
-        m = maps[k]
-        rows.append(
-            [
-                shown[k],
-                ((m[0:3] + 1) / 2).clamp(0, 1),
-                linear_to_srgb(m[3:6]),
-                m[6:7].clamp(0, 1).expand(3, -1, -1),
-                linear_to_srgb(m[7:10]),
-            ]
-        )
-    return rows
+    return [[shown[k], *map_tiles(maps[k])] for k in range(maps.shape[0])]
 
 
 def contact_sheet(
@@ -87,18 +87,30 @@ def contact_sheet(
         ``(3, H', W')`` display-encoded values in [0, 1] (8-bit steps), ready for
         ``svbrdf_render.write_image``.
     """
-    from PIL import Image, ImageDraw
-
     if input_encoding not in ("linear", "srgb"):
         raise DataError(f"contact sheet: input_encoding must be 'linear' or 'srgb', got {input_encoding!r}")
     rows = _tiles(batch, input_encoding)
-    n = len(rows)
     if labels is None:
         names = batch.get("name")
-        labels = [str(s) for s in names] if names is not None else [str(k) for k in range(n)]
+        labels = [str(s) for s in names] if names is not None else [str(k) for k in range(len(rows))]
+    return image_grid(rows, COLUMNS, labels, gap=gap)
+
+
+def image_grid(
+    rows: Sequence[Sequence[Tensor]], columns: Sequence[str], labels: Sequence[str], *, gap: int = 4
+) -> Tensor:
+    """Tiles ``(3, H, W)`` in [0, 1] laid out in rows, under column titles, each row labelled.
+
+    Returns ``(3, H', W')`` values in [0, 1] (8-bit steps), ready for ``svbrdf_render.write_image``.
+    """
+    from PIL import Image, ImageDraw
+
+    n = len(rows)
     labels = list(labels)
     if len(labels) != n:
-        raise DataError(f"contact sheet: {len(labels)} labels for {n} samples")
+        raise DataError(f"image grid: {len(labels)} labels for {n} rows")
+    if n == 0:
+        raise DataError("image grid: no rows to draw")
     h, w = rows[0][0].shape[-2:]
     font = _font(max(10, min(h, w) // 14))
     draw = ImageDraw.Draw(Image.new("RGB", (1, 1)))
@@ -108,23 +120,22 @@ def contact_sheet(
         return right - left, bottom - top
 
     label_w = max(text_size(s)[0] for s in labels) + 2 * gap
-    header_h = max(text_size(c)[1] for c in COLUMNS) + 3 * gap
-    width = label_w + len(COLUMNS) * (w + gap) + gap
+    header_h = max(text_size(c)[1] for c in columns) + 3 * gap
+    width = label_w + len(columns) * (w + gap) + gap
     height = header_h + n * (h + gap)
     canvas = np.full((height, width, 3), _BACKGROUND, dtype=np.uint8)
     for r, tiles in enumerate(rows):
         top = header_h + r * (h + gap)
         for c, tile in enumerate(tiles):
             left = label_w + c * (w + gap) + gap
-            pixels = (tile.permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
-            canvas[top : top + h, left : left + w] = pixels
+            pixels = (tile.detach().float().cpu().clamp(0, 1).permute(1, 2, 0).numpy() * 255).round()
+            canvas[top : top + h, left : left + w] = pixels.astype(np.uint8)
     image = Image.fromarray(canvas)
     draw = ImageDraw.Draw(image)
-    for c, title in enumerate(COLUMNS):
+    for c, title in enumerate(columns):
         tw, _ = text_size(title)
         draw.text((label_w + c * (w + gap) + gap + (w - tw) // 2, gap), title, fill=_TEXT, font=font)
     for r, label in enumerate(labels):
         _, th = text_size(label)
         draw.text((gap, header_h + r * (h + gap) + (h - th) // 2), label, fill=_TEXT, font=font)
-    out = torch.from_numpy(np.asarray(image).copy()).permute(2, 0, 1).float() / 255
-    return out
+    return torch.from_numpy(np.asarray(image).copy()).permute(2, 0, 1).float() / 255
