@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from svbrdf_render import SVBRDFError
 
-__all__ = ["DataError", "ShardError", "RecipeError"]
+__all__ = ["DataError", "ShardError", "RecipeError", "CheckpointError", "TrainingError", "TrackingError"]
 
 
 class DataError(SVBRDFError):
@@ -18,3 +18,15 @@ class ShardError(DataError):
 
 class RecipeError(SVBRDFError):
     """A recipe that cannot be used: unknown name, section or field, or a bad value; names the file."""
+
+
+class CheckpointError(SVBRDFError):
+    """A checkpoint that cannot be read or resumed: missing, corrupted, or from another recipe or setup."""
+
+
+class TrainingError(SVBRDFError):
+    """A fit that cannot start or go on: a non-finite loss, inconsistent settings, a data set too small."""
+
+
+class TrackingError(SVBRDFError):
+    """The MLflow store cannot be reached or refuses the run; names the store and what to do."""

@@ -1,0 +1,115 @@
+"""The one-line progress display of a fit: step, losses, samples/s, ETA.
+
+On a terminal the line is redrawn in place (at most 10 times a second); into a file or a
+pipe (CI logs, ``nohup``) a full line is printed every ``every_s`` seconds instead, so logs
+stay readable.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Mapping
+from typing import TextIO
+
+__all__ = ["Progress", "format_duration"]
+
+
+def format_duration(seconds: float) -> str:
+    """``75`` -> ``"1m15s"``; ``4000`` -> ``"1h06m"``."""
+    s = max(0, int(round(seconds)))
+    if s < 60:
+        return f"{s}s"
+    if s < 3600:
+        return f"{s // 60}m{s % 60:02d}s"
+    return f"{s // 3600}h{(s % 3600) // 60:02d}m"
+
+
+class Progress:
+    """Shows how far a fit is. ``update`` is cheap to call every step.
+
+    Args:
+        total: the step the fit stops at (its step budget).
+        start: the step it starts from (non-zero after ``--resume``).
+        budget_s: the training-time budget in seconds, if any: the ETA is the sooner of the two.
+        enabled: False shows no progress line (``--quiet``).
+        messages: False shows no messages either (ranks > 0).
+    """
+
+    def __init__(
+        self,
+        total: int,
+        *,
+        start: int = 0,
+        budget_s: float | None = None,
+        enabled: bool = True,
+        messages: bool = True,
+        stream: TextIO | None = None,
+        every_s: float = 10.0,
+    ):
+        self.total, self.start, self.budget_s = total, start, budget_s
+        self.enabled = enabled and messages
+        self.messages = messages
+        self.stream = stream or sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.every_s = every_s if not self.tty else 0.1
+        self._last = 0.0
+        self._width = 0
+
+    def line(self, step: int, losses: Mapping[str, float], samples_per_s: float, train_s: float) -> str:
+        pct = 100.0 * step / max(self.total, 1)
+        parts = [f"step {step}/{self.total} {pct:3.0f}%"]
+        if losses:
+            parts.append(" ".join(f"{k} {v:.4g}" for k, v in losses.items()))
+        parts.append(f"{samples_per_s:.1f} samples/s")
+        done = step - self.start
+        eta = None
+        if done > 0 and train_s > 0:
+            eta = (self.total - step) * train_s / done
+        if self.budget_s is not None:
+            left = max(0.0, self.budget_s - train_s)
+            eta = left if eta is None else min(eta, left)
+        if eta is not None:
+            parts.append(f"ETA {format_duration(eta)}")
+        return " | ".join(parts)
+
+    def update(
+        self,
+        step: int,
+        losses: Mapping[str, float],
+        samples_per_s: float,
+        train_s: float,
+        *,
+        force: bool = False,
+    ) -> None:
+        if not self.enabled:
+            return
+        now = time.monotonic()
+        if not force and now - self._last < self.every_s:
+            return
+        self._last = now
+        text = self.line(step, losses, samples_per_s, train_s)
+        if self.tty:
+            pad = max(0, self._width - len(text))
+            self.stream.write("\r" + text + " " * pad)
+            self._width = len(text)
+        else:
+            self.stream.write(text + "\n")
+        self.stream.flush()
+
+    def message(self, text: str) -> None:
+        """A line of its own, above the progress line."""
+        if not self.messages:
+            return
+        if self.tty and self._width:
+            self.stream.write("\r" + " " * self._width + "\r")
+            self._width = 0
+            self._last = 0.0
+        self.stream.write(text + "\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.enabled and self.tty and self._width:
+            self.stream.write("\n")
+            self.stream.flush()
+            self._width = 0

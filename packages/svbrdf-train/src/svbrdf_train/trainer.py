@@ -1,0 +1,755 @@
+"""The GAN trainer: one fit of a recipe, tracked in MLflow, resumable, on one process or many.
+
+A step (``step`` counts generator steps)::
+
+    pred = G(photo)
+    renderings of pred and of the truth under N light/view configurations (Deschaintre 2018)
+    every g_steps_per_d steps: D learns real (truth) against fake (pred, detached)
+    L_G = adv * L_adv(D(pred)) + render * L_render + svbrdf * L_svbrdf;  G steps
+
+The discriminator sees log renderings (``log(R + eps)``, as the rendering loss compares them)
+of all N configurations, or the maps themselves for ``multi``. Learning rates follow the
+paper's step decay (``decay`` every ``decay_every_epochs``). Training time is counted
+without validation and checkpoint writing, so ``max_minutes`` budgets compare models fairly.
+
+Stopping: at the step budget (``epochs``, ``max_steps``) or the time budget; on a non-finite
+loss (FAILED: nothing is stepped with it and the last checkpoint stays as it was); on Ctrl-C
+or SIGTERM (KILLED, after saving a checkpoint at the end of the current step).
+
+Reproducibility: every random draw comes from the seed, the step and RNG states saved in the
+checkpoint, so a fit stopped at any point and resumed reaches the same weights as one that
+never stopped; bitwise on CPU with the same number of threads and processes.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor, nn
+from torch.utils.data import DataLoader, Dataset, DistributedSampler, Sampler, Subset
+
+from svbrdf_models import create_discriminator, create_generator, resolve_config
+from svbrdf_render import (
+    DES18_DISTANCE,
+    SVBRDF,
+    Scene,
+    evaluation_scene,
+    log_radiance,
+    render,
+    training_scene,
+)
+
+from . import distributed
+from .checkpoint import CHECKPOINT_NAME, load_checkpoint, rng_state, save_checkpoint, set_rng_state
+from .errors import CheckpointError, TrainingError
+from .losses import LossWeights, discriminator_loss, generator_loss
+from .metrics import METRIC_NAMES, display_rendering, map_rmse, render_rmse
+from .progress import Progress, format_duration
+from .recipe import Recipe, recipe_differences, recipe_from_dict
+from .tracking import Tracker, flatten_params, run_tags
+
+__all__ = ["FitOptions", "FitResult", "fit", "RESUMABLE_CHANGES", "load_generator"]
+
+#: Recipe fields a ``--resume`` may change: budgets, cadences and loader workers.
+RESUMABLE_CHANGES = (
+    "train.epochs",
+    "train.max_steps",
+    "train.max_minutes",
+    "train.log_every",
+    "train.validate_every",
+    "train.checkpoint_every",
+    "data.workers",
+)
+#: Samples drawn in the sample grid of each validation.
+GRID_SAMPLES = 4
+#: Tiles of the sample grid smaller than this many pixels are enlarged (nearest neighbour).
+GRID_MIN_SIZE = 96
+
+
+@dataclass
+class FitOptions:
+    """How to run a fit (the recipe says what to train).
+
+    Attributes:
+        out: folder of the checkpoint (``last.pt``), the resolved recipe and sample grids.
+        resume: continue from ``out/last.pt`` (and its MLflow run).
+        force: start afresh even though ``out`` holds a checkpoint (it is replaced).
+        device: ``auto``, ``cpu``, ``cuda`` or ``cuda:K``.
+        experiment: MLflow experiment name.
+        run_name: MLflow run name (default ``<recipe>-<size>``).
+        progress: show the progress line.
+        track: log to MLflow (rank 0); False records nothing but the local files.
+    """
+
+    out: Path
+    resume: bool = False
+    force: bool = False
+    device: str = "auto"
+    experiment: str = "svbrdf"
+    run_name: str | None = None
+    progress: bool = True
+    track: bool = True
+
+
+@dataclass
+class FitResult:
+    """How a fit ended. ``status`` is MLflow's: FINISHED, FAILED or KILLED."""
+
+    status: str
+    step: int
+    total_steps: int
+    run_id: str | None
+    checkpoint: Path | None
+    train_seconds: float
+    message: str
+    metrics: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def exit_code(self) -> int:
+        return {"FINISHED": 0, "KILLED": 130}.get(self.status, 1)
+
+
+# -- pieces ---------------------------------------------------------------------------------
+
+
+def _unwrap(module: nn.Module) -> nn.Module:
+    return module.module if isinstance(module, nn.parallel.DistributedDataParallel) else module
+
+
+def _scene_rows(scene: Scene, start: int, stop: int) -> Scene:
+    """The materials ``start:stop`` of a per-material ``(B, K)`` scene."""
+
+    def rows(t):
+        return t[start:stop] if isinstance(t, Tensor) and t.dim() >= 2 else t
+
+    cam = replace(
+        scene.camera, position=rows(scene.camera.position), directional=rows(scene.camera.directional)
+    )
+    lights = tuple(
+        replace(
+            lt, position=rows(lt.position), intensity=rows(lt.intensity), directional=rows(lt.directional)
+        )
+        for lt in scene.point_lights
+    )
+    return replace(scene, camera=cam, lights=lights)
+
+
+class _From(Sampler[int]):
+    """The indices of ``sampler`` from position ``start`` on (to resume mid-epoch)."""
+
+    def __init__(self, sampler: Sampler[int], start: int, length: int):
+        self.sampler, self.start, self.length = sampler, start, length
+
+    def __iter__(self) -> Iterator[int]:
+        for i, index in enumerate(self.sampler):
+            if i >= self.length:
+                return
+            if i >= self.start:
+                yield index
+
+    def __len__(self) -> int:
+        return self.length - self.start
+
+
+def _set_epoch(data: Dataset, epoch: int) -> None:
+    while isinstance(data, Subset):
+        data = data.dataset
+    if hasattr(data, "set_epoch"):
+        data.set_epoch(epoch)
+
+
+def _first_bad(terms: dict[str, Tensor]) -> str | None:
+    for name, value in terms.items():
+        if not torch.isfinite(value.detach()).all():
+            return name
+    return None
+
+
+def _count_params(module: nn.Module | None) -> int:
+    return 0 if module is None else sum(p.numel() for p in module.parameters())
+
+
+def load_generator(
+    checkpoint: dict[str, Any], device: str | torch.device = "cpu"
+) -> tuple[nn.Module, Recipe]:
+    """The generator of a checkpoint (eval mode) and the recipe it was trained with."""
+    recipe = recipe_from_dict(checkpoint.get("recipe") or {}, where="checkpoint recipe")
+    if recipe.generator is None or checkpoint.get("generator") is None:
+        raise CheckpointError("the checkpoint names no generator (its recipe or weights are missing)")
+    g = create_generator(recipe.generator.name, recipe.generator.config)
+    g.load_state_dict(checkpoint["generator"])
+    return g.to(device).eval(), recipe
+
+
+# -- the fit --------------------------------------------------------------------------------
+
+
+class _Interrupt:
+    """Ctrl-C / SIGTERM: the first asks to stop after the current step, the second stops now."""
+
+    def __init__(self, progress: Progress):
+        self.requested: str | None = None
+        self.progress = progress
+        self._old: dict[int, Any] = {}
+
+    def __enter__(self):
+        if hasattr(signal, "SIGTERM"):
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                try:
+                    self._old[sig] = signal.signal(sig, self._handle)
+                except ValueError:  # not the main thread: leave signals alone
+                    pass
+        return self
+
+    def _handle(self, signum, frame):
+        name = signal.Signals(signum).name
+        if self.requested is not None:
+            raise KeyboardInterrupt
+        self.requested = name
+        self.progress.message(f"{name}: saving a checkpoint after this step (again to stop at once)")
+
+    def __exit__(self, *exc):
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+
+class _Fit:
+    def __init__(self, recipe: Recipe, options: FitOptions, dist: distributed.Dist, state: dict | None):
+        self.recipe, self.options, self.dist = recipe, options, dist
+        self.device = dist.device
+        t, o = recipe.train, recipe.optim
+        self.out = Path(options.out)
+        self.ckpt_path = self.out / CHECKPOINT_NAME
+
+        torch.manual_seed(t.seed)
+        self.G = create_generator(recipe.generator.name, recipe.generator.config).to(self.device)
+        self.D = None
+        if recipe.discriminator is not None:
+            d_config = resolve_config("discriminator", recipe.discriminator.name, recipe.discriminator.config)
+            wants = getattr(d_config, "renderings", None)
+            if wants is not None and wants != t.renderings:
+                raise TrainingError(
+                    f"{recipe.source}: discriminator.config.renderings is {wants} but train.renderings is "
+                    f"{t.renderings}; the discriminator judges the renderings the loss draws: set both alike"
+                )
+            self.D = create_discriminator(recipe.discriminator.name, recipe.discriminator.config).to(
+                self.device
+            )
+        self.g_opt = torch.optim.Adam(self.G.parameters(), lr=o.lr, betas=tuple(o.betas))
+        self.d_opt = (
+            torch.optim.Adam(self.D.parameters(), lr=o.d_lr, betas=tuple(o.betas))
+            if self.D is not None
+            else None
+        )
+
+        from .fitdata import build_datasets
+
+        self.train_set, self.val_set = build_datasets(recipe)
+        per_step = t.batch * dist.world
+        self.steps_per_epoch = len(self.train_set) // per_step
+        if self.steps_per_epoch == 0:
+            raise TrainingError(
+                f"{recipe.source}: {len(self.train_set)} training samples do not fill one step of "
+                f"{t.batch} x {dist.world} process(es); lower train.batch or add data (data.count)"
+            )
+        total = t.epochs * self.steps_per_epoch
+        self.total_steps = min(total, t.max_steps) if t.max_steps is not None else total
+        decay_steps = o.decay_every_epochs * self.steps_per_epoch
+        self.g_sched = torch.optim.lr_scheduler.StepLR(self.g_opt, decay_steps, gamma=o.decay)
+        self.d_sched = (
+            torch.optim.lr_scheduler.StepLR(self.d_opt, decay_steps, gamma=o.decay) if self.d_opt else None
+        )
+        self.scene_gen = torch.Generator().manual_seed(t.seed + 7919)
+        self.weights = LossWeights(adv=recipe.loss.adv, render=recipe.loss.render, svbrdf=recipe.loss.svbrdf)
+        self.step = 0
+        self.train_seconds = 0.0
+        self.run_id: str | None = None
+        if state is not None:
+            self._restore(state)
+        else:
+            # Dropout masks differ per process; the weights above are the same everywhere.
+            torch.manual_seed(t.seed * 1000 + 1 + dist.rank)
+
+        if dist.active:
+            from torch.nn.parallel import DistributedDataParallel as DDP
+
+            ids = [self.device.index] if self.device.type == "cuda" else None
+            self.G = DDP(self.G, device_ids=ids)
+            if self.D is not None:
+                self.D = DDP(self.D, device_ids=ids)
+        self.eval_scene = evaluation_scene(device=self.device)
+        self.flash = Scene.flash(intensity=math.pi * DES18_DISTANCE**2).to(self.device)
+
+    # -- state ------------------------------------------------------------------------------
+
+    def _restore(self, state: dict) -> None:
+        if state.get("world_size", 1) != self.dist.world:
+            raise CheckpointError(
+                f"{self.ckpt_path}: written by {state.get('world_size')} process(es), resumed with "
+                f"{self.dist.world}; resume with --nproc_per_node={state.get('world_size')} "
+                "(the data order and batch depend on it)"
+            )
+        self.G.load_state_dict(state["generator"])
+        if self.D is not None:
+            self.D.load_state_dict(state["discriminator"])
+            self.d_opt.load_state_dict(state["optimizers"]["d"])
+            self.d_sched.load_state_dict(state["schedulers"]["d"])
+        self.g_opt.load_state_dict(state["optimizers"]["g"])
+        self.g_sched.load_state_dict(state["schedulers"]["g"])
+        self.step = int(state["step"])
+        self.train_seconds = float(state.get("train_seconds", 0.0))
+        self.run_id = state.get("run_id")
+        set_rng_state(state["rng"][self.dist.rank], self.scene_gen)
+
+    def _state(self, rngs: list) -> dict:
+        return {
+            "recipe": self.recipe.to_dict(),
+            "step": self.step,
+            "epoch": self.step // self.steps_per_epoch,
+            "generator": _unwrap(self.G).state_dict(),
+            "discriminator": _unwrap(self.D).state_dict() if self.D is not None else None,
+            "optimizers": {
+                "g": self.g_opt.state_dict(),
+                "d": self.d_opt.state_dict() if self.d_opt else None,
+            },
+            "schedulers": {
+                "g": self.g_sched.state_dict(),
+                "d": self.d_sched.state_dict() if self.d_sched else None,
+            },
+            "rng": rngs,
+            "run_id": self.run_id,
+            "train_seconds": self.train_seconds,
+            "world_size": self.dist.world,
+        }
+
+    def save(self, tracker: Tracker) -> None:
+        """Every rank's RNG state to rank 0, which writes the checkpoint and logs it."""
+        rngs = self.dist.gather(rng_state(self.scene_gen))
+        if self.dist.main:
+            save_checkpoint(self.ckpt_path, self._state(rngs))
+            tracker.log_artifact(self.ckpt_path, "checkpoints")
+        self.dist.barrier()
+
+    # -- data -------------------------------------------------------------------------------
+
+    def batches(self) -> Iterator[dict]:
+        """Batches from the current step to the end of the step budget."""
+        t = self.recipe.train
+        while self.step < self.total_steps:
+            epoch, offset = divmod(self.step, self.steps_per_epoch)
+            _set_epoch(self.train_set, epoch)
+            sampler = DistributedSampler(
+                self.train_set,
+                num_replicas=self.dist.world,
+                rank=self.dist.rank,
+                shuffle=True,
+                seed=t.seed,
+                drop_last=True,
+            )
+            sampler.set_epoch(epoch)
+            loader = DataLoader(
+                self.train_set,
+                batch_size=t.batch,
+                sampler=_From(sampler, offset * t.batch, self.steps_per_epoch * t.batch),
+                num_workers=self.recipe.data.workers,
+                drop_last=True,
+                pin_memory=self.device.type == "cuda",
+                # Worker seeds from (seed, epoch), not from the global RNG, which would then
+                # depend on how often a loader was made (resuming mid-epoch makes one more).
+                generator=torch.Generator().manual_seed(t.seed * 100_003 + epoch),
+            )
+            for batch in loader:
+                yield batch
+                if self.step >= self.total_steps:
+                    return
+
+    def scene(self) -> Scene:
+        """This process's rows of one scene drawn for the whole (all-process) batch."""
+        t = self.recipe.train
+        n_random = t.renderings // 3
+        full = training_scene(
+            t.batch * self.dist.world,
+            generator=self.scene_gen,
+            n_random=n_random,
+            n_mirror=t.renderings - n_random,
+        )
+        start = self.dist.rank * t.batch
+        return _scene_rows(full, start, start + t.batch).to(self.device)
+
+    # -- one step ---------------------------------------------------------------------------
+
+    def train_step(self, batch: dict) -> tuple[dict[str, float], str | None]:
+        """One generator step (and a discriminator step when due).
+
+        Returns the loss terms, and the name of a non-finite term (then nothing is stepped
+        with it, on any process).
+        """
+        loss = self.recipe.loss
+        photo = batch["input"].to(self.device, non_blocking=True)
+        target = SVBRDF.unpack(batch["maps"].to(self.device, non_blocking=True), validate=False)
+        self.G.train()
+        pred = self.G(photo)
+        rendered = None
+        if loss.render > 0 or self.D is not None:
+            scene = self.scene()
+            fake = render(pred, scene)
+            with torch.no_grad():
+                real = render(target, scene)
+            rendered = (fake, real)
+        out: dict[str, float] = {}
+
+        if self.D is not None and self.step % self.recipe.optim.g_steps_per_d == 0:
+            fake, real = rendered
+            n = photo.shape[0]
+            both = SVBRDF.cat([target, pred.detach()])
+            looks = log_radiance(torch.cat([real, fake.detach()]), loss.eps)
+            logits = self.D(maps=both, renderings=looks)  # one pass: one DistributedDataParallel sync
+            d_loss = discriminator_loss([x[:n] for x in logits], [x[n:] for x in logits], loss.gan)
+            (bad,) = self.dist.any(not torch.isfinite(d_loss.detach()))
+            if bad:
+                return out, "discriminator"
+            self.d_opt.zero_grad(set_to_none=True)
+            d_loss.backward()
+            self.d_opt.step()
+            out["d_loss"] = float(d_loss.detach())
+
+        fake_logits = None
+        if self.D is not None:
+            d = _unwrap(self.D)
+            d.requires_grad_(False)
+            try:
+                fake_logits = d(maps=pred, renderings=log_radiance(rendered[0], loss.eps))
+            finally:
+                d.requires_grad_(True)
+        total, terms = generator_loss(
+            pred,
+            target,
+            weights=self.weights,
+            map_weights=loss.maps,
+            fake_logits=fake_logits,
+            gan=loss.gan,
+            eps=loss.eps,
+            rendered=rendered,
+        )
+        name = _first_bad(terms)
+        (bad,) = self.dist.any(name is not None)
+        if bad:
+            return out, name or "(on another process)"
+        self.g_opt.zero_grad(set_to_none=True)
+        total.backward()
+        self.g_opt.step()
+        self.g_sched.step()
+        if self.d_sched is not None:
+            self.d_sched.step()
+        self.step += 1
+        out.update({("loss" if k == "total" else k): float(v.detach()) for k, v in terms.items()})
+        return out, None
+
+    # -- validation -------------------------------------------------------------------------
+
+    @torch.no_grad()
+    def validate(self) -> tuple[dict[str, float], Tensor | None]:
+        """Mean per-sample RMSE of each map and of renderings on the held-out set, and the sample grid."""
+        if len(self.val_set) == 0:
+            return {}, None
+        g = _unwrap(self.G)
+        g.eval()
+        sums = dict.fromkeys(METRIC_NAMES, 0.0)
+        grid_rows: list = []
+        labels: list[str] = []
+        loader = DataLoader(
+            self.val_set, batch_size=self.recipe.train.batch, generator=torch.Generator().manual_seed(0)
+        )  # its own generator: validating must not draw from the training RNG
+        for batch in loader:
+            photo = batch["input"].to(self.device)
+            target = SVBRDF.unpack(batch["maps"].to(self.device), validate=False)
+            pred = g(photo)
+            for name, v in map_rmse(pred, target).items():
+                sums[name] += float(v.sum())
+            sums["render"] += float(render_rmse(pred, target, self.eval_scene).sum())
+            if len(grid_rows) < 2 * GRID_SAMPLES:
+                grid_rows += self._grid_rows(photo, pred, target)
+                labels += [f"{n} {k}" for n in batch["name"] for k in ("true", "pred")]
+        g.train()
+        n = len(self.val_set)
+        keep = 2 * GRID_SAMPLES
+        from .data.sheet import image_grid
+
+        grid = image_grid(
+            grid_rows[:keep],
+            ("input", "normal", "diffuse", "roughness", "specular", "flash"),
+            [s[-28:] for s in labels[:keep]],
+        )
+        return {f"val/rmse/{k}": v / n for k, v in sums.items()}, grid
+
+    def _grid_rows(self, photo: Tensor, pred: SVBRDF, target: SVBRDF) -> list:
+        from svbrdf_render import linear_to_srgb
+
+        from .data.sheet import map_tiles
+
+        rows = []
+        shown = linear_to_srgb(photo.float().cpu())
+        looks = {
+            "true": display_rendering(target, self.flash).cpu(),
+            "pred": display_rendering(pred, self.flash).cpu(),
+        }
+        grow = max(1, GRID_MIN_SIZE // photo.shape[-1])  # small tiles enlarged, pixels kept sharp
+        for k in range(photo.shape[0]):
+            for which, maps in (("true", target), ("pred", pred)):
+                tiles = [shown[k], *map_tiles(maps.pack()[k]), looks[which][k]]
+                rows.append([t.repeat_interleave(grow, -1).repeat_interleave(grow, -2) for t in tiles])
+        return rows
+
+
+# -- entry point ----------------------------------------------------------------------------
+
+
+def _check_out(options: FitOptions) -> dict | None:
+    """The checkpoint to resume from (``--resume``), after refusing to overwrite one silently."""
+    ckpt = Path(options.out) / CHECKPOINT_NAME
+    if options.resume:
+        if not ckpt.is_file():
+            raise CheckpointError(
+                f"{ckpt}: nothing to resume; run without --resume to start, or give the --out of the fit"
+            )
+        return load_checkpoint(ckpt)
+    if ckpt.is_file() and not options.force:
+        raise CheckpointError(
+            f"{ckpt}: a checkpoint of an earlier fit is there; pass --resume to continue it, "
+            "--force to start again over it, or choose another --out"
+        )
+    return None
+
+
+def _resolve_resume(recipe: Recipe | None, state: dict | None) -> Recipe:
+    if state is None:
+        assert recipe is not None
+        return recipe
+    saved = recipe_from_dict(state["recipe"], where="checkpoint recipe")
+    if recipe is None:
+        return saved
+    changed = recipe_differences(saved, recipe, ignore=RESUMABLE_CHANGES)
+    if changed:
+        raise CheckpointError(
+            "--resume with a recipe that differs from the checkpoint's in "
+            + "; ".join(changed)
+            + f". A resumed fit may change only {', '.join(RESUMABLE_CHANGES)}; "
+            "start a new fit (another --out) "
+            "to train something else"
+        )
+    # keep the checkpoint's name/size/source; take the new budgets
+    return replace(saved, train=recipe.train, data=replace(saved.data, workers=recipe.data.workers))
+
+
+def fit(recipe: Recipe | None, options: FitOptions) -> FitResult:
+    """Train ``recipe`` (None with ``options.resume``: the checkpoint's recipe); see the module doc.
+
+    Raises:
+        RecipeError, DataError, CheckpointError, TrainingError: before training starts, for
+            settings that cannot work (each names what to change).
+    """
+    dist = distributed.init(options.device)
+    try:
+        return _fit(recipe, options, dist)
+    finally:
+        dist.close()
+
+
+def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> FitResult:
+    state = _check_out(options)
+    recipe = _resolve_resume(recipe, state)
+    t = recipe.train
+    run = _Fit(recipe, options, dist, state)
+    del state
+    out = run.out
+    start_step = run.step
+    progress = Progress(
+        run.total_steps,
+        start=start_step,
+        budget_s=t.max_minutes * 60 if t.max_minutes is not None else None,
+        enabled=options.progress,
+        messages=dist.main,
+    )
+    tracker = Tracker()
+    if dist.main:
+        out.mkdir(parents=True, exist_ok=True)
+        config_file = out / "recipe.yaml"
+        import yaml
+
+        config_file.write_text(yaml.safe_dump(recipe.to_dict(), sort_keys=False))
+        if options.track:
+            tracker = _tracker(recipe, options, run, dist)
+            run.run_id = tracker.run_id
+            if start_step == 0:
+                tracker.log_artifact(config_file, "config")
+        progress.message(_plan(recipe, run, dist, tracker, start_step))
+
+    status, message = "FINISHED", ""
+    last_metrics: dict[str, float] = {}
+    sums: dict[str, float] = {}
+    count = 0
+    saved_at = start_step
+    samples = 0
+    tick = time.perf_counter()
+    window_start, window_samples = run.train_seconds, 0
+    with _Interrupt(progress) as interrupt:
+        try:
+            for batch in run.batches():
+                terms, bad = run.train_step(batch)
+                now = time.perf_counter()
+                run.train_seconds += now - tick
+                n = batch["input"].shape[0] * dist.world
+                samples += n
+                window_samples += n
+                if bad is not None:
+                    status = "FAILED"
+                    message = _nan_message(run, bad, saved_at)
+                    break
+                for k, v in terms.items():
+                    sums[k] = sums.get(k, 0.0) + v
+                count += 1
+                rate = window_samples / max(run.train_seconds - window_start, 1e-9)
+                shown = {k: terms[k] for k in ("loss", "adv", "render", "svbrdf", "d_loss") if k in terms}
+                progress.update(run.step, shown, rate, run.train_seconds)
+                step = run.step
+                if step % t.log_every == 0 or step == run.total_steps:
+                    metrics = {f"train/{k}": v / count for k, v in sums.items()}
+                    metrics.update(
+                        {
+                            "train/lr": run.g_opt.param_groups[0]["lr"],
+                            "train/samples_per_s": rate,
+                            "train/epoch": step / run.steps_per_epoch,
+                            "train/seconds": run.train_seconds,
+                        }
+                    )
+                    tracker.log_metrics(metrics, step)
+                    sums, count = {}, 0
+                    window_start, window_samples = run.train_seconds, 0
+                time_up = t.max_minutes is not None and run.train_seconds >= t.max_minutes * 60
+                stop, time_up = dist.any(interrupt.requested is not None, time_up)
+                last = step >= run.total_steps or stop or time_up
+                if dist.main and (step % t.validate_every == 0 or last):
+                    last_metrics = _validate(run, tracker, step)
+                if step % t.checkpoint_every == 0 or last:
+                    run.save(tracker)
+                    saved_at = step
+                if stop:
+                    status = "KILLED"
+                    message = f"stopped by {interrupt.requested or 'another process'} at step {step}"
+                    break
+                if time_up:
+                    message = f"time budget of {t.max_minutes:g} min reached at step {step}"
+                    break
+                tick = time.perf_counter()
+        except KeyboardInterrupt:
+            status = "KILLED"
+            message = f"stopped at once at step {run.step}; the checkpoint of step {saved_at} is kept"
+        except BaseException:
+            progress.close()
+            tracker.finish("FAILED")
+            raise
+    progress.close()
+    if status == "FINISHED" and not message:
+        message = f"{run.step} steps, {format_duration(run.train_seconds)} of training"
+    if dist.main:
+        tracker.set_tags({"svbrdf.stop": message, "svbrdf.steps": run.step})
+    tracker.finish(status)
+    return FitResult(
+        status=status,
+        step=run.step,
+        total_steps=run.total_steps,
+        run_id=run.run_id,
+        checkpoint=run.ckpt_path if run.ckpt_path.is_file() else None,
+        train_seconds=run.train_seconds,
+        message=message,
+        metrics=last_metrics,
+    )
+
+
+def _tracker(recipe: Recipe, options: FitOptions, run: _Fit, dist: distributed.Dist) -> Tracker:
+    from .tracking import MlflowTracker
+
+    tags = run_tags(
+        recipe=recipe.name,
+        size=recipe.size,
+        seed=recipe.train.seed,
+        device=str(dist.device),
+        world_size=dist.world,
+    )
+    if run.run_id is not None:
+        return MlflowTracker(
+            experiment=options.experiment, run_id=run.run_id, tags={"svbrdf.resumed_at": str(run.step)}
+        )
+    params = flatten_params(recipe.to_dict())
+    g_cfg = resolve_config("generator", recipe.generator.name, recipe.generator.config)
+    params.update(flatten_params({"generator.resolved": _plain(g_cfg)}))
+    if recipe.discriminator is not None:
+        d_cfg = resolve_config("discriminator", recipe.discriminator.name, recipe.discriminator.config)
+        params.update(flatten_params({"discriminator.resolved": _plain(d_cfg)}))
+    params["parameters.generator"] = str(_count_params(_unwrap(run.G)))
+    params["parameters.discriminator"] = str(_count_params(_unwrap(run.D) if run.D is not None else None))
+    params["steps_per_epoch"] = str(run.steps_per_epoch)
+    params["total_steps"] = str(run.total_steps)
+    params["world_size"] = str(dist.world)
+    return MlflowTracker(
+        experiment=options.experiment,
+        run_name=options.run_name or f"{recipe.name}-{recipe.size}",
+        tags=tags,
+        params=params,
+    )
+
+
+def _plain(config) -> dict:
+    import dataclasses
+
+    return {f.name: getattr(config, f.name) for f in dataclasses.fields(config)}
+
+
+def _validate(run: _Fit, tracker: Tracker, step: int) -> dict[str, float]:
+    metrics, grid = run.validate()
+    if metrics:
+        tracker.log_metrics(metrics, step)
+    if grid is not None:
+        from svbrdf_render import write_image
+
+        path = write_image(run.out / "samples" / f"step_{step:07d}.png", grid)
+        tracker.log_artifact(path, "samples")
+    return metrics
+
+
+def _plan(recipe: Recipe, run: _Fit, dist: distributed.Dist, tracker: Tracker, start: int) -> str:
+    t = recipe.train
+    what = (
+        f"resuming {recipe.name} ({recipe.size}) at step {start}"
+        if start
+        else f"fitting {recipe.name} ({recipe.size})"
+    )
+    budget = f"{run.total_steps} steps ({run.steps_per_epoch}/epoch)"
+    if t.max_minutes is not None:
+        budget += f" or {format_duration(t.max_minutes * 60)} of training"
+    return (
+        f"{what}: {budget}, batch {t.batch} x {dist.world} process(es) at {t.resolution} px "
+        f"on {dist.device}; "
+        f"G {_count_params(_unwrap(run.G)) / 1e6:.2f}M params"
+        + (f", D {_count_params(_unwrap(run.D)) / 1e6:.2f}M" if run.D is not None else ", no D")
+        + f"\n  checkpoints: {run.ckpt_path}\n  tracking: {tracker.describe()}"
+    )
+
+
+def _nan_message(run: _Fit, term: str, saved_at: int) -> str:
+    kept = (
+        f"the checkpoint of step {saved_at} ({run.ckpt_path}) is kept"
+        if saved_at > 0
+        else "no checkpoint had been written yet"
+    )
+    hint = "lower optim.lr / optim.d_lr, or check the data for NaN or inf values"
+    return (
+        f"non-finite loss at step {run.step + 1}: term {term!r}; nothing was stepped with it; {kept}; {hint}"
+    )
