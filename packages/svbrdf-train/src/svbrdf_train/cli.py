@@ -36,6 +36,9 @@ def cli():
     \b
     Start with:
       svbrdf-train data sheet -o sheet.png          # look at the procedural materials
+      svbrdf-train recipes                          # what can be trained
+      svbrdf-train fit --recipe ours --size cpu     # train (minutes on a CPU), tracked in MLflow
+      svbrdf-train predict photo.jpg --checkpoint runs/ours-cpu/last.pt -o maps/
       svbrdf-train data make --count 1000 --resolution 256 --out train.h5
       svbrdf-train data import ../shared/data/des18-dev --out test.h5
     """
@@ -47,11 +50,14 @@ def data():
 
 
 def _register() -> None:
-    from .commands import data_shards, data_sheet
+    from .commands import data_shards, data_sheet, fit, predict, recipes
 
     for module in (data_sheet, data_shards):
         for command in module.COMMANDS:
             data.add_command(command)
+    for module in (recipes, fit, predict):
+        for command in module.COMMANDS:
+            cli.add_command(command)
 
 
 _register()

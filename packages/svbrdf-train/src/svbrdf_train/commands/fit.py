@@ -1,0 +1,190 @@
+"""``svbrdf-train fit``: train a recipe, tracked in MLflow, resumable."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from ..recipe import SIZES
+
+EPILOG = """\b
+Examples:
+  svbrdf-train fit --recipe ours --size smoke          # seconds: check the setup
+  svbrdf-train fit --recipe ours --size cpu            # minutes on a laptop CPU
+  svbrdf-train fit --recipe ours --data train.h5 --max-minutes 60
+  svbrdf-train fit --recipe no-adv --size cpu --set optim.lr=1e-4 --set train.batch=4
+  svbrdf-train fit --out runs/ours-cpu --resume        # continue after Ctrl-C or a crash
+  torchrun --nproc_per_node=2 -m svbrdf_train fit --recipe ours --size cpu   # data parallel
+
+\b
+Recipes: svbrdf-train recipes. Runs go to MLflow: MLFLOW_TRACKING_URI, else ./mlflow.db;
+look at them with `mlflow ui --backend-store-uri sqlite:///mlflow.db`.
+Exit codes: 0 finished, 1 stopped by a non-finite loss, 2 bad arguments, 130 interrupted.
+"""
+
+
+def _data_overrides(items: tuple[str, ...]) -> dict:
+    """``--data`` values -> recipe overrides: ``procedural``, shard files/folders, or one Des18 folder."""
+    from ..errors import DataError
+
+    if not items:
+        return {}
+    if items == ("procedural",):
+        return {"data.source": "procedural"}
+    paths = [Path(p).expanduser() for p in items]
+    for p in paths:
+        if not p.exists():
+            raise DataError(
+                f"--data {p}: no such file or folder; give shard files (.h5), a folder of them, "
+                "a Des18 folder, or 'procedural'"
+            )
+    shards = all(p.suffix == ".h5" or (p.is_dir() and any(p.glob("*.h5"))) for p in paths)
+    if shards:
+        return {"data.source": "shards", "data.path": [str(p) for p in paths]}
+    if len(paths) == 1 and paths[0].is_dir():
+        return {"data.source": "des18", "data.path": str(paths[0])}
+    raise DataError(
+        f"--data {' '.join(items)}: not shards (.h5 files or a folder of them) nor one Des18 folder "
+        "(PNG strips, or trainBlended/ and testBlended/)"
+    )
+
+
+@click.command("fit", epilog=EPILOG)
+@click.option(
+    "--recipe",
+    "recipe_name",
+    metavar="NAME|FILE",
+    help="Recipe name or YAML file (not needed with --resume).",
+)
+@click.option(
+    "--size",
+    type=click.Choice(SIZES),
+    default="paper",
+    show_default=True,
+    help="paper: the paper's setup (GPU days); cpu: minutes on a CPU; smoke: seconds, for tests.",
+)
+@click.option(
+    "--data",
+    "data",
+    multiple=True,
+    metavar="procedural|PATH",
+    help="Training data: 'procedural' (generated, the default), .h5 shards (repeat for several) "
+    "or a Des18 folder. Overrides the recipe's data section.",
+)
+@click.option("--max-minutes", type=float, help="Stop after this much training time (validation excluded).")
+@click.option("--max-steps", type=int, help="Stop after this many generator steps.")
+@click.option(
+    "--set",
+    "sets",
+    multiple=True,
+    metavar="SECTION.FIELD=VALUE",
+    help="Override any recipe field, e.g. --set loss.adv=0 --set generator.config.preset=small.",
+)
+@click.option(
+    "--out",
+    type=click.Path(path_type=Path, file_okay=False),
+    help="Folder of the checkpoint, resolved recipe and sample grids [default: runs/RECIPE-SIZE].",
+)
+@click.option(
+    "--resume", is_flag=True, help="Continue the fit in --out from its checkpoint, in the same MLflow run."
+)
+@click.option(
+    "--force", is_flag=True, help="Start afresh even though --out holds a checkpoint (it is replaced)."
+)
+@click.option("--device", default="auto", show_default=True, help="auto, cpu, cuda or cuda:K.")
+@click.option("--experiment", default="svbrdf", show_default=True, help="MLflow experiment.")
+@click.option("--run-name", help="MLflow run name [default: RECIPE-SIZE].")
+@click.option("--no-track", is_flag=True, help="Do not log to MLflow (local files only).")
+@click.option("-q", "--quiet", is_flag=True, help="No progress line.")
+def fit(
+    recipe_name,
+    size,
+    data,
+    max_minutes,
+    max_steps,
+    sets,
+    out,
+    resume,
+    force,
+    device,
+    experiment,
+    run_name,
+    no_track,
+    quiet,
+):
+    """Train a generator (and its discriminator) from a recipe.
+
+    Shows step, losses, samples/s and ETA; logs every loss term, validation RMSE per map,
+    sample grids and checkpoints to one MLflow run. Ctrl-C saves a checkpoint first;
+    --resume continues from it.
+    """
+    from ..checkpoint import CHECKPOINT_NAME, load_checkpoint
+    from ..errors import RecipeError
+    from ..recipe import load_recipe, parse_overrides, recipe_from_dict, with_overrides
+    from ..trainer import FitOptions
+    from ..trainer import fit as run_fit
+
+    overrides = parse_overrides(sets)
+    overrides.update(_data_overrides(data))
+    if max_minutes is not None:
+        overrides["train.max_minutes"] = max_minutes
+    if max_steps is not None:
+        overrides["train.max_steps"] = max_steps
+    if recipe_name is None and not resume:
+        raise RecipeError(
+            "--recipe is required (a name from `svbrdf-train recipes`, or a YAML file); "
+            "or pass --resume with --out to continue a fit"
+        )
+    if out is None:
+        if recipe_name is None:
+            raise RecipeError("--resume needs --out: the folder of the fit to continue")
+        out = Path("runs") / f"{Path(recipe_name).stem}-{size}"
+    if recipe_name is not None:
+        recipe = load_recipe(recipe_name, size, overrides)
+    else:  # --resume with the checkpoint's recipe, plus any budget change
+        saved = load_checkpoint(out / CHECKPOINT_NAME, mmap=True)["recipe"]
+        recipe = with_overrides(recipe_from_dict(saved, where=str(out / CHECKPOINT_NAME)), overrides)
+    options = FitOptions(
+        out=out,
+        resume=resume,
+        force=force,
+        device=device,
+        experiment=experiment,
+        run_name=run_name,
+        progress=not quiet,
+        track=not no_track,
+    )
+    result = run_fit(recipe, options)
+    lines = [f"{result.status.lower()}: {result.message}"]
+    if result.metrics:
+        lines.append(
+            "  validation RMSE: "
+            + ", ".join(f"{k.rsplit('/', 1)[-1]} {v:.4f}" for k, v in result.metrics.items())
+        )
+    if result.checkpoint is not None:
+        lines.append(f"  checkpoint: {result.checkpoint} (step {_saved_step(result.checkpoint)})")
+    if result.run_id is not None:
+        lines.append(f"  MLflow run: {result.run_id}")
+    if _is_main():
+        click.echo("\n".join(lines), err=result.status != "FINISHED")
+    sys.exit(result.exit_code)
+
+
+def _saved_step(path: Path) -> str:
+    import json
+
+    try:
+        return str(json.loads(path.with_suffix(".json").read_text())["step"])
+    except (OSError, ValueError, KeyError):
+        return "?"
+
+
+def _is_main() -> bool:
+    import os
+
+    return os.environ.get("RANK", "0") == "0"
+
+
+COMMANDS = [fit]

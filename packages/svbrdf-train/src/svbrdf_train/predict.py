@@ -1,0 +1,70 @@
+"""Maps from photos with a trained generator (from a checkpoint file or an MLflow run).
+
+::
+
+    from svbrdf_train.predict import Predictor
+    p = Predictor.from_checkpoint("runs/ours-cpu/last.pt")
+    svbrdf = p.predict(photo)           # (3, H, W) linear photo -> SVBRDF of 1 at p.resolution
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from svbrdf_render import SVBRDF
+
+from .checkpoint import CHECKPOINT_NAME, load_checkpoint
+from .data.photos import square_photo
+from .errors import CheckpointError
+
+__all__ = ["Predictor", "RUN_CHECKPOINT"]
+
+#: Where a fit logs its checkpoint in its MLflow run.
+RUN_CHECKPOINT = f"checkpoints/{CHECKPOINT_NAME}"
+
+
+class Predictor:
+    """A trained generator in eval mode, and the resolution it was trained at."""
+
+    def __init__(self, checkpoint: dict, device: str | torch.device = "cpu", source: str = "checkpoint"):
+        from .trainer import load_generator
+
+        try:
+            self.generator, self.recipe = load_generator(checkpoint, device)
+        except (KeyError, RuntimeError, CheckpointError) as e:
+            raise CheckpointError(f"{source}: the generator cannot be rebuilt from it ({e})") from None
+        self.device = torch.device(device)
+        self.resolution = self.recipe.train.resolution
+        self.step = int(checkpoint.get("step", 0))
+        self.source = source
+
+    @classmethod
+    def from_checkpoint(cls, path: str | Path, device: str | torch.device = "cpu") -> Predictor:
+        return cls(load_checkpoint(path), device, source=str(path))
+
+    @classmethod
+    def from_run(cls, run_id: str, device: str | torch.device = "cpu") -> Predictor:
+        """Download the run's checkpoint from the MLflow store (``MLFLOW_TRACKING_URI`` or the default)."""
+        from mlflow import MlflowClient
+
+        client = MlflowClient()
+        with tempfile.TemporaryDirectory() as tmp:
+            try:
+                local = client.download_artifacts(run_id, RUN_CHECKPOINT, tmp)
+            except Exception as e:  # MlflowException for a missing run or artifact, OSError, HTTP errors
+                raise CheckpointError(
+                    f"MLflow run {run_id}: no {RUN_CHECKPOINT} to load from {client.tracking_uri} "
+                    f"({type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}); check the run id "
+                    "and MLFLOW_TRACKING_URI, or pass --checkpoint FILE"
+                ) from None
+            return cls(load_checkpoint(local), device, source=f"run {run_id}")
+
+    @torch.no_grad()
+    def predict(self, photo: Tensor) -> SVBRDF:
+        """``(3, H, W)`` linear photo -> maps of one material at :attr:`resolution` (centre square)."""
+        x = square_photo(photo.float(), self.resolution).to(self.device)
+        return self.generator(x[None]).detach().to("cpu")
