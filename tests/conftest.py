@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import collections
+import os
+import subprocess
+import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -13,6 +17,11 @@ from svbrdf_render import SVBRDF
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
+
+# No test may write to the user's MLflow store (./mlflow.db by default): every run of the suite
+# gets a store of its own, in a temporary folder, before anything imports mlflow.
+_MLFLOW_DIR = tempfile.mkdtemp(prefix="svbrdf-tests-mlflow-")
+os.environ["MLFLOW_TRACKING_URI"] = f"sqlite:///{_MLFLOW_DIR}/mlflow.db"
 
 
 def random_svbrdf(
@@ -70,3 +79,15 @@ class OpCounter(TorchDispatchMode):
 @pytest.fixture
 def op_counter():
     return OpCounter
+
+
+def run_cli(*args: str, cwd=None, env=None, timeout: float = 300) -> subprocess.CompletedProcess:
+    """``python -m svbrdf_train ARGS`` in a fresh process (the suite's MLflow store by default)."""
+    return subprocess.run(
+        [sys.executable, "-m", "svbrdf_train", *args],
+        cwd=cwd,
+        env={**os.environ, **(env or {})},
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )

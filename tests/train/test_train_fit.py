@@ -1,0 +1,135 @@
+"""The trainer in one process: every recipe fits, the loss goes down, MLflow gets the whole run.
+
+Runs go to the suite's temporary MLflow store (tests/conftest.py).
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+import yaml
+
+from svbrdf_train.checkpoint import load_checkpoint
+from svbrdf_train.recipe import list_recipes, load_recipe
+from svbrdf_train.trainer import FitOptions, fit
+
+BUILT_IN = ("ours", "no-attn", "no-adv", "no-svbrdf", "multigan", "radn")
+
+
+def _client():
+    from mlflow import MlflowClient
+
+    return MlflowClient()
+
+
+def _fit(tmp_path, name="ours", size="smoke", **overrides):
+    recipe = load_recipe(name, size, overrides)
+    return fit(recipe, FitOptions(out=tmp_path / name, progress=False, experiment="tests-fit")), recipe
+
+
+def test_every_built_in_recipe_is_registered():
+    assert set(BUILT_IN) <= set(list_recipes())
+
+
+@pytest.mark.parametrize("name", BUILT_IN)
+def test_two_step_fit_of_every_recipe(tmp_path, name):
+    """Each recipe trains 2 steps at the smoke size, logs the terms it has, and no others."""
+    result, recipe = _fit(tmp_path, name)
+    assert result.status == "FINISHED", result.message
+    assert result.step == 2 and result.exit_code == 0
+    state = load_checkpoint(result.checkpoint)
+    assert state["step"] == 2
+    assert (state["discriminator"] is None) == (recipe.loss.adv == 0)
+    for tensor in state["generator"].values():
+        assert torch.isfinite(tensor).all()
+    run = _client().get_run(result.run_id)
+    assert run.info.status == "FINISHED"
+    metrics = run.data.metrics
+    for term, weight in (
+        ("adv", recipe.loss.adv),
+        ("render", recipe.loss.render),
+        ("svbrdf", recipe.loss.svbrdf),
+    ):
+        assert (f"train/{term}" in metrics) == (weight > 0), term
+    assert ("train/d_loss" in metrics) == (recipe.discriminator is not None)
+    for name_ in ("normal", "diffuse", "roughness", "specular", "render"):
+        assert 0 <= metrics[f"val/rmse/{name_}"] < 1
+
+
+def test_loss_decreases_on_a_fixed_tiny_set(tmp_path):
+    """40 steps on 4 materials: the rendering and map losses fall clearly below where they start."""
+    result, _ = _fit(
+        tmp_path,
+        **{
+            "data.count": 4,
+            "train.epochs": 20,
+            "train.max_steps": 40,
+            "train.validate_every": 40,
+            "train.checkpoint_every": 40,
+            "optim.lr": 2e-3,
+            "optim.d_lr": 2e-3,
+        },
+    )
+    assert result.status == "FINISHED" and result.step == 40
+    client = _client()
+    for term in ("render", "svbrdf"):
+        values = [
+            m.value
+            for m in sorted(client.get_metric_history(result.run_id, f"train/{term}"), key=lambda m: m.step)
+        ]
+        assert len(values) == 40
+        first, last = sum(values[:5]) / 5, sum(values[-5:]) / 5
+        assert last < 0.85 * first, (term, first, last)
+
+
+def test_mlflow_run_holds_config_tags_metrics_and_artifacts(tmp_path):
+    result, recipe = _fit(tmp_path, "ours")
+    client = _client()
+    run = client.get_run(result.run_id)
+    params, tags = run.data.params, run.data.tags
+    # params: the whole resolved recipe, and the networks' complete configs
+    assert params["loss.adv"] == "0.1" and params["loss.render"] == "0.5" and params["loss.svbrdf"] == "0.5"
+    assert params["loss.maps.roughness"] == "0.5"
+    assert params["generator.name"] == "ours" and params["discriminator.name"] == "patchgan"
+    assert params["train.resolution"] == str(recipe.train.resolution)
+    assert params["generator.resolved.depth"] == "4"  # the tiny preset, resolved
+    assert int(params["parameters.generator"]) > 0
+    # tags: code, versions, machine, seed, recipe
+    assert tags["recipe"] == "ours" and tags["recipe.size"] == "smoke"
+    assert tags["seed"] == str(recipe.train.seed) and tags["device"] == "cpu"
+    assert tags["git_sha"] and tags["version.torch"] == torch.__version__
+    assert tags["version.svbrdf-train"] != "not installed"
+    # metrics per step (log_every 1 at the smoke size)
+    history = client.get_metric_history(result.run_id, "train/loss")
+    assert sorted(m.step for m in history) == [1, 2]
+    assert all(math.isfinite(m.value) for m in history)
+    assert {m.key for m in client.get_metric_history(result.run_id, "val/rmse/render")} == {"val/rmse/render"}
+    # artifacts: the config as YAML, sample grids, the checkpoint
+    listed = {
+        a.path
+        for folder in ("config", "samples", "checkpoints")
+        for a in client.list_artifacts(result.run_id, folder)
+    }
+    assert {"config/recipe.yaml", "samples/step_0000002.png", "checkpoints/last.pt"} <= listed
+    local = client.download_artifacts(result.run_id, "config/recipe.yaml", str(tmp_path))
+    assert yaml.safe_load(open(local)) == recipe.to_dict()
+
+
+def test_time_budget_stops_the_fit_and_says_so(tmp_path):
+    result, _ = _fit(tmp_path, **{"train.max_steps": None, "train.epochs": 1000, "train.max_minutes": 0.0})
+    assert result.status == "FINISHED"
+    assert result.step == 1  # the budget is checked after each step
+    assert "time budget" in result.message
+    assert _client().get_run(result.run_id).data.tags["svbrdf.stop"] == result.message
+
+
+def test_without_tracking_nothing_reaches_mlflow(tmp_path):
+    recipe = load_recipe("radn", "smoke")
+    result = fit(
+        recipe, FitOptions(out=tmp_path / "r", progress=False, track=False, experiment="tests-untracked")
+    )
+    assert result.status == "FINISHED" and result.run_id is None
+    assert _client().get_experiment_by_name("tests-untracked") is None
+    assert load_checkpoint(result.checkpoint)["run_id"] is None

@@ -1,0 +1,183 @@
+"""``svbrdf-train fit`` and ``predict --run`` against an MLflow tracking server over HTTP.
+
+A real ``mlflow server`` (sqlite backend, artifacts proxied to a folder of its own) runs for the
+module; the fit and the prediction reach it only through ``MLFLOW_TRACKING_URI=http://...``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from types import SimpleNamespace
+
+import pytest
+import torch
+
+from conftest import run_cli
+from svbrdf_render import read_image, write_image
+from svbrdf_render.mapfiles import linear_to_srgb, srgb_to_linear
+from svbrdf_train.data import ProceduralMaterials
+from svbrdf_train.predict import Predictor
+
+pytestmark = pytest.mark.slow
+
+MAPS = ("normal", "diffuse", "roughness", "specular")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _healthy(url: str) -> bool:
+    try:
+        with urllib.request.urlopen(f"{url}/health", timeout=2) as response:
+            return response.status == 200
+    except OSError:
+        return False
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    """End the server and the workers it started (its own process group, made at start)."""
+    if proc.poll() is not None:
+        return
+    os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(timeout=20)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=20)
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    """``mlflow server`` on a free local port; skips the module when it cannot start here."""
+    root = tmp_path_factory.mktemp("mlflow-server")
+    port = _free_port()
+    url = f"http://127.0.0.1:{port}"
+    artifacts = root / "artifacts"
+    env = {k: v for k, v in os.environ.items() if k != "MLFLOW_TRACKING_URI"}
+    env["MLFLOW_SERVER_ENABLE_JOB_EXECUTION"] = "false"  # no job runner and huey workers: fewer processes
+    command = [
+        sys.executable, "-m", "mlflow", "server",
+        "--host", "127.0.0.1",
+        "--port", str(port),
+        "--workers", "1",
+        "--backend-store-uri", f"sqlite:///{root / 'srv.db'}",
+        "--artifacts-destination", str(artifacts),
+    ]  # fmt: skip
+    log_path = root / "server.log"
+    with open(log_path, "w") as log:
+        proc = subprocess.Popen(
+            command, cwd=root, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True
+        )
+    try:
+        deadline = time.monotonic() + 60
+        while not _healthy(url):
+            if proc.poll() is not None:
+                tail = log_path.read_text()[-2000:]
+                pytest.skip(f"mlflow server exited with code {proc.returncode} at start:\n{tail}")
+            if time.monotonic() > deadline:
+                pytest.skip(f"mlflow server did not answer {url}/health within 60 s")
+            time.sleep(0.5)
+        yield SimpleNamespace(url=url, root=root, artifacts=artifacts, log=log_path)
+    finally:
+        _stop(proc)
+
+
+@pytest.fixture(scope="module")
+def fitted(server, tmp_path_factory):
+    """A smoke fit tracked by the server, run from an empty working folder."""
+    base = tmp_path_factory.mktemp("fit")
+    cwd, out = base / "cwd", base / "ours-smoke"
+    cwd.mkdir()
+    result = run_cli(
+        "fit", "--recipe", "ours", "--size", "smoke", "--out", str(out), "-q",
+        cwd=cwd, env={"MLFLOW_TRACKING_URI": server.url},
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr + server.log.read_text()[-2000:]
+    run_id = json.loads((out / "last.json").read_text())["run_id"]
+    return SimpleNamespace(cwd=cwd, out=out, run_id=run_id, result=result)
+
+
+@pytest.fixture(scope="module")
+def client(server):
+    from mlflow import MlflowClient
+
+    return MlflowClient(server.url)
+
+
+def test_fit_logs_one_finished_run_to_the_server(server, fitted, client):
+    """The run lands in experiment "svbrdf" on the server, FINISHED, with the recipe's params,
+    the identifying tags and the validation metrics; the fit prints its id."""
+    assert fitted.run_id in fitted.result.stdout
+    experiment = client.get_experiment_by_name("svbrdf")
+    assert experiment is not None
+    runs = client.search_runs([experiment.experiment_id])
+    assert [r.info.run_id for r in runs] == [fitted.run_id]
+    run = runs[0]
+    assert run.info.status == "FINISHED"
+    assert run.data.params["loss.adv"] == "0.1"
+    assert run.data.params["train.resolution"] == "32"
+    assert run.data.tags["recipe"] == "ours" and run.data.tags["recipe.size"] == "smoke"
+    assert run.data.tags["version.svbrdf-train"] not in ("", "not installed")
+    for key in ("val/rmse/render", "val/rmse/normal", "train/loss"):
+        assert key in run.data.metrics, key
+    assert 0 < run.data.metrics["val/rmse/render"] < 1
+
+
+def test_artifacts_go_to_the_server_folder(server, fitted, client):
+    """Artifacts are uploaded through the server (mlflow-artifacts:) into its artifact folder: the
+    checkpoint there is the fit's last.pt, and nothing is written in the fit's working folder."""
+    run = client.get_run(fitted.run_id)
+    assert run.info.artifact_uri.startswith("mlflow-artifacts:")
+    assert {a.path for a in client.list_artifacts(fitted.run_id)} == {"config", "checkpoints", "samples"}
+    assert [a.path for a in client.list_artifacts(fitted.run_id, "config")] == ["config/recipe.yaml"]
+    listed = {a.path: a.file_size for a in client.list_artifacts(fitted.run_id, "checkpoints")}
+    local = fitted.out / "last.pt"
+    assert listed == {"checkpoints/last.pt": local.stat().st_size}
+    stored = list(server.artifacts.rglob("last.pt"))
+    assert len(stored) == 1 and fitted.run_id in stored[0].parts
+    assert stored[0].read_bytes() == local.read_bytes()
+    assert len(list(server.artifacts.rglob("recipe.yaml"))) == 1
+    assert list(fitted.cwd.iterdir()) == []
+
+
+def test_predict_from_a_run_on_the_server(server, fitted, tmp_path):
+    """``predict --run RUN_ID`` downloads the checkpoint through the server and writes the maps
+    the local checkpoint gives."""
+    photo = ProceduralMaterials(1, 48, seed=7)[0]["input"]
+    path = write_image(tmp_path / "shot.png", linear_to_srgb(photo))
+    out = tmp_path / "maps"
+    result = run_cli(
+        "predict", str(path), "--run", fitted.run_id, "-o", str(out), env={"MLFLOW_TRACKING_URI": server.url}
+    )
+    assert result.returncode == 0, result.stderr
+    assert f"run {fitted.run_id}" in result.stderr
+    expected = Predictor.from_checkpoint(fitted.out / "last.pt").predict(srgb_to_linear(read_image(path)))
+    diffuse = read_image(out / "shot" / "diffuse.png")
+    assert diffuse.shape == (3, 32, 32)
+    assert float((diffuse - expected.diffuse[0]).abs().max()) <= 1 / 255 + 1e-6
+    normal = read_image(out / "shot" / "normal.png") * 2 - 1
+    assert float((normal - torch.nn.functional.normalize(expected.normal, dim=1)[0]).abs().max()) <= 2 / 255
+    assert sorted(p.name for p in (out / "shot").iterdir()) == sorted(f"{n}.png" for n in (*MAPS, "input"))
+
+
+def test_fit_with_an_unreachable_server_is_a_one_line_error(tmp_path):
+    """A tracking URI nobody answers at is a usage error: exit 2, one line naming the URI."""
+    url = f"http://127.0.0.1:{_free_port()}"
+    result = run_cli(
+        "fit", "--recipe", "ours", "--size", "smoke", "--out", str(tmp_path / "run"), "-q",
+        env={"MLFLOW_TRACKING_URI": url, "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0"},
+    )  # fmt: skip
+    assert "Traceback" not in result.stderr
+    assert result.returncode == 2
+    assert result.stderr.startswith("svbrdf-train: error: ") and result.stderr.count("\n") == 1
+    assert url in result.stderr
