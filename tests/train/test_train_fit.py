@@ -133,3 +133,30 @@ def test_without_tracking_nothing_reaches_mlflow(tmp_path):
     assert result.status == "FINISHED" and result.run_id is None
     assert _client().get_experiment_by_name("tests-untracked") is None
     assert load_checkpoint(result.checkpoint)["run_id"] is None
+
+
+def test_default_store_is_mlflow_db_in_the_working_folder_with_artifacts_beside_it(tmp_path):
+    """Without MLFLOW_TRACKING_URI a fit uses MLflow's default ./mlflow.db, and its artifacts go to
+    ./mlartifacts next to it, not to wherever a later command happens to run."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "MLFLOW_TRACKING_URI"}
+    r = subprocess.run(
+        [sys.executable, "-m", "svbrdf_train", "fit", "--recipe", "radn", "--size", "smoke", "-q"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "mlflow.db").is_file()
+    saved = list((tmp_path / "mlartifacts").rglob("last.pt"))
+    assert len(saved) == 1 and saved[0].parent.name == "checkpoints"
+    from mlflow import MlflowClient
+
+    client = MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
+    (run,) = client.search_runs([client.get_experiment_by_name("svbrdf").experiment_id])
+    assert run.info.status == "FINISHED" and run.data.tags["recipe"] == "radn"

@@ -10,7 +10,7 @@ from importlib.metadata import requires
 def test_dependencies():
     reqs = requires("svbrdf-train") or []
     names = {r.split(">")[0].split("=")[0].split("[")[0].split(";")[0].strip() for r in reqs}
-    assert {"svbrdf-render", "svbrdf-models", "h5py", "pyyaml", "click", "torch"} <= names
+    assert {"svbrdf-render", "svbrdf-models", "h5py", "pyyaml", "click", "torch", "mlflow"} <= names
     assert not {"svbrdf-bench", "scikit-image"} & names
 
 
@@ -30,3 +30,13 @@ def test_public_names_resolve():
 
     for name in d.__all__:
         assert getattr(d, name) is not None
+
+
+def test_trainer_and_cli_import_without_mlflow():
+    """mlflow (~2 s to import) loads when a fit starts tracking, not with the trainer or the CLI."""
+    code = (
+        "import sys, svbrdf_train.trainer, svbrdf_train.predict, svbrdf_train.cli\n"
+        "print('mlflow' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["False"]

@@ -67,6 +67,8 @@ RESUMABLE_CHANGES = (
     "train.checkpoint_every",
     "data.workers",
 )
+#: Steps left out of the throughput figure: the first ones pay for lazy initialisation.
+WARMUP_STEPS = 3
 #: Samples drawn in the sample grid of each validation.
 GRID_SAMPLES = 4
 #: Tiles of the sample grid smaller than this many pixels are enlarged (nearest neighbour).
@@ -110,6 +112,9 @@ class FitResult:
     train_seconds: float
     message: str
     metrics: dict[str, float] = field(default_factory=dict)
+    samples_per_s: float | None = None
+    """Training throughput of all processes after the first :data:`WARMUP_STEPS` steps of this
+    session (None when it made no more steps than that)."""
 
     @property
     def exit_code(self) -> int:
@@ -597,6 +602,7 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
     count = 0
     saved_at = start_step
     samples = 0
+    steady: tuple[float, int] | None = None  # (train seconds, samples) when warm-up ended
     tick = time.perf_counter()
     window_start, window_samples = run.train_seconds, 0
     with _Interrupt(progress) as interrupt:
@@ -608,6 +614,8 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
                 n = batch["input"].shape[0] * dist.world
                 samples += n
                 window_samples += n
+                if run.step - start_step == WARMUP_STEPS:
+                    steady = (run.train_seconds, samples)
                 if bad is not None:
                     status = "FAILED"
                     message = _nan_message(run, bad, saved_at)
@@ -668,6 +676,11 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
         run_id=run.run_id,
         checkpoint=run.ckpt_path if run.ckpt_path.is_file() else None,
         train_seconds=run.train_seconds,
+        samples_per_s=(
+            (samples - steady[1]) / (run.train_seconds - steady[0])
+            if steady is not None and samples > steady[1]
+            else None
+        ),
         message=message,
         metrics=last_metrics,
     )

@@ -158,6 +158,8 @@ def fit(
     )
     result = run_fit(recipe, options)
     lines = [f"{result.status.lower()}: {result.message}"]
+    if result.samples_per_s is not None:
+        lines.append(f"  throughput: {result.samples_per_s:.1f} samples/s after warm-up")
     if result.metrics:
         lines.append(
             "  validation RMSE: "
