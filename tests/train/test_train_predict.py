@@ -58,6 +58,7 @@ def by_checkpoint(tmp_path_factory, checkpoint, photos):
     """``predict`` both photos with ``--checkpoint``: (output folder, completed process)."""
     out = tmp_path_factory.mktemp("predicted") / "maps"
     result = run_cli("predict", *map(str, photos), "--checkpoint", str(checkpoint), "-o", str(out))
+    assert result.returncode == 0, result.stderr
     return out, result
 
 
@@ -136,7 +137,7 @@ def test_predict_from_run_matches_the_checkpoint(tmp_path, run_id, photos, by_ch
     for png in (*MAPS, "input"):
         a = read_image(by_file / name / f"{png}.png")
         b = read_image(by_run / name / f"{png}.png")
-        assert torch.equal(a, b), png
+        assert torch.equal(a, b), (png, float((a - b).abs().max()), result.stderr)
 
 
 def test_unreadable_photos_are_reported_and_the_others_done(tmp_path, checkpoint, photos):
