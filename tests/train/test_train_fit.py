@@ -160,3 +160,29 @@ def test_default_store_is_mlflow_db_in_the_working_folder_with_artifacts_beside_
     client = MlflowClient(f"sqlite:///{tmp_path}/mlflow.db")
     (run,) = client.search_runs([client.get_experiment_by_name("svbrdf").experiment_id])
     assert run.info.status == "FINISHED" and run.data.tags["recipe"] == "radn"
+
+
+def test_a_non_finite_gradient_behind_a_finite_loss_stops_before_the_step(tmp_path, monkeypatch):
+    """sqrt at 0 has an infinite derivative: the loss stays finite, every gradient becomes NaN.
+    The trainer checks the gradient norm, stops without stepping, and names the gradient."""
+    import svbrdf_train.trainer as trainer
+
+    real_loss = trainer.generator_loss
+
+    def poisoned(pred, target, **kwargs):
+        total, terms = real_loss(pred, target, **kwargs)
+        return total + (0.0 * pred.roughness.sum()).sqrt(), terms
+
+    monkeypatch.setattr(trainer, "generator_loss", poisoned)
+    result, _ = _fit(tmp_path, "radn")
+    assert result.status == "FAILED" and result.exit_code == 1
+    assert result.message.startswith("non-finite generator gradient at step 1;")
+    assert result.step == 0 and result.checkpoint is None
+    assert _client().get_run(result.run_id).info.status == "FAILED"
+
+
+def test_gradient_norms_are_logged(tmp_path):
+    result, _ = _fit(tmp_path, "ours")
+    metrics = _client().get_run(result.run_id).data.metrics
+    assert metrics["train/grad_norm"] > 0 and math.isfinite(metrics["train/grad_norm"])
+    assert metrics["train/d_grad_norm"] > 0

@@ -177,6 +177,17 @@ def _first_bad(terms: dict[str, Tensor]) -> str | None:
     return None
 
 
+def _grad_norm(module: nn.Module) -> Tensor:
+    """The L2 norm of all of a module's gradients together (inf or nan if any entry is)."""
+    grads = [p.grad for p in module.parameters() if p.grad is not None]
+    if not grads:
+        return torch.zeros(())
+    total_norm = getattr(torch.nn.utils, "get_total_norm", None)  # torch >= 2.6
+    if total_norm is not None:
+        return total_norm(grads)
+    return torch.linalg.vector_norm(torch.stack([torch.linalg.vector_norm(g) for g in grads]))
+
+
 def _count_params(module: nn.Module | None) -> int:
     return 0 if module is None else sum(p.numel() for p in module.parameters())
 
@@ -393,8 +404,8 @@ class _Fit:
     def train_step(self, batch: dict) -> tuple[dict[str, float], str | None]:
         """One generator step (and a discriminator step when due).
 
-        Returns the loss terms, and the name of a non-finite term (then nothing is stepped
-        with it, on any process).
+        Returns the loss terms, and the name of a non-finite loss term or gradient (then
+        nothing is stepped with it, on any process).
         """
         loss = self.recipe.loss
         photo = batch["input"].to(self.device, non_blocking=True)
@@ -422,8 +433,12 @@ class _Fit:
                 return out, "discriminator"
             self.d_opt.zero_grad(set_to_none=True)
             d_loss.backward()
+            d_norm = _grad_norm(self.D)  # all-reduced already: every process sees the same
+            if not torch.isfinite(d_norm):
+                return out, "discriminator gradient"
             self.d_opt.step()
             out["d_loss"] = float(d_loss.detach())
+            out["d_grad_norm"] = float(d_norm)
 
         fake_logits = None
         if self.D is not None:
@@ -449,6 +464,10 @@ class _Fit:
             return out, name or "(on another process)"
         self.g_opt.zero_grad(set_to_none=True)
         total.backward()
+        g_norm = _grad_norm(self.G)
+        if not torch.isfinite(g_norm):
+            return out, "generator gradient"
+        out["grad_norm"] = float(g_norm)
         self.g_opt.step()
         self.g_sched.step()
         if self.d_sched is not None:
@@ -763,6 +782,10 @@ def _nan_message(run: _Fit, term: str, saved_at: int) -> str:
         else "no checkpoint had been written yet"
     )
     hint = "lower optim.lr / optim.d_lr, or check the data for NaN or inf values"
-    return (
-        f"non-finite loss at step {run.step + 1}: term {term!r}; nothing was stepped with it; {kept}; {hint}"
+    step = run.step + 1
+    what = (
+        f"non-finite {term} at step {step}"
+        if term.endswith("gradient")
+        else (f"non-finite loss at step {step}: term {term!r}")
     )
+    return f"{what}; nothing was stepped with it; {kept}; {hint}"
