@@ -88,6 +88,7 @@ class FitOptions:
         run_name: MLflow run name (default ``<recipe>-<size>``).
         progress: show the progress line.
         track: log to MLflow (rank 0); False records nothing but the local files.
+        parent_run: make the MLflow run a child of this run (a benchmark's parent run).
     """
 
     out: Path
@@ -98,6 +99,7 @@ class FitOptions:
     run_name: str | None = None
     progress: bool = True
     track: bool = True
+    parent_run: str | None = None
 
 
 @dataclass
@@ -186,6 +188,21 @@ def _grad_norm(module: nn.Module) -> Tensor:
     if total_norm is not None:
         return total_norm(grads)
     return torch.linalg.vector_norm(torch.stack([torch.linalg.vector_norm(g) for g in grads]))
+
+
+def _peak_memory(device: torch.device) -> dict[str, float]:
+    """Peak resident memory of this process, and of the GPU allocator on CUDA, in MiB."""
+    out: dict[str, float] = {}
+    try:
+        import resource
+
+        kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
+        out["train/peak_rss_mb"] = kib / 1024
+    except (ImportError, OSError):  # not on every platform
+        pass
+    if device.type == "cuda":
+        out["train/peak_cuda_mb"] = torch.cuda.max_memory_allocated(device) / 2**20
+    return out
 
 
 def _count_params(module: nn.Module | None) -> int:
@@ -683,23 +700,28 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
             tracker.finish("FAILED")
             raise
     progress.close()
+    samples_per_s = (
+        (samples - steady[1]) / (run.train_seconds - steady[0])
+        if steady is not None and samples > steady[1]
+        else None
+    )
     if status == "FINISHED" and not message:
         message = f"{run.step} steps, {format_duration(run.train_seconds)} of training"
     if dist.main:
         tracker.set_tags({"svbrdf.stop": message, "svbrdf.steps": run.step})
+        summary = {"train/total_seconds": run.train_seconds, **_peak_memory(dist.device)}
+        if samples_per_s is not None:
+            summary["train/steady_samples_per_s"] = samples_per_s
+        tracker.log_metrics(summary, run.step)
     tracker.finish(status)
     return FitResult(
+        samples_per_s=samples_per_s,
         status=status,
         step=run.step,
         total_steps=run.total_steps,
         run_id=run.run_id,
         checkpoint=run.ckpt_path if run.ckpt_path.is_file() else None,
         train_seconds=run.train_seconds,
-        samples_per_s=(
-            (samples - steady[1]) / (run.train_seconds - steady[0])
-            if steady is not None and samples > steady[1]
-            else None
-        ),
         message=message,
         metrics=last_metrics,
     )
@@ -733,7 +755,7 @@ def _tracker(recipe: Recipe, options: FitOptions, run: _Fit, dist: distributed.D
     return MlflowTracker(
         experiment=options.experiment,
         run_name=options.run_name or f"{recipe.name}-{recipe.size}",
-        tags=tags,
+        tags={**tags, **({"mlflow.parentRunId": options.parent_run} if options.parent_run else {})},
         params=params,
     )
 
@@ -747,7 +769,8 @@ def _plain(config) -> dict:
 def _validate(run: _Fit, tracker: Tracker, step: int) -> dict[str, float]:
     metrics, grid = run.validate()
     if metrics:
-        tracker.log_metrics(metrics, step)
+        # with the training time so far, so curves can be drawn against time as well as steps
+        tracker.log_metrics({**metrics, "val/train_seconds": run.train_seconds}, step)
     if grid is not None:
         from svbrdf_render import write_image
 

@@ -96,6 +96,9 @@ def _data_overrides(items: tuple[str, ...]) -> dict:
 @click.option("--device", default="auto", show_default=True, help="auto, cpu, cuda or cuda:K.")
 @click.option("--experiment", default="svbrdf", show_default=True, help="MLflow experiment.")
 @click.option("--run-name", help="MLflow run name [default: RECIPE-SIZE].")
+@click.option(
+    "--parent-run", metavar="RUN_ID", help="Make the MLflow run a child of this one (benchmarks do)."
+)
 @click.option("--no-track", is_flag=True, help="Do not log to MLflow (local files only).")
 @click.option("-q", "--quiet", is_flag=True, help="No progress line.")
 def fit(
@@ -111,6 +114,7 @@ def fit(
     device,
     experiment,
     run_name,
+    parent_run,
     no_track,
     quiet,
 ):
@@ -153,6 +157,7 @@ def fit(
         device=device,
         experiment=experiment,
         run_name=run_name,
+        parent_run=parent_run,
         progress=not quiet,
         track=not no_track,
     )
