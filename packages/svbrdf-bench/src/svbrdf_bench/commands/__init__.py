@@ -1,0 +1,1 @@
+"""The ``svbrdf-bench`` subcommands, one module each; every module lists its commands in ``COMMANDS``."""

@@ -1,0 +1,109 @@
+"""``svbrdf-bench run``: which model, at what cost."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ..presets import PRESETS
+
+EPILOG = (
+    """\b
+Examples:
+  svbrdf-bench run --models ours,no-attn                     # quick preset: < 10 min on 2 CPU cores
+  svbrdf-bench run --models ours,no-attn,radn --preset standard --device cuda
+  svbrdf-bench run --models no-adv --from-runs ours          # reuse the last finished run of ours
+  svbrdf-bench run --models ours,no-attn --test-data ../shared/data/des18-dev
+
+\b
+Presets (every model gets the same training-time budget):
+"""
+    + "\n".join(f"  {p.name:<9} {p.expected}" for p in PRESETS.values())
+    + """
+
+\b
+Output: the tables in the terminal (rows = models; RMSE and SSIM per map and on renderings
+under 6 fixed light/view pairs, each with a 95% bootstrap interval; time and memory; what each
+model's extra accuracy costs against each other one), and in --out: report.md, results.csv,
+results.json, costs.csv, learning_curves.png, pareto.png, comparison.png. MLflow: one parent
+run, one child per model; `svbrdf-bench report PARENT_RUN_ID` rebuilds the report later.
+"""
+)
+
+
+def _split(value: str | None) -> list[str]:
+    return [x.strip() for x in (value or "").split(",") if x.strip()]
+
+
+@click.command("run", epilog=EPILOG)
+@click.option(
+    "--models", default="", metavar="A,B,...", help="Recipes to train and compare (svbrdf-train recipes)."
+)
+@click.option(
+    "--preset",
+    type=click.Choice(list(PRESETS)),
+    default="quick",
+    show_default=True,
+    help="Budget and test size.",
+)
+@click.option(
+    "--from-runs", default="", metavar="ID|RECIPE,...", help="Reuse finished fits instead of training."
+)
+@click.option(
+    "--test-data",
+    type=click.Path(path_type=Path),
+    help="A Des18 folder or .h5 shards [default: procedural test materials from a fixed seed].",
+)
+@click.option("--test-count", type=click.IntRange(min=1), help="Size of the procedural test set [preset's].")
+@click.option("--minutes", type=click.FloatRange(min=0), help="Training minutes per model [preset's].")
+@click.option(
+    "--set", "sets", multiple=True, metavar="SECTION.FIELD=VALUE", help="Recipe override for every model."
+)
+@click.option(
+    "-o",
+    "--out",
+    type=click.Path(path_type=Path, file_okay=False),
+    default=Path("bench-report"),
+    show_default=True,
+)
+@click.option(
+    "--device", default="cpu", show_default=True, help="cpu, cuda or cuda:K (training and evaluation)."
+)
+@click.option(
+    "--size", type=click.Choice(["paper", "cpu", "smoke"]), help="Recipe size instead of the preset's."
+)
+@click.option("--experiment", default="svbrdf-bench", show_default=True, help="MLflow experiment.")
+def run(models, preset, from_runs, test_data, test_count, minutes, sets, out, device, size, experiment):
+    """Train (or reuse) each model under one budget, test all on the same images, compare.
+
+    Answers "which model, at what cost?": accuracy per map and on renderings with bootstrap
+    intervals, next to training time, throughput, inference latency, size and memory.
+    """
+    from ..errors import BenchError
+    from ..presets import get_preset
+    from ..runner import BenchOptions, run_bench
+
+    chosen = _split(models)
+    reused = _split(from_runs)
+    if not chosen and not reused:
+        raise BenchError("nothing to compare: give --models A,B (recipes) and/or --from-runs ID,...")
+    run_bench(
+        BenchOptions(
+            models=chosen,
+            preset=get_preset(preset),
+            from_runs=reused,
+            test_data=str(test_data) if test_data else None,
+            test_count=test_count,
+            minutes=minutes,
+            overrides=list(sets),
+            out=out,
+            device=device,
+            experiment=experiment,
+            size=size,
+            say=lambda s: click.echo(s, err=not s.startswith("svbrdf-bench:")),
+        )
+    )
+
+
+COMMANDS = [run]

@@ -1,0 +1,249 @@
+"""Per-sample accuracy figures of predicted maps, and bootstrap intervals over test images.
+
+:func:`evaluate` gives, per sample, the RMSE (the figures of :mod:`svbrdf_train.metrics`: maps on
+their stored encodings in [0, 1], renderings as a display shows them under the 6 evaluation
+light/view pairs), the SSIM on the same images, and LPIPS when its weights are at hand
+(:func:`load_lpips`, never a download). :func:`bootstrap_ci` and :func:`paired_difference`
+turn per-sample figures into a mean with a 95% interval, and tell whether two models differ
+by more than the choice of test images.
+
+scikit-image is imported on first use, not at import time.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from svbrdf_render import MAP_NAMES, SVBRDF, evaluation_scene
+from svbrdf_train.metrics import display_rendering, map_rmse, render_rmse
+
+from .errors import BenchError
+
+__all__ = [
+    "evaluate",
+    "load_lpips",
+    "bootstrap_ci",
+    "paired_difference",
+    "Difference",
+    "ssim_win_size",
+    "ALEXNET_WEIGHTS",
+]
+
+#: torchvision's file name for the ImageNet AlexNet weights, LPIPS's default backbone.
+ALEXNET_WEIGHTS = "alexnet-owt-7be5be79.pth"
+
+#: An LPIPS distance: two ``(B, 3, H, W)`` tensors in [0, 1] -> ``(B,)`` distances.
+LpipsFn = Callable[[Tensor, Tensor], np.ndarray]
+
+
+# -- per-sample figures -------------------------------------------------------------------
+
+
+def ssim_win_size(height: int, width: int) -> int:
+    """scikit-image's default SSIM window (7), or the largest odd size that fits smaller images."""
+    side = min(height, width)
+    if side < 3:
+        raise BenchError(
+            f"SSIM needs images of at least 3x3 pixels, got {height}x{width}; evaluate larger crops"
+        )
+    return min(7, side if side % 2 else side - 1)
+
+
+def _stored(svbrdf: SVBRDF) -> dict[str, np.ndarray]:
+    """The maps as files store them, in [0, 1], as float64 ``(B, C, H, W)`` arrays."""
+    out = {}
+    for name, t in svbrdf.maps().items():
+        v = (t + 1) / 2 if name == "normal" else t
+        out[name] = v.detach().to("cpu", torch.float64).numpy()
+    return out
+
+
+def _ssim(a: np.ndarray, b: np.ndarray, win_size: int) -> float:
+    """SSIM of two ``(C, H, W)`` images in [0, 1]."""
+    from skimage.metrics import structural_similarity
+
+    if a.shape[0] == 1:
+        return float(structural_similarity(a[0], b[0], data_range=1.0, win_size=win_size))
+    return float(structural_similarity(a, b, data_range=1.0, win_size=win_size, channel_axis=0))
+
+
+def evaluate(pred: SVBRDF, target: SVBRDF, *, lpips: LpipsFn | None = None) -> dict[str, np.ndarray]:
+    """Per-sample figures of ``pred`` against ``target``, each a float64 array ``(B,)``.
+
+    Keys: ``rmse/<map>`` and ``ssim/<map>`` for each map of ``MAP_NAMES``, ``rmse/render`` and
+    ``ssim/render`` (the mean SSIM over the 6 evaluation renderings of a sample), and, when an
+    ``lpips`` callable is given (see :func:`load_lpips`), ``lpips/<map>`` and ``lpips/render``.
+    Roughness is shown to LPIPS as grey RGB.
+    """
+    if pred.shape != target.shape:
+        raise BenchError(f"evaluate: prediction is {pred.shape}, ground truth {target.shape} (B, H, W)")
+    b, h, w = target.shape
+    win = ssim_win_size(h, w)
+    out: dict[str, np.ndarray] = {}
+
+    def as_array(t: Tensor) -> np.ndarray:
+        return t.detach().to("cpu", torch.float64).numpy()
+
+    for name, v in map_rmse(pred, target).items():
+        out[f"rmse/{name}"] = as_array(v)
+    out["rmse/render"] = as_array(render_rmse(pred, target))
+
+    p_maps, t_maps = _stored(pred), _stored(target)
+    for name in MAP_NAMES:
+        out[f"ssim/{name}"] = np.array([_ssim(p_maps[name][k], t_maps[name][k], win) for k in range(b)])
+
+    scene = evaluation_scene(device=target.device)
+    with torch.no_grad():
+        p_img = display_rendering(pred, scene)  # (B, 6, 3, H, W)
+        t_img = display_rendering(target, scene)
+    p_np, t_np = as_array(p_img), as_array(t_img)
+    out["ssim/render"] = np.array(
+        [np.mean([_ssim(p_np[k, i], t_np[k, i], win) for i in range(p_np.shape[1])]) for k in range(b)]
+    )
+
+    if lpips is not None:
+        pm, tm = pred.maps(), target.maps()
+        for name in MAP_NAMES:
+            p, t = pm[name].detach(), tm[name].detach()
+            if name == "normal":
+                p, t = (p + 1) / 2, (t + 1) / 2
+            if p.shape[1] == 1:
+                p, t = p.expand(-1, 3, -1, -1), t.expand(-1, 3, -1, -1)
+            out[f"lpips/{name}"] = np.asarray(lpips(p.float(), t.float()), dtype=np.float64).reshape(b)
+        n = p_img.shape[1]
+        d = lpips(p_img.flatten(0, 1).float(), t_img.flatten(0, 1).float())
+        out["lpips/render"] = np.asarray(d, dtype=np.float64).reshape(b, n).mean(axis=1)
+    return out
+
+
+# -- LPIPS, only from local weights -------------------------------------------------------
+
+
+def _alexnet_weights(path: str | Path | None) -> Path:
+    if path is None:
+        return Path(torch.hub.get_dir()) / "checkpoints" / ALEXNET_WEIGHTS
+    p = Path(path).expanduser()
+    return p / ALEXNET_WEIGHTS if p.is_dir() else p
+
+
+def load_lpips(path: str | Path | None = None) -> tuple[LpipsFn | None, str]:
+    """LPIPS (AlexNet) when the ``lpips`` package and the backbone weights are here; never downloads.
+
+    Args:
+        path: torchvision's AlexNet weights file (or a folder holding ``alexnet-owt-7be5be79.pth``);
+            default: torch hub's cache, ``torch.hub.get_dir()/checkpoints/alexnet-owt-7be5be79.pth``.
+
+    Returns:
+        ``(distance, message)``: ``distance`` takes two ``(B, 3, H, W)`` tensors in [0, 1] and
+        returns ``(B,)`` numpy distances; or ``(None, "LPIPS skipped: <reason and remedy>")``.
+    """
+    weights = _alexnet_weights(path)
+    remedy = f"pip install lpips, and place torchvision's AlexNet weights at {weights}"
+    try:
+        import lpips as lpips_pkg
+    except Exception as e:  # ImportError, or lpips's own imports (torchvision) failing
+        return (
+            None,
+            f"LPIPS skipped: the lpips package cannot be imported ({type(e).__name__}: {e}); {remedy}",
+        )
+    if not weights.is_file():
+        return None, f"LPIPS skipped: no AlexNet weights at {weights}; {remedy}"
+    try:
+        # A random backbone (no download); the linear layers ship with the package.
+        model = lpips_pkg.LPIPS(net="alex", pnet_rand=True, verbose=False)
+        state = torch.load(weights, map_location="cpu", weights_only=True)
+        slices = [(0, 2), (2, 5), (5, 8), (8, 10), (10, 12)]  # lpips's cut of alexnet.features
+        backbone = {}
+        for key, value in state.items():
+            parts = key.split(".")
+            if parts[0] != "features":
+                continue
+            i = int(parts[1])
+            s = next(k for k, (lo, hi) in enumerate(slices, 1) if lo <= i < hi)
+            backbone[f"slice{s}.{i}.{parts[2]}"] = value
+        model.net.load_state_dict(backbone)
+        model.eval()
+    except Exception as e:
+        return (
+            None,
+            f"LPIPS skipped: cannot load LPIPS with the weights at {weights} ({type(e).__name__}: {e})",
+        )
+
+    def distance(a: Tensor, b: Tensor) -> np.ndarray:
+        m = model.to(a.device)
+        with torch.no_grad():
+            d = m(a.float(), b.float(), normalize=True)
+        return d.reshape(a.shape[0]).to("cpu", torch.float64).numpy()
+
+    return distance, f"LPIPS (AlexNet) from {weights}"
+
+
+# -- bootstrap ----------------------------------------------------------------------------
+
+
+def _samples(values, what: str) -> np.ndarray:
+    v = np.asarray(values, dtype=np.float64).reshape(-1)
+    if v.size == 0:
+        raise BenchError(f"{what}: no values (no test images?)")
+    if not np.isfinite(v).all():
+        raise BenchError(f"{what}: {int((~np.isfinite(v)).sum())} of {v.size} values are NaN or infinite")
+    return v
+
+
+def _check(n_boot: int, level: float, what: str) -> None:
+    if n_boot < 1:
+        raise BenchError(f"{what}: n_boot must be at least 1, got {n_boot}")
+    if not 0 < level < 1:
+        raise BenchError(f"{what}: level must be in (0, 1), got {level}")
+
+
+def _bootstrap(v: np.ndarray, n_boot: int, level: float, seed: int) -> tuple[float, float, float]:
+    mean = float(v.mean())
+    if v.size == 1:
+        return mean, mean, mean
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, v.size, size=(n_boot, v.size))
+    means = v[idx].mean(axis=1)
+    tail = (1 - level) / 2
+    low, high = np.quantile(means, [tail, 1 - tail])
+    return mean, float(low), float(high)
+
+
+def bootstrap_ci(
+    values, *, n_boot: int = 2000, level: float = 0.95, seed: int = 0
+) -> tuple[float, float, float]:
+    """``(mean, low, high)``: the mean over samples and its percentile-bootstrap interval.
+
+    Deterministic for a given ``seed``; one sample gives ``(v, v, v)``.
+    """
+    _check(n_boot, level, "bootstrap_ci")
+    return _bootstrap(_samples(values, "bootstrap_ci"), n_boot, level, seed)
+
+
+@dataclass(frozen=True)
+class Difference:
+    """``mean(a - b)`` over the same test images, with its bootstrap interval."""
+
+    mean: float
+    low: float
+    high: float
+    #: The interval contains 0: the two cannot be told apart on these test images.
+    within_noise: bool
+
+
+def paired_difference(a, b, *, n_boot: int = 2000, level: float = 0.95, seed: int = 0) -> Difference:
+    """Bootstrap of ``mean(a - b)``, resampling test images (the same ones for ``a`` and ``b``)."""
+    _check(n_boot, level, "paired_difference")
+    va, vb = _samples(a, "paired_difference"), _samples(b, "paired_difference")
+    if va.shape != vb.shape:
+        raise BenchError(
+            f"paired_difference: {va.size} values against {vb.size}; expected one per test image for both"
+        )
+    mean, low, high = _bootstrap(va - vb, n_boot, level, seed)
+    return Difference(mean, low, high, bool(low <= 0 <= high))

@@ -1,0 +1,186 @@
+"""Pictures of a benchmark: learning curves, accuracy against cost, side-by-side predictions.
+
+Figures are drawn on :class:`matplotlib.figure.Figure` directly (no pyplot, no display, no
+global backend state); matplotlib is imported on first use, not at import time.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+from torch import Tensor
+
+from .errors import BenchError
+
+__all__ = ["learning_curves", "pareto", "pareto_front", "comparison_grid"]
+
+_DPI = 120
+
+
+def _figure(size=(7.0, 4.5)):
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=size, layout="constrained")
+
+
+def _save(fig, path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=_DPI, format="png")
+    return path
+
+
+def learning_curves(
+    curves: Mapping[str, tuple[Sequence[float], Sequence[float]]],
+    path,
+    *,
+    ylabel: str = "validation render RMSE",
+    xlabel: str = "training time (s)",
+) -> Path:
+    """One line per model, ``{name: (training wall time in seconds, metric)}``, as a PNG at ``path``.
+
+    Models with no points are left out; no points at all is a :class:`BenchError`.
+    """
+    drawn = {}
+    for name, (xs, ys) in curves.items():
+        xs, ys = [float(x) for x in xs], [float(y) for y in ys]
+        if len(xs) != len(ys):
+            raise BenchError(f"learning curves: model {name!r} has {len(xs)} times but {len(ys)} values")
+        if xs:
+            drawn[name] = (xs, ys)
+    if not drawn:
+        raise BenchError("learning curves: no points to draw (no model logged a validation figure)")
+    fig = _figure()
+    ax = fig.add_subplot()
+    for name, (xs, ys) in drawn.items():
+        ax.plot(xs, ys, marker="o", markersize=3.5, linewidth=1.5, label=name)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(f"{ylabel} against {xlabel}")
+    ax.grid(True, alpha=0.35)
+    ax.legend(fontsize="small")
+    return _save(fig, path)
+
+
+def _check_points(points: Mapping[str, tuple[float, float, float, float]], what: str) -> None:
+    if not points:
+        raise BenchError(f"{what}: no models to place")
+    for name, p in points.items():
+        if len(p) != 4:
+            raise BenchError(f"{what}: model {name!r} has {len(p)} values, expected (x, y, y_low, y_high)")
+        if not (math.isfinite(p[0]) and math.isfinite(p[1])):
+            raise BenchError(f"{what}: model {name!r} is at ({p[0]}, {p[1]}); expected finite x and y")
+
+
+def pareto_front(points: Mapping[str, tuple[float, float, float, float]]) -> list[str]:
+    """Names of the models no other one dominates (lower or equal x and y, one strictly lower), by x.
+
+    ``points`` maps a name to ``(x, y, y_low, y_high)``; lower is better on both axes. Models
+    at the same place do not dominate each other: both are on the front. Ties in x are
+    ordered by y, then name.
+    """
+    _check_points(points, "pareto_front")
+    xy = {name: (float(p[0]), float(p[1])) for name, p in points.items()}
+
+    def dominated(name: str) -> bool:
+        x, y = xy[name]
+        return any(
+            ox <= x and oy <= y and (ox < x or oy < y) for other, (ox, oy) in xy.items() if other != name
+        )
+
+    return sorted((n for n in xy if not dominated(n)), key=lambda n: (xy[n][0], xy[n][1], n))
+
+
+def pareto(
+    points: Mapping[str, tuple[float, float, float, float]],
+    path,
+    *,
+    xlabel: str = "inference latency per image at 256x256 (ms)",
+    ylabel: str = "render RMSE",
+    logx: bool = False,
+) -> Path:
+    """Accuracy against cost, ``{name: (x, y, y_low, y_high)}``, as a PNG at ``path``.
+
+    Each model is a labelled point with its interval (e.g. the 95% bootstrap) as a vertical
+    error bar; the Pareto front (:func:`pareto_front`) is drawn as a step line. ``logx`` puts
+    x on a log scale (for latencies spanning decades).
+    """
+    _check_points(points, "pareto")
+    front = pareto_front(points)
+    fig = _figure()
+    ax = fig.add_subplot()
+    for name, (x, y, lo, hi) in points.items():
+        lo = y if not math.isfinite(lo) else lo
+        hi = y if not math.isfinite(hi) else hi
+        err = [[max(y - lo, 0.0)], [max(hi - y, 0.0)]]
+        ax.errorbar(
+            [x],
+            [y],
+            yerr=err,
+            fmt="o",
+            capsize=3,
+            markersize=5,
+            color="tab:blue" if name in front else "tab:gray",
+        )
+        ax.annotate(name, (x, y), xytext=(5, 4), textcoords="offset points", fontsize="small")
+    fx = [float(points[n][0]) for n in front]
+    fy = [float(points[n][1]) for n in front]
+    ax.step(
+        fx,
+        fy,
+        where="post",
+        color="tab:red",
+        linewidth=1.2,
+        alpha=0.8,
+        label="Pareto front: " + ", ".join(front),
+    )
+    if logx:
+        ax.set_xscale("log")
+    ax.margins(x=0.08, y=0.08)  # room for the labels of the outer points
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(f"{ylabel} against {xlabel}")
+    ax.grid(True, alpha=0.35)
+    ax.legend(fontsize="small")
+    return _save(fig, path)
+
+
+def comparison_grid(rows: Sequence[tuple[str, Sequence[Tensor]]], columns: Sequence[str], path) -> Path:
+    """Side-by-side pictures: one labelled row per ``(label, tiles)``, under ``columns`` titles.
+
+    Tiles are ``(3, H, W)`` (or grey ``(1, H, W)``) display images in [0, 1], all the same size,
+    one per column. Written as an 8-bit PNG at ``path``.
+    """
+    from svbrdf_render import write_image
+    from svbrdf_train.data.sheet import image_grid
+
+    if not rows:
+        raise BenchError("comparison grid: no rows to draw")
+    columns = list(columns)
+    if not columns:
+        raise BenchError("comparison grid: no columns to draw")
+    size = None
+    tiles_rows = []
+    for label, tiles in rows:
+        if len(tiles) != len(columns):
+            raise BenchError(
+                f"comparison grid: row {label!r} has {len(tiles)} pictures for {len(columns)} columns"
+            )
+        row = []
+        for tile in tiles:
+            if tile.dim() != 3 or tile.shape[0] not in (1, 3):
+                raise BenchError(
+                    f"comparison grid: row {label!r}: expected (3, H, W) pictures, got {tuple(tile.shape)}"
+                )
+            if size is None:
+                size = tuple(tile.shape[-2:])
+            elif tuple(tile.shape[-2:]) != size:
+                raise BenchError(
+                    f"comparison grid: row {label!r}: a {tuple(tile.shape[-2:])} picture among {size} ones"
+                )
+            row.append(tile.expand(3, -1, -1) if tile.shape[0] == 1 else tile)
+        tiles_rows.append(row)
+    image = image_grid(tiles_rows, columns, [label for label, _ in rows])
+    return write_image(Path(path), image)

@@ -1,0 +1,71 @@
+"""Benchmark presets: how long each model trains, on how many test images, and what that costs.
+
+Every model of one invocation gets the same training-time budget (``minutes``, training time
+without validation), so the comparison is at equal cost; ``paper`` instead trains each recipe
+for its full schedule (20 epochs), as the paper did.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .errors import BenchError
+
+__all__ = ["Preset", "PRESETS", "get_preset", "TEST_SEED"]
+
+#: Seed of the default procedural test set: apart from every training (0) and validation (1) seed.
+TEST_SEED = 20_221
+
+
+@dataclass(frozen=True)
+class Preset:
+    name: str
+    size: str
+    """Recipe size the models train at (``svbrdf-train fit --size``)."""
+    minutes: float | None
+    """Training-time budget per model; None trains the recipe's whole schedule."""
+    test_count: int
+    """Images of the default procedural test set."""
+    validate_every: int
+    """Validation period in steps: the points of the learning curves."""
+    latency_repeats: int
+    """Timed inference runs per model (median reported, after warm-up)."""
+    expected: str
+    """What the preset takes, for the help text and the report."""
+
+
+PRESETS = {
+    "quick": Preset(
+        "quick",
+        size="cpu",
+        minutes=2.0,
+        test_count=32,
+        validate_every=25,
+        latency_repeats=10,
+        expected="under 10 min for two models on a 2-core CPU (2 min of training each)",
+    ),
+    "standard": Preset(
+        "standard",
+        size="paper",
+        minutes=30.0,
+        test_count=256,
+        validate_every=250,
+        latency_repeats=30,
+        expected="about 35 min per model on one H100 (30 min of training each); days on a CPU",
+    ),
+    "paper": Preset(
+        "paper",
+        size="paper",
+        minutes=None,
+        test_count=1000,
+        validate_every=2000,
+        latency_repeats=50,
+        expected="the paper's 20 epochs: 4-7.5 h per model on one H100 (svbrdf README), weeks on a CPU",
+    ),
+}
+
+
+def get_preset(name: str) -> Preset:
+    if name not in PRESETS:
+        raise BenchError(f"unknown preset {name!r}; presets: {', '.join(PRESETS)}")
+    return PRESETS[name]

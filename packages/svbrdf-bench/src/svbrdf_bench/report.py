@@ -1,0 +1,340 @@
+"""Benchmark reports, built from MLflow alone (so ``svbrdf-bench report PARENT`` rebuilds them).
+
+Tables in the layout of the paper's Tables 1-4 (rows = models; columns = the four maps and the
+renderings), one per metric, each figure with its 95% bootstrap interval over test images; the
+time table (training time, throughput, latency, parameters, memory); and what each model's
+extra accuracy costs against each other model, saying when the difference lies within noise.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import BenchError
+
+__all__ = ["Report", "ModelEntry", "build_report", "write_report", "COLUMNS"]
+
+COLUMNS = ("normal", "diffuse", "roughness", "specular", "render")
+METRICS = (
+    ("rmse", "RMSE", "lower is better"),
+    ("ssim", "SSIM", "higher is better"),
+    ("lpips", "LPIPS", "lower"),
+)
+TIME_COLUMNS = (
+    ("time/train_s", "train time (s)", "{:.1f}"),
+    ("train/steps", "steps", "{:.0f}"),
+    ("time/train_samples_per_s", "train samples/s", "{:.1f}"),
+    ("time/train_ms_per_step", "train ms/step", "{:.0f}"),
+    ("time/latency_ms", "latency 256px (ms)", "{:.1f}"),
+    ("model/params", "params (M)", "{:.2f}"),
+    ("memory/peak_rss_mb", "peak RSS (MB)", "{:.0f}"),
+    ("memory/peak_cuda_mb", "peak GPU (MB)", "{:.0f}"),
+)
+
+
+@dataclass
+class ModelEntry:
+    label: str
+    run_id: str
+    train_run_id: str
+    per_sample: dict[str, np.ndarray]
+    figures: dict[str, float]
+    curve: tuple[list[float], list[float]] = field(default_factory=lambda: ([], []))
+
+
+@dataclass
+class Report:
+    parent_id: str
+    preset: str
+    test_set: str
+    lpips_note: str
+    minutes: str
+    models: list[ModelEntry]
+
+    # -- figures ----------------------------------------------------------------------------
+
+    def interval(self, model: ModelEntry, metric: str, column: str) -> tuple[float, float, float] | None:
+        from .metrics import bootstrap_ci
+
+        values = model.per_sample.get(f"{metric}/{column}")
+        return None if values is None or len(values) == 0 else bootstrap_ci(values)
+
+    def metrics_present(self) -> list[tuple[str, str, str]]:
+        return [m for m in METRICS if any(f"{m[0]}/render" in e.per_sample for e in self.models)]
+
+    def costs(self) -> list[dict]:
+        """Every ordered pair (A, B), A more accurate on renderings: what A's accuracy costs."""
+        from .metrics import paired_difference
+
+        out = []
+        for a in self.models:
+            for b in self.models:
+                if a is b:
+                    continue
+                ra, rb = a.per_sample["rmse/render"], b.per_sample["rmse/render"]
+                if len(ra) != len(rb):
+                    raise BenchError(f"{a.label} and {b.label} were tested on different test sets")
+                if ra.mean() > rb.mean():
+                    continue
+                d = paired_difference(ra, rb)
+
+                def ratio(key, a=a, b=b):
+                    x, y = a.figures.get(key, math.nan), b.figures.get(key, math.nan)
+                    return x / y if y and not math.isnan(x) and not math.isnan(y) else math.nan
+
+                out.append(
+                    {
+                        "model": a.label,
+                        "versus": b.label,
+                        "render_rmse_difference": d.mean,
+                        "low": d.low,
+                        "high": d.high,
+                        "within_noise": bool(d.within_noise),
+                        "train_time_per_step_ratio": ratio("time/train_ms_per_step"),
+                        "latency_ratio": ratio("time/latency_ms"),
+                        "params_ratio": ratio("model/params"),
+                    }
+                )
+        return out
+
+    # -- text -------------------------------------------------------------------------------
+
+    def _accuracy_table(self, metric: str, title: str, sense: str, markdown: bool) -> list[str]:
+        head = ["model", *COLUMNS]
+        rows = []
+        for e in self.models:
+            cells = [e.label]
+            for c in COLUMNS:
+                ci = self.interval(e, metric, c)
+                cells.append("-" if ci is None else f"{ci[0]:.4f} [{ci[1]:.4f}, {ci[2]:.4f}]")
+            rows.append(cells)
+        return _table(f"{title} ({sense}; 95% bootstrap interval over test images)", head, rows, markdown)
+
+    def _time_table(self, markdown: bool) -> list[str]:
+        cols = [c for c in TIME_COLUMNS if any(c[0] in e.figures for e in self.models)]
+        rows = []
+        for e in self.models:
+            cells = [e.label]
+            for key, _, fmt in cols:
+                v = e.figures.get(key, math.nan)
+                if key == "model/params":
+                    v = v / 1e6
+                cells.append("-" if v is None or math.isnan(v) else fmt.format(v))
+            rows.append(cells)
+        return _table("Time and memory", ["model", *(c[1] for c in cols)], rows, markdown)
+
+    def _cost_lines(self, markdown: bool) -> list[str]:
+        rows, notes = [], []
+        for c in self.costs():
+            noise = "within noise" if c["within_noise"] else "beyond noise"
+            rows.append(
+                [
+                    f"{c['model']} vs {c['versus']}",
+                    f"{c['render_rmse_difference']:+.4f} [{c['low']:+.4f}, {c['high']:+.4f}]",
+                    noise,
+                    _ratio(c["train_time_per_step_ratio"]),
+                    _ratio(c["latency_ratio"]),
+                    _ratio(c["params_ratio"]),
+                ]
+            )
+            if c["within_noise"]:
+                notes.append(
+                    f"{c['model']} and {c['versus']}: the render RMSE difference lies within the noise of "
+                    f"this test set (its interval contains 0); the extra cost buys no measurable accuracy."
+                )
+            else:
+                notes.append(
+                    f"{c['model']} renders {-c['render_rmse_difference']:.4f} RMSE better than {c['versus']} "
+                    f"for {_ratio(c['train_time_per_step_ratio'])} the training time per step and "
+                    f"{_ratio(c['latency_ratio'])} the latency."
+                )
+        head = ["pair", "render RMSE difference [95%]", "noise", "train time/step", "latency", "params"]
+        return [*_table("What accuracy costs", head, rows, markdown), *notes]
+
+    def terminal(self) -> str:
+        lines = [f"svbrdf-bench: {', '.join(e.label for e in self.models)} ({self.preset}; {self.minutes})",
+                 f"test set: {self.test_set}; {self.lpips_note}", ""]  # fmt: skip
+        for metric, title, sense in self.metrics_present():
+            lines += [*self._accuracy_table(metric, title, sense, False), ""]
+        lines += [*self._time_table(False), ""]
+        if len(self.models) > 1:
+            lines += self._cost_lines(False)
+        return "\n".join(lines)
+
+    def markdown(self, files: dict[str, str]) -> str:
+        lines = [
+            f"# Benchmark: {', '.join(e.label for e in self.models)}",
+            "",
+            f"- preset: {self.preset} ({self.minutes})",
+            f"- test set: {self.test_set}",
+            f"- {self.lpips_note}",
+            f"- MLflow parent run: `{self.parent_id}`; rebuild with `svbrdf-bench report {self.parent_id}`",
+            "",
+        ]
+        for metric, title, sense in self.metrics_present():
+            lines += [*self._accuracy_table(metric, title, sense, True), ""]
+        lines += [*self._time_table(True), ""]
+        if len(self.models) > 1:
+            lines += [*self._cost_lines(True), ""]
+        for name, caption in (
+            ("learning_curves", "Validation render RMSE against training time"),
+            ("pareto", "Inference latency against render RMSE"),
+            ("comparison", "Input, true maps and each model's maps, with flash re-renderings"),
+        ):
+            if name in files:
+                lines += [f"## {caption}", "", f"![{caption}]({files[name]})", ""]
+        return "\n".join(lines)
+
+    def records(self) -> list[dict]:
+        out = []
+        for e in self.models:
+            rec = {"model": e.label, "run_id": e.run_id, "train_run_id": e.train_run_id}
+            for metric, _, _ in self.metrics_present():
+                for c in COLUMNS:
+                    ci = self.interval(e, metric, c)
+                    if ci is not None:
+                        rec[f"{metric}_{c}"], rec[f"{metric}_{c}_low"], rec[f"{metric}_{c}_high"] = ci
+            for key, _, _ in TIME_COLUMNS:
+                if key in e.figures:
+                    rec[key.replace("/", "_")] = e.figures[key]
+            out.append(rec)
+        return out
+
+
+def _ratio(x: float) -> str:
+    return "-" if x is None or math.isnan(x) else f"{x:.2f}x"
+
+
+def _table(title: str, head: list[str], rows: list[list[str]], markdown: bool) -> list[str]:
+    if markdown:
+        return [
+            f"## {title}",
+            "",
+            "| " + " | ".join(head) + " |",
+            "| " + " | ".join("---" for _ in head) + " |",
+            *("| " + " | ".join(r) + " |" for r in rows),
+        ]
+    widths = [max(len(str(x)) for x in col) for col in zip(head, *rows, strict=True)]
+    fmt = "  ".join(f"{{:<{w}}}" for w in widths)
+    return [title, fmt.format(*head), fmt.format(*("-" * w for w in widths)), *(fmt.format(*r) for r in rows)]
+
+
+# -- from MLflow --------------------------------------------------------------------------------
+
+
+def _curve(client, run_id: str) -> tuple[list[float], list[float]]:
+    rmse = {m.step: m.value for m in client.get_metric_history(run_id, "val/rmse/render")}
+    seconds = {m.step: m.value for m in client.get_metric_history(run_id, "val/train_seconds")}
+    steps = sorted(set(rmse) & set(seconds))
+    return [seconds[s] for s in steps], [rmse[s] for s in steps]
+
+
+def build_report(parent_id: str) -> Report:
+    """Everything the report shows, read back from the parent run and its children."""
+    from mlflow import MlflowClient
+
+    from .runner import KIND_TAG, MODEL_TAG, PER_SAMPLE, TRAIN_RUN_TAG
+
+    client = MlflowClient()
+    try:
+        parent = client.get_run(parent_id)
+    except Exception as e:  # MlflowException for an unknown id
+        raise BenchError(f"no MLflow run {parent_id} in {client.tracking_uri} ({type(e).__name__})") from None
+    if parent.data.tags.get(KIND_TAG) != "bench":
+        raise BenchError(f"run {parent_id} is not the parent run of an svbrdf-bench run")
+    children = client.search_runs(
+        [parent.info.experiment_id], filter_string=f"tags.`mlflow.parentRunId` = '{parent_id}'"
+    )
+    models = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for child in sorted(children, key=lambda r: r.info.start_time):
+            label = child.data.tags.get(MODEL_TAG)
+            if label is None:
+                continue  # trained but never evaluated (an interrupted benchmark)
+            local = client.download_artifacts(child.info.run_id, PER_SAMPLE, tmp)
+            per_sample = {
+                k: np.asarray(v, dtype=np.float64) for k, v in json.loads(Path(local).read_text()).items()
+            }
+            train_run = child.data.tags.get(TRAIN_RUN_TAG, child.info.run_id)
+            figures = {k: v for k, v in child.data.metrics.items() if not k.startswith(("val/", "train/"))}
+            figures["train/steps"] = child.data.metrics.get("train/steps", math.nan)
+            models.append(
+                ModelEntry(
+                    label, child.info.run_id, train_run, per_sample, figures, _curve(client, train_run)
+                )
+            )
+    if not models:
+        raise BenchError(f"run {parent_id} has no evaluated models yet")
+    params = parent.data.params
+    minutes = params.get("train_minutes_per_model", "?")
+    return Report(
+        parent_id=parent_id,
+        preset=params.get("preset", "?"),
+        test_set=params.get("test_set", "?"),
+        lpips_note=parent.data.tags.get("lpips", ""),
+        minutes=f"{minutes} min of training per model" if minutes[:1].isdigit() else minutes,
+        models=models,
+    )
+
+
+def write_report(report: Report, out: str | Path, *, grid: Path | None = None) -> list[Path]:
+    """``report.md``, ``results.csv``, ``results.json``, ``costs.csv``, the plots and the grid."""
+    from .plots import learning_curves, pareto
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    files: dict[str, str] = {}
+    written: list[Path] = []
+    curves = {e.label: e.curve for e in report.models if e.curve[0]}
+    if curves:
+        written.append(learning_curves(curves, out / "learning_curves.png"))
+        files["learning_curves"] = "learning_curves.png"
+    points = {}
+    for e in report.models:
+        ci = report.interval(e, "rmse", "render")
+        latency = e.figures.get("time/latency_ms", math.nan)
+        if ci is not None and not math.isnan(latency):
+            points[e.label] = (latency, *ci)
+    if points:
+        written.append(pareto(points, out / "pareto.png"))
+        files["pareto"] = "pareto.png"
+    if grid is not None:
+        target = out / "comparison.png"
+        if Path(grid) != target:
+            shutil.copyfile(grid, target)
+        written.append(target)
+        files["comparison"] = "comparison.png"
+    records = report.records()
+    costs = report.costs() if len(report.models) > 1 else []
+    (out / "results.json").write_text(
+        json.dumps(
+            {
+                "parent_run": report.parent_id,
+                "preset": report.preset,
+                "test_set": report.test_set,
+                "models": records,
+                "costs": costs,
+            },
+            indent=2,
+        )  # fmt: skip
+    )
+    written.append(out / "results.json")
+    for name, rows in (("results.csv", records), ("costs.csv", costs)):
+        if rows:
+            keys = list(dict.fromkeys(k for r in rows for k in r))
+            with open(out / name, "w", newline="") as f:
+                w = csv.DictWriter(f, fieldnames=keys)
+                w.writeheader()
+                w.writerows(rows)
+            written.append(out / name)
+    (out / "report.md").write_text(report.markdown(files))
+    written.append(out / "report.md")
+    return written

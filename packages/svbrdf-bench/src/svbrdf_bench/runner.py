@@ -1,0 +1,355 @@
+"""``svbrdf-bench run``: train (or reuse) each model, evaluate all on one test set, log and report.
+
+MLflow layout of one invocation::
+
+    parent run  "bench-<models>-<preset>"  (tags svbrdf.kind=bench; the report, tables and plots)
+      child run  per model: the model's training run itself (svbrdf-train fit --parent-run), or,
+                 for a reused run (--from-runs), a new run tagged svbrdf.train_run=<that run>;
+                 holds test/* metrics, time/* metrics and eval/per_sample.json
+
+:mod:`svbrdf_bench.report` builds every table and plot from those runs alone, so
+``svbrdf-bench report PARENT`` rebuilds them later.
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .errors import BenchError
+from .presets import Preset
+from .testset import TestSet
+
+__all__ = ["BenchOptions", "run_bench", "MODEL_TAG", "KIND_TAG", "TRAIN_RUN_TAG", "PER_SAMPLE"]
+
+MODEL_TAG = "svbrdf.model"
+KIND_TAG = "svbrdf.kind"
+TRAIN_RUN_TAG = "svbrdf.train_run"
+PER_SAMPLE = "eval/per_sample.json"
+#: Test samples shown in the visual comparison grid.
+GRID_SAMPLES = 3
+#: Side of the input of the latency measurement.
+LATENCY_SIZE = 256
+
+
+@dataclass
+class BenchOptions:
+    models: list[str]
+    preset: Preset
+    from_runs: list[str] = field(default_factory=list)
+    test_data: str | None = None
+    test_count: int | None = None
+    minutes: float | None = None
+    overrides: list[str] = field(default_factory=list)
+    out: Path = Path("bench-report")
+    device: str = "cpu"
+    experiment: str = "svbrdf-bench"
+    size: str | None = None
+    """Recipe size instead of the preset's (``smoke`` for a dry run)."""
+    say: Callable[[str], None] = print
+
+
+def _client():
+    from mlflow import MlflowClient
+
+    return MlflowClient()
+
+
+# -- models -------------------------------------------------------------------------------------
+
+
+def _resolve_reuse(items: Sequence[str]) -> list[tuple[str, str]]:
+    """``--from-runs`` items (run ids or recipe names) -> ``(model label, run id)``."""
+    client = _client()
+    out = []
+    for item in items:
+        try:
+            run = client.get_run(item)
+        except Exception:  # not a run id: a recipe name
+            run = None
+        if run is not None:
+            label = run.data.tags.get("recipe") or item
+            out.append((label, run.info.run_id))
+            continue
+        experiments = [e.experiment_id for e in client.search_experiments()]
+        found = client.search_runs(
+            experiments,
+            filter_string=f"tags.recipe = '{item}' and attributes.status = 'FINISHED'",
+            order_by=["attributes.end_time DESC"],
+            max_results=1,
+        )
+        if not found:
+            raise BenchError(
+                f"--from-runs {item}: neither a run id nor the recipe of a finished run "
+                f"in {client.tracking_uri}"
+            )
+        out.append((item, found[0].info.run_id))
+    return out
+
+
+def _check_models(models: Sequence[str]) -> None:
+    from svbrdf_train.recipe import list_recipes
+
+    known = list_recipes()
+    for m in models:
+        if m not in known and Path(m).suffix not in (".yaml", ".yml"):
+            import difflib
+
+            close = difflib.get_close_matches(m, known, n=2, cutoff=0.5)
+            hint = f" (did you mean {' or '.join(map(repr, close))}?)" if close else ""
+            raise BenchError(f"unknown model {m!r}{hint}; models are recipes: {', '.join(known)}")
+
+
+def _train(model: str, options: BenchOptions, parent: str, work: Path) -> tuple[str, float]:
+    """Train one recipe in its own process (as a user would); its run id and wall seconds."""
+    p = options.preset
+    minutes = options.minutes if options.minutes is not None else p.minutes
+    out = work / Path(model).stem
+    size = options.size or p.size
+    cmd = [
+        sys.executable, "-m", "svbrdf_train", "fit",
+        "--recipe", model, "--size", size, "--out", str(out), "--force",
+        "--experiment", options.experiment, "--parent-run", parent, "--run-name", Path(model).stem,
+        "--set", f"train.validate_every={p.validate_every}", "--device", options.device,
+    ]  # fmt: skip
+    if minutes is not None:
+        cmd += ["--max-minutes", str(minutes)]
+    for item in options.overrides:
+        cmd += ["--set", item]
+    start = time.perf_counter()
+    done = subprocess.run(cmd, stdout=subprocess.PIPE, text=True)
+    wall = time.perf_counter() - start
+    if done.returncode != 0:
+        raise BenchError(f"training {model} failed (exit {done.returncode}); its messages are above")
+    summary = json.loads((out / "last.json").read_text())
+    return summary["run_id"], wall
+
+
+def _checkpoint(run_id: str, work: Path) -> dict:
+    from svbrdf_train.checkpoint import load_checkpoint
+    from svbrdf_train.predict import RUN_CHECKPOINT
+
+    local = _client().download_artifacts(run_id, RUN_CHECKPOINT, str(work))
+    return load_checkpoint(local)
+
+
+# -- evaluation ---------------------------------------------------------------------------------
+
+
+@torch.no_grad()
+def _evaluate(generator, test: TestSet, device: torch.device, lpips) -> tuple[dict[str, np.ndarray], list]:
+    from torch.utils.data import DataLoader
+
+    from svbrdf_render import SVBRDF
+
+    from .metrics import evaluate
+
+    parts: dict[str, list[np.ndarray]] = {}
+    shown = []
+    for batch in DataLoader(test, batch_size=8):
+        photo = batch["input"].to(device)
+        target = SVBRDF.unpack(batch["maps"].to(device), validate=False)
+        pred = generator(photo)
+        for k, v in evaluate(pred, target, lpips=lpips).items():
+            parts.setdefault(k, []).append(np.asarray(v, dtype=np.float64))
+        if len(shown) < GRID_SAMPLES:
+            shown += [(photo[i].cpu(), pred[i : i + 1].to("cpu"), target[i : i + 1].to("cpu"))
+                      for i in range(min(GRID_SAMPLES - len(shown), photo.shape[0]))]  # fmt: skip
+    return {k: np.concatenate(v) for k, v in parts.items()}, shown
+
+
+@torch.no_grad()
+def _latency_ms(generator, device: torch.device, repeats: int) -> float:
+    x = torch.rand(1, 3, LATENCY_SIZE, LATENCY_SIZE, device=device)
+    sync = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+    for _ in range(3):
+        generator(x)
+    sync()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        generator(x)
+        sync()
+        times.append(1000 * (time.perf_counter() - t0))
+    return statistics.median(times)
+
+
+def _log_child(run_id: str, figures: dict[str, float], per_sample: dict[str, np.ndarray], work: Path) -> None:
+    from mlflow.entities import Metric
+
+    client = _client()
+    now = int(time.time() * 1000)
+    client.log_batch(run_id, metrics=[Metric(k, float(v), now, 0) for k, v in figures.items()])
+    path = work / f"per_sample-{run_id}.json"
+    path.write_text(json.dumps({k: v.tolist() for k, v in per_sample.items()}))
+    folder = work / f"eval-{run_id}"
+    folder.mkdir(exist_ok=True)
+    target = folder / Path(PER_SAMPLE).name
+    path.replace(target)
+    client.log_artifact(run_id, str(target), str(Path(PER_SAMPLE).parent))
+
+
+# -- the whole run ------------------------------------------------------------------------------
+
+
+def run_bench(options: BenchOptions) -> str:
+    """Run the benchmark; returns the parent run id (the report is in ``options.out``)."""
+    from svbrdf_train.tracking import git_revision
+
+    from .metrics import load_lpips
+    from .report import build_report, write_report
+
+    _check_models(options.models)
+    reuse = _resolve_reuse(options.from_runs)
+    reused_labels = {label for label, _ in reuse}
+    to_train = [m for m in options.models if Path(m).stem not in reused_labels]
+    if not to_train and not reuse:
+        raise BenchError("no models to compare: give --models and/or --from-runs")
+    p = options.preset
+    size = options.size or p.size
+    from svbrdf_train.recipe import load_recipe, parse_overrides
+
+    if to_train:
+        resolution = load_recipe(to_train[0], size, parse_overrides(options.overrides)).train.resolution
+    else:
+        resolution = int(_client().get_run(reuse[0][1]).data.params.get("train.resolution", 256))
+    from .testset import test_set
+
+    test = test_set(options.test_data, resolution, options.test_count or p.test_count)
+    if len(test) == 0:
+        raise BenchError(f"the test set ({test.description}) is empty")
+    lpips, lpips_note = load_lpips()
+    device = torch.device(options.device)
+
+    client = _client()
+    from svbrdf_train.tracking import MlflowTracker
+
+    sha, dirty = git_revision()
+    labels = [Path(m).stem for m in to_train] + [label for label, _ in reuse]
+    minutes = options.minutes if options.minutes is not None else p.minutes
+    parent = MlflowTracker(
+        experiment=options.experiment,
+        run_name=f"bench-{','.join(labels)}-{p.name}",
+        tags={
+            KIND_TAG: "bench",
+            "preset": p.name,
+            "models": ",".join(labels),
+            "git_sha": sha,
+            "git_dirty": str(dirty).lower(),
+            "device": str(device),
+            "version.torch": torch.__version__,
+            "lpips": lpips_note,
+        },
+        params={
+            "preset": p.name,
+            "recipe_size": size,
+            "train_minutes_per_model": "recipe schedule" if minutes is None else str(minutes),
+            "test_set": test.description,
+            "test_count": str(len(test)),
+            "overrides": " ".join(options.overrides) or "-",
+        },
+    )
+    parent_id = parent.run_id
+    options.say(
+        f"benchmark {', '.join(labels)} ({p.name}: "
+        + ("each recipe's full schedule" if minutes is None else f"{minutes:g} min of training per model")
+        + f"); test set: {test.description}; {lpips_note}\n  MLflow parent run: {parent_id}"
+    )
+    status = "FAILED"
+    try:
+        with tempfile.TemporaryDirectory(prefix="svbrdf-bench-") as tmp:
+            work = Path(tmp)
+            jobs: list[tuple[str, str, float | None, str | None]] = []  # label, eval run, wall, source
+            for i, model in enumerate(to_train, 1):
+                options.say(f"[{i}/{len(labels)}] training {model} ({size} size)")
+                run_id, wall = _train(model, options, parent_id, work)
+                jobs.append((Path(model).stem, run_id, wall, None))
+            for label, source in reuse:
+                child = client.create_run(
+                    parent.experiment_id,
+                    run_name=f"{label} (reused)",
+                    tags={"mlflow.parentRunId": parent_id, TRAIN_RUN_TAG: source, "recipe": label},
+                )
+                jobs.append((label, child.info.run_id, None, source))
+            shown_by_model = {}
+            for label, run_id, wall, source in jobs:
+                options.say(f"evaluating {label} on {len(test)} test images")
+                state = _checkpoint(source or run_id, work)
+                from svbrdf_train.trainer import load_generator
+
+                generator, recipe = load_generator(state, device)
+                per_sample, shown = _evaluate(generator, test, device, lpips)
+                train_run = client.get_run(source or run_id)
+                m = train_run.data.metrics
+                if wall is None and train_run.info.end_time and train_run.info.start_time:
+                    wall = (train_run.info.end_time - train_run.info.start_time) / 1000
+                rate = m.get("train/steady_samples_per_s")
+                figures = {
+                    "time/train_wall_s": wall or float("nan"),
+                    "time/train_s": m.get("train/total_seconds", float("nan")),
+                    "time/train_samples_per_s": rate if rate is not None else float("nan"),
+                    "time/train_ms_per_step": 1000 * recipe.train.batch / rate if rate else float("nan"),
+                    "time/latency_ms": _latency_ms(generator, device, p.latency_repeats),
+                    "model/params": float(sum(q.numel() for q in generator.parameters())),
+                    "memory/peak_rss_mb": m.get("train/peak_rss_mb", float("nan")),
+                    "train/steps": float(state["step"]),
+                }
+                if "train/peak_cuda_mb" in m:
+                    figures["memory/peak_cuda_mb"] = m["train/peak_cuda_mb"]
+                for key, values in per_sample.items():
+                    figures[f"test/{key}"] = float(values.mean())
+                client.set_tag(run_id, MODEL_TAG, label)
+                _log_child(run_id, figures, per_sample, work)
+                shown_by_model[label] = shown
+            report = build_report(parent_id)
+            grid = _comparison_grid(shown_by_model, work / "comparison.png") if shown_by_model else None
+            files = write_report(report, options.out, grid=grid)
+            for f in files:
+                parent.log_artifact(f, "report")
+        status = "FINISHED"
+        options.say(report.terminal())
+        options.say(f"report: {options.out}/report.md; MLflow parent run {parent_id}")
+    except KeyboardInterrupt:
+        status = "KILLED"
+        raise
+    finally:
+        parent.finish(status)
+    return parent_id
+
+
+def _comparison_grid(shown: dict[str, list], path: Path) -> Path:
+    """Per test sample: the input and true maps, then each model's maps; flash re-renderings."""
+    import math
+
+    from svbrdf_render import DES18_DISTANCE, Scene, linear_to_srgb
+    from svbrdf_train.data.sheet import map_tiles
+    from svbrdf_train.metrics import display_rendering
+
+    from .plots import comparison_grid
+
+    flash = Scene.flash(intensity=math.pi * DES18_DISTANCE**2)
+    rows = []
+    first = next(iter(shown.values()))
+    for k, (photo, _, target) in enumerate(first):
+        rows.append((f"#{k} truth", [linear_to_srgb(photo), *map_tiles(target.pack()[0]),
+                                     display_rendering(target, flash)[0]]))  # fmt: skip
+        for label, items in shown.items():
+            pred = items[k][1]
+            rows.append((f"#{k} {label}", [linear_to_srgb(photo), *map_tiles(pred.pack()[0]),
+                                          display_rendering(pred, flash)[0]]))  # fmt: skip
+    grow = max(1, 96 // rows[0][1][0].shape[-1])  # small tiles enlarged, pixels kept sharp
+    rows = [
+        (label, [t.repeat_interleave(grow, -1).repeat_interleave(grow, -2) for t in tiles])
+        for label, tiles in rows
+    ]
+    return comparison_grid(rows, ["input", "normal", "diffuse", "roughness", "specular", "flash"], path)

@@ -1,0 +1,104 @@
+"""Benchmark pictures: learning curves, the Pareto plot and front, the comparison grid."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from svbrdf_bench.errors import BenchError
+from svbrdf_bench.plots import comparison_grid, learning_curves, pareto, pareto_front
+from svbrdf_render import read_image
+
+
+def _is_png(path, min_size=(100, 100)):
+    image = read_image(path)
+    assert image.dim() == 3 and image.shape[0] == 3
+    assert image.shape[1] >= min_size[0] and image.shape[2] >= min_size[1]
+    assert float(image.std()) > 0  # something was drawn
+    return image
+
+
+def test_learning_curves_writes_a_png(tmp_path):
+    curves = {
+        "unet": ([1.0, 2.0, 4.0, 8.0], [0.3, 0.2, 0.15, 0.12]),
+        "des18": ([2.0, 5.0, 9.0], [0.35, 0.22, 0.18]),
+        "never validated": ([], []),
+    }
+    path = learning_curves(curves, tmp_path / "plots" / "curves.png")
+    assert path == tmp_path / "plots" / "curves.png"
+    image = _is_png(path)
+    assert image.shape[1:] == (int(4.5 * 120), int(7 * 120))  # 7 x 4.5 inches at 120 dpi
+
+
+def test_learning_curves_needs_points(tmp_path):
+    with pytest.raises(BenchError, match="no points"):
+        learning_curves({}, tmp_path / "a.png")
+    with pytest.raises(BenchError, match="no points"):
+        learning_curves({"unet": ([], [])}, tmp_path / "a.png")
+    with pytest.raises(BenchError, match="3 times but 2 values"):
+        learning_curves({"unet": ([1, 2, 3], [0.1, 0.2])}, tmp_path / "a.png")
+    assert not (tmp_path / "a.png").exists()
+
+
+def test_pareto_front_leaves_out_dominated_models():
+    points = {
+        "fast": (1.0, 0.30, 0.28, 0.32),
+        "slow accurate": (10.0, 0.10, 0.09, 0.11),
+        "middle": (4.0, 0.20, 0.18, 0.22),
+        "dominated": (5.0, 0.25, 0.2, 0.3),  # "middle" is faster and more accurate
+        "same x, worse": (4.0, 0.22, 0.2, 0.24),  # ties "middle" on x, worse y
+        "same y, slower": (12.0, 0.10, 0.09, 0.11),  # ties "slow accurate" on y, slower
+    }
+    assert pareto_front(points) == ["fast", "middle", "slow accurate"]
+
+
+def test_pareto_front_keeps_both_of_two_equal_models():
+    points = {"b": (2.0, 0.1, 0.1, 0.1), "a": (2.0, 0.1, 0.1, 0.1), "c": (3.0, 0.2, 0.1, 0.3)}
+    assert pareto_front(points) == ["a", "b"]
+    assert pareto_front({"only": (1.0, 1.0, 1.0, 1.0)}) == ["only"]
+
+
+def test_pareto_front_rejects_bad_points():
+    with pytest.raises(BenchError, match="no models"):
+        pareto_front({})
+    with pytest.raises(BenchError, match="finite"):
+        pareto_front({"a": (float("nan"), 0.1, 0.1, 0.1)})
+
+
+def test_pareto_plot_writes_a_png(tmp_path):
+    points = {
+        "fast": (1.0, 0.30, 0.28, 0.32),
+        "slow": (10.0, 0.10, 0.09, 0.11),
+        "dominated": (5.0, 0.35, 0.3, 0.4),
+        "no interval": (3.0, 0.2, float("nan"), float("nan")),
+    }
+    _is_png(pareto(points, tmp_path / "pareto.png"))
+    _is_png(pareto(points, tmp_path / "pareto-log.png", logx=True, xlabel="ms", ylabel="SSIM loss"))
+    with pytest.raises(BenchError, match="no models"):
+        pareto({}, tmp_path / "empty.png")
+
+
+def test_comparison_grid_writes_the_image_grid(tmp_path):
+    g = torch.Generator().manual_seed(0)
+    tiles = [torch.rand(3, 16, 16, generator=g) for _ in range(3)]
+    grey = torch.rand(1, 16, 16, generator=g)
+    rows = [("ground truth", tiles), ("unet", [tiles[0], grey, tiles[2]])]
+    path = comparison_grid(rows, ["render", "roughness", "diffuse"], tmp_path / "grid.png")
+    image = _is_png(path, min_size=(2 * 16, 3 * 16))
+    q = (tiles[2] * 255).round() / 255
+    found = any(
+        torch.equal(image[:, top : top + 16, left : left + 16], q)
+        for top in range(image.shape[1] - 15)
+        for left in range(image.shape[2] - 15)
+    )
+    assert found
+
+
+def test_comparison_grid_rejects_bad_rows(tmp_path):
+    t = torch.rand(3, 8, 8)
+    with pytest.raises(BenchError, match="no rows"):
+        comparison_grid([], ["a"], tmp_path / "g.png")
+    with pytest.raises(BenchError, match="2 pictures for 3 columns"):
+        comparison_grid([("x", [t, t])], ["a", "b", "c"], tmp_path / "g.png")
+    with pytest.raises(BenchError, match="among"):
+        comparison_grid([("x", [t]), ("y", [torch.rand(3, 4, 4)])], ["a"], tmp_path / "g.png")
