@@ -10,22 +10,13 @@ import sys
 
 import click
 
-from svbrdf_render import SVBRDFError
+from svbrdf_train.cli import OneLineErrors, run_main
 
 
-class _Group(click.Group):
-    """A click group whose commands report SVBRDFError/OSError as one line, exit code 2."""
+class _Group(OneLineErrors):
+    """svbrdf-train's one-line error reporting, under this command's name."""
 
-    def invoke(self, ctx):
-        try:
-            return super().invoke(ctx)
-        except SVBRDFError as e:
-            click.echo(f"svbrdf-bench: error: {e}", err=True)
-            ctx.exit(2)
-        except OSError as e:
-            where = f"{e.filename}: " if getattr(e, "filename", None) else ""
-            click.echo(f"svbrdf-bench: error: {where}{e.strerror or e}", err=True)
-            ctx.exit(2)
+    prog = "svbrdf-bench"
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -35,7 +26,7 @@ def cli():
 
     \b
     Start with:
-      svbrdf-bench run --models ours,no-attn            # ~10 min on a 2-core CPU
+      svbrdf-bench run --models ours,no-attn            # ~5 min on a 2-core CPU
       svbrdf-bench report PARENT_RUN_ID                  # rebuild a report from MLflow
       svbrdf-bench render                                # the renderer's accuracy against speed
     """
@@ -60,11 +51,7 @@ _register()
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``svbrdf-bench`` script."""
-    try:
-        cli.main(args=argv, prog_name="svbrdf-bench", standalone_mode=True)
-    except SystemExit as e:
-        return int(e.code or 0) if not isinstance(e.code, str) else 2
-    return 0
+    return run_main(cli, "svbrdf-bench", argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

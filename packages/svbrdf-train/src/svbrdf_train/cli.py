@@ -13,22 +13,36 @@ import click
 from svbrdf_render import SVBRDFError
 
 
-class _Group(click.Group):
-    """A click group whose commands report SVBRDFError/OSError as one line, exit code 2."""
+class OneLineErrors(click.Group):
+    """A click group whose commands report SVBRDFError/OSError as one line, exit code 2.
+
+    Subclass it and set ``prog`` (the command name the messages start with); svbrdf-bench does.
+    """
+
+    prog = "svbrdf-train"
 
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)
         except SVBRDFError as e:
-            click.echo(f"svbrdf-train: error: {e}", err=True)
+            click.echo(f"{self.prog}: error: {e}", err=True)
             ctx.exit(2)
         except OSError as e:
             where = f"{e.filename}: " if getattr(e, "filename", None) else ""
-            click.echo(f"svbrdf-train: error: {where}{e.strerror or e}", err=True)
+            click.echo(f"{self.prog}: error: {where}{e.strerror or e}", err=True)
             ctx.exit(2)
 
 
-@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
+def run_main(group: click.Group, prog: str, argv: list[str] | None = None) -> int:
+    """Run a click group as a console script; its exit status as an int."""
+    try:
+        group.main(args=argv, prog_name=prog, standalone_mode=True)
+    except SystemExit as e:
+        return int(e.code or 0) if not isinstance(e.code, str) else 2
+    return 0
+
+
+@click.group(cls=OneLineErrors, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="svbrdf-train")
 def cli():
     """Training data and training for single-image SVBRDF recovery.
@@ -44,7 +58,7 @@ def cli():
     """
 
 
-@cli.group(cls=_Group)
+@cli.group(cls=OneLineErrors)
 def data():
     """Make, import and inspect training data (procedural materials, Des18, HDF5 shards)."""
 
@@ -65,11 +79,7 @@ _register()
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``svbrdf-train`` script."""
-    try:
-        cli.main(args=argv, prog_name="svbrdf-train", standalone_mode=True)
-    except SystemExit as e:
-        return int(e.code or 0) if not isinstance(e.code, str) else 2
-    return 0
+    return run_main(cli, "svbrdf-train", argv)
 
 
 if __name__ == "__main__":  # pragma: no cover
