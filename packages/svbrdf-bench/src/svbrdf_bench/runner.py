@@ -210,24 +210,31 @@ def run_bench(options: BenchOptions) -> str:
     from .report import build_report, write_report
 
     _check_models(options.models)
+    p = options.preset
+    size = options.size or p.size
+    from svbrdf_train.recipe import load_recipe, parse_overrides
+
+    from .testset import test_set
+
+    def make_test_set(resolution: int):
+        test = test_set(options.test_data, resolution, options.test_count or p.test_count)
+        if len(test) == 0:
+            raise BenchError(f"the test set ({test.description}) is empty")
+        return test
+
+    # Arguments are checked before MLflow is touched (a bad path should not wait for a store).
+    test = None
+    if options.models:
+        test = make_test_set(
+            load_recipe(options.models[0], size, parse_overrides(options.overrides)).train.resolution
+        )
     reuse = _resolve_reuse(options.from_runs)
     reused_labels = {label for label, _ in reuse}
     to_train = [m for m in options.models if Path(m).stem not in reused_labels]
     if not to_train and not reuse:
         raise BenchError("no models to compare: give --models and/or --from-runs")
-    p = options.preset
-    size = options.size or p.size
-    from svbrdf_train.recipe import load_recipe, parse_overrides
-
-    if to_train:
-        resolution = load_recipe(to_train[0], size, parse_overrides(options.overrides)).train.resolution
-    else:
-        resolution = int(_client().get_run(reuse[0][1]).data.params.get("train.resolution", 256))
-    from .testset import test_set
-
-    test = test_set(options.test_data, resolution, options.test_count or p.test_count)
-    if len(test) == 0:
-        raise BenchError(f"the test set ({test.description}) is empty")
+    if test is None:
+        test = make_test_set(int(_client().get_run(reuse[0][1]).data.params.get("train.resolution", 256)))
     lpips, lpips_note = load_lpips()
     device = torch.device(options.device)
 
