@@ -35,7 +35,14 @@ def _invoke(*args):
 @pytest.fixture(scope="module")
 def bench(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench") / "report"
-    result = _invoke("run", "--models", "ours,radn", *TINY, "-o", out)
+    real = tmp_path_factory.mktemp("real")
+    from svbrdf_render import linear_to_srgb, write_image
+    from svbrdf_train.data import ProceduralMaterials
+
+    photos = ProceduralMaterials(3, 40, seed=11)  # sRGB-encoded as a phone saves them
+    for i in range(3):
+        write_image(real / f"photo{i}.png", linear_to_srgb(photos[i]["input"]))
+    result = _invoke("run", "--models", "ours,radn", *TINY, "--real-data", real, "-o", out)
     assert result.exit_code == 0, result.output
     parent = json.loads((out / "results.json").read_text())["parent_run"]
     return out, result, parent
@@ -176,3 +183,22 @@ def test_report_refuses_a_run_that_is_not_a_benchmark(bench):
     )
     result = _invoke("report", children[0].info.run_id)
     assert result.exit_code == 2 and "not the parent run" in result.stderr
+
+
+def test_real_photos_add_the_self_consistency_figure(bench):
+    """--real-data: each model's maps re-rendered under the flash fitted to each photo."""
+    out, result, parent_id = bench
+    table = _section(result.stdout, "Real photos")
+    assert table[1].split()[:2] == ["model", "photos"]
+    assert [line.split()[0] for line in table[3:]] == ["ours", "radn"]
+    assert all(line.split()[1] == "3" for line in table[3:])
+    rows = list(csv.DictReader(open(out / "results.csv")))
+    for r in rows:
+        assert 0 < float(r["real_rerender_rmse_median"]) < 1
+    client = _client()
+    children = client.search_runs(
+        [client.get_run(parent_id).info.experiment_id],
+        filter_string=f"tags.`mlflow.parentRunId` = '{parent_id}'",
+    )
+    medians = {c.data.tags["svbrdf.model"]: c.data.metrics["real/rerender_rmse_median"] for c in children}
+    assert {r["model"]: float(r["real_rerender_rmse_median"]) for r in rows} == pytest.approx(medians)

@@ -58,6 +58,7 @@ class Report:
     lpips_note: str
     minutes: str
     models: list[ModelEntry]
+    real_data: str = "-"
 
     # -- figures ----------------------------------------------------------------------------
 
@@ -131,6 +132,26 @@ class Report:
             rows.append(cells)
         return _table("Time and memory", ["model", *(c[1] for c in cols)], rows, markdown)
 
+    def _real_table(self, markdown: bool) -> list[str]:
+        """Real photos have no ground truth: the re-rendering under the fitted flash is the figure."""
+        from .metrics import bootstrap_ci
+
+        rows = []
+        for e in self.models:
+            values = e.per_sample.get("real/rerender_rmse")
+            if values is None or len(values) == 0:
+                continue
+            mean, low, high = bootstrap_ci(values)
+            rows.append(
+                [e.label, str(len(values)), f"{np.median(values):.4f}", f"{mean:.4f} [{low:.4f}, {high:.4f}]"]
+            )
+        if not rows:
+            return []
+        head = ["model", "photos", "median re-render RMSE", "mean [95%]"]
+        return _table(
+            f"Real photos ({self.real_data}): maps re-rendered under the fitted flash", head, rows, markdown
+        )
+
     def _cost_lines(self, markdown: bool) -> list[str]:
         rows, notes = [], []
         for c in self.costs():
@@ -164,6 +185,8 @@ class Report:
                  f"test set: {self.test_set}; {self.lpips_note}", ""]  # fmt: skip
         for metric, title, sense in self.metrics_present():
             lines += [*self._accuracy_table(metric, title, sense, False), ""]
+        real = self._real_table(False)
+        lines += [*real, ""] if real else []
         lines += [*self._time_table(False), ""]
         if len(self.models) > 1:
             lines += self._cost_lines(False)
@@ -181,6 +204,8 @@ class Report:
         ]
         for metric, title, sense in self.metrics_present():
             lines += [*self._accuracy_table(metric, title, sense, True), ""]
+        real = self._real_table(True)
+        lines += [*real, ""] if real else []
         lines += [*self._time_table(True), ""]
         if len(self.models) > 1:
             lines += [*self._cost_lines(True), ""]
@@ -205,6 +230,9 @@ class Report:
             for key, _, _ in TIME_COLUMNS:
                 if key in e.figures:
                     rec[key.replace("/", "_")] = e.figures[key]
+            real = e.per_sample.get("real/rerender_rmse")
+            if real is not None and len(real):
+                rec["real_rerender_rmse_median"] = float(np.median(real))
             out.append(rec)
         return out
 
@@ -282,6 +310,7 @@ def build_report(parent_id: str) -> Report:
         lpips_note=parent.data.tags.get("lpips", ""),
         minutes=f"{minutes} min of training per model" if minutes[:1].isdigit() else minutes,
         models=models,
+        real_data=params.get("real_data", "-"),
     )
 
 

@@ -48,6 +48,10 @@ class BenchOptions:
     preset: Preset
     from_runs: list[str] = field(default_factory=list)
     test_data: str | None = None
+    real_data: str | None = None
+    """A folder of real flash photos (no ground truth): adds each model's self-consistency."""
+    real_encoding: str = "srgb"
+    real_pattern: str = "*"
     test_count: int | None = None
     minutes: float | None = None
     overrides: list[str] = field(default_factory=list)
@@ -168,6 +172,25 @@ def _evaluate(generator, test: TestSet, device: torch.device, lpips) -> tuple[di
     return {k: np.concatenate(v) for k, v in parts.items()}, shown
 
 
+def _self_consistency(generator, photos, resolution: int, device: torch.device) -> np.ndarray:
+    """Per photo: RMSE of the predicted maps re-rendered under the flash fitted to the photo.
+
+    The photo's centre square at the model's resolution is predicted, then
+    ``svbrdf_render.fit_flash`` finds the flash that re-renders those maps closest to the
+    photo; its RMSE (clipped re-rendering against the photo) is the real-data figure.
+    """
+    from svbrdf_render import fit_flash
+    from svbrdf_train.data.photos import square_photo
+
+    out = []
+    for i in range(len(photos)):
+        x = square_photo(photos[i]["input"], resolution).to(device)[None]
+        with torch.no_grad():
+            maps = generator(x)
+        out.append(float(fit_flash(maps, x).rmse[0]))
+    return np.asarray(out, dtype=np.float64)
+
+
 @torch.no_grad()
 def _latency_ms(generator, device: torch.device, repeats: int) -> float:
     x = torch.rand(1, 3, LATENCY_SIZE, LATENCY_SIZE, device=device)
@@ -235,6 +258,11 @@ def run_bench(options: BenchOptions) -> str:
         raise BenchError("no models to compare: give --models and/or --from-runs")
     if test is None:
         test = make_test_set(int(_client().get_run(reuse[0][1]).data.params.get("train.resolution", 256)))
+    photos = None
+    if options.real_data is not None:
+        from svbrdf_train.data import PhotoFolder
+
+        photos = PhotoFolder(options.real_data, encoding=options.real_encoding, pattern=options.real_pattern)
     lpips, lpips_note = load_lpips()
     device = torch.device(options.device)
 
@@ -264,6 +292,9 @@ def run_bench(options: BenchOptions) -> str:
             "test_set": test.description,
             "test_count": str(len(test)),
             "overrides": " ".join(options.overrides) or "-",
+            "real_data": f"{len(photos)} photos of {options.real_data} ({options.real_encoding})"
+            if photos
+            else "-",
         },
     )
     parent_id = parent.run_id
@@ -313,8 +344,14 @@ def run_bench(options: BenchOptions) -> str:
                 }
                 if "train/peak_cuda_mb" in m:
                     figures["memory/peak_cuda_mb"] = m["train/peak_cuda_mb"]
+                if photos is not None:
+                    options.say(f"fitting the flash to {len(photos)} real photos with {label}'s maps")
+                    real = _self_consistency(generator, photos, test.resolution, device)
+                    per_sample["real/rerender_rmse"] = real
+                    figures["real/rerender_rmse_median"] = float(np.median(real))
                 for key, values in per_sample.items():
-                    figures[f"test/{key}"] = float(values.mean())
+                    if not key.startswith("real/"):
+                        figures[f"test/{key}"] = float(values.mean())
                 client.set_tag(run_id, MODEL_TAG, label)
                 _log_child(run_id, figures, per_sample, work)
                 shown_by_model[label] = shown

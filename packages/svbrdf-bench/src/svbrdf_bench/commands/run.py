@@ -15,6 +15,7 @@ Examples:
   svbrdf-bench run --models ours,no-attn,radn --preset standard --device cuda
   svbrdf-bench run --models no-adv --from-runs ours          # reuse the last finished run of ours
   svbrdf-bench run --models ours,no-attn --test-data ../shared/data/des18-dev
+  svbrdf-bench run --models ours,no-attn --real-data ../shared/data/real-dev --real-pattern 'luo*'
 
 \b
 Presets (every model gets the same training-time budget):
@@ -55,6 +56,22 @@ def _split(value: str | None) -> list[str]:
     type=click.Path(path_type=Path),
     help="A Des18 folder or .h5 shards [default: procedural test materials from a fixed seed].",
 )
+@click.option(
+    "--real-data",
+    type=click.Path(path_type=Path, file_okay=False),
+    help="A folder of real flash photos (no ground truth): adds each model's median re-rendering RMSE "
+    "under the flash fitted to each photo.",
+)
+@click.option(
+    "--real-encoding",
+    type=click.Choice(["srgb", "linear"]),
+    default="srgb",
+    show_default=True,
+    help="How the real photos store values (phones: srgb; Deschaintre's examples: linear).",
+)
+@click.option(
+    "--real-pattern", default="*", show_default=True, help="Shell pattern on the real photos' names."
+)
 @click.option("--test-count", type=click.IntRange(min=1), help="Size of the procedural test set [preset's].")
 @click.option("--minutes", type=click.FloatRange(min=0), help="Training minutes per model [preset's].")
 @click.option(
@@ -74,7 +91,22 @@ def _split(value: str | None) -> list[str]:
     "--size", type=click.Choice(["paper", "cpu", "smoke"]), help="Recipe size instead of the preset's."
 )
 @click.option("--experiment", default="svbrdf-bench", show_default=True, help="MLflow experiment.")
-def run(models, preset, from_runs, test_data, test_count, minutes, sets, out, device, size, experiment):
+def run(
+    models,
+    preset,
+    from_runs,
+    test_data,
+    real_data,
+    real_encoding,
+    real_pattern,
+    test_count,
+    minutes,
+    sets,
+    out,
+    device,
+    size,
+    experiment,
+):
     """Train (or reuse) each model under one budget, test all on the same images, compare.
 
     Answers "which model, at what cost?": accuracy per map and on renderings with bootstrap
@@ -94,6 +126,9 @@ def run(models, preset, from_runs, test_data, test_count, minutes, sets, out, de
             preset=get_preset(preset),
             from_runs=reused,
             test_data=str(test_data) if test_data else None,
+            real_data=str(real_data) if real_data else None,
+            real_encoding=real_encoding,
+            real_pattern=real_pattern,
             test_count=test_count,
             minutes=minutes,
             overrides=list(sets),
