@@ -153,7 +153,7 @@ def test_artifacts_go_to_the_server_folder(server, fitted, client):
 def test_predict_from_a_run_on_the_server(server, fitted, tmp_path):
     """``predict --run RUN_ID`` downloads the checkpoint through the server and writes the maps
     the local checkpoint gives."""
-    photo = ProceduralMaterials(1, 48, seed=7)[0]["input"]
+    photo = ProceduralMaterials(1, 64, seed=7)[0]["input"]  # capture refuses < 64 px (MIN_SIDE)
     path = write_image(tmp_path / "shot.png", linear_to_srgb(photo))
     out = tmp_path / "maps"
     result = run_cli(
@@ -167,7 +167,8 @@ def test_predict_from_a_run_on_the_server(server, fitted, tmp_path):
     assert float((diffuse - expected.diffuse[0]).abs().max()) <= 1 / 255 + 1e-6
     normal = read_image(out / "shot" / "normal.png") * 2 - 1
     assert float((normal - torch.nn.functional.normalize(expected.normal, dim=1)[0]).abs().max()) <= 2 / 255
-    assert sorted(p.name for p in (out / "shot").iterdir()) == sorted(f"{n}.png" for n in (*MAPS, "input"))
+    written = {p.name for p in (out / "shot").iterdir()}
+    assert written == {f"{n}.png" for n in (*MAPS, "input", "rerender")} | {"relit.gif"}
 
 
 def test_fit_with_an_unreachable_server_is_a_one_line_error(tmp_path):

@@ -22,6 +22,8 @@ from svbrdf_train.data.photos import square_photo
 from svbrdf_train.predict import Predictor
 
 MAPS = ("normal", "diffuse", "roughness", "specular")
+#: What capture writes besides the maps (see test_train_capture.py for their content).
+FIGURES = ("input.png", "rerender.png", "relit.gif")
 EIGHT_BIT = 1 / 255 + 1e-6
 
 
@@ -45,11 +47,12 @@ def run_id(fit_dir):
 
 @pytest.fixture(scope="module")
 def photos(tmp_path_factory):
-    """Two procedural flash photos, 64 wide and 48 high, sRGB-encoded as cameras save them."""
+    """Two procedural flash photos, 96 wide and 72 high (capture refuses fewer than 64 px on the short
+    side), sRGB-encoded as cameras save them."""
     folder = tmp_path_factory.mktemp("photos")
-    data = ProceduralMaterials(2, 64, seed=5)
+    data = ProceduralMaterials(2, 96, seed=5)
     return [
-        write_image(folder / f"shot{i}.png", linear_to_srgb(data[i]["input"][:, 8:56, :])) for i in range(2)
+        write_image(folder / f"shot{i}.png", linear_to_srgb(data[i]["input"][:, 12:84, :])) for i in range(2)
     ]
 
 
@@ -93,18 +96,18 @@ def _max_diff(a, b):
 
 def test_predict_from_checkpoint_writes_the_maps_the_predictor_gives(checkpoint, photos, by_checkpoint):
     """Each photo gets NAME/{normal,diffuse,roughness,specular,input}.png at the training resolution
-    (32 px for smoke, from a 64x48 photo); the maps are what Predictor.predict gives in-process,
+    (32 px for smoke, from a 96x72 photo), with the capture figures; the maps are what Predictor.predict gives in-process,
     normals decode to unit vectors facing the camera, and input.png is the sRGB centre square."""
     out, result = by_checkpoint
     assert result.returncode == 0, result.stderr
     assert "32x32" in result.stderr and str(checkpoint) in result.stderr
     assert result.stdout.split() == [str(out / p.stem) for p in photos]
-    assert sorted(p.name for p in out.iterdir()) == sorted(p.stem for p in photos)
+    assert sorted(p.name for p in out.iterdir()) == sorted([*(p.stem for p in photos), "summary.json"])
     predictor = Predictor.from_checkpoint(checkpoint)
     assert predictor.resolution == 32
     for path in photos:
         folder = out / path.stem
-        assert sorted(p.name for p in folder.iterdir()) == sorted(f"{n}.png" for n in (*MAPS, "input"))
+        assert sorted(p.name for p in folder.iterdir()) == sorted([*(f"{n}.png" for n in MAPS), *FIGURES])
         written = _read_maps(folder)
         assert {n: tuple(t.shape) for n, t in written.items()} == {
             "normal": (3, 32, 32),
@@ -142,7 +145,7 @@ def test_predict_from_run_matches_the_checkpoint(tmp_path, run_id, photos, by_ch
 
 def test_unreadable_photos_are_reported_and_the_others_done(tmp_path, checkpoint, photos):
     """A text file named .png and a missing file are each named on stderr; the good photo between
-    them is still written; the exit code is 2."""
+    them is still written; the exit code is 1 (some failed, not all)."""
     bad = tmp_path / "x.png"
     bad.write_text("not an image\n")
     missing = tmp_path / "gone.png"
@@ -150,16 +153,16 @@ def test_unreadable_photos_are_reported_and_the_others_done(tmp_path, checkpoint
     result = run_cli(
         "predict", str(bad), str(photos[1]), str(missing), "--checkpoint", str(checkpoint), "-o", str(out)
     )
-    assert result.returncode == 2
+    assert result.returncode == 1
     assert "Traceback" not in result.stderr
     errors = [line for line in result.stderr.splitlines() if line.startswith("svbrdf-train: error: ")]
     assert len(errors) == 2
     assert str(bad) in errors[0] and "cannot decode" in errors[0]
     assert str(missing) in errors[1]
     assert "2 of 3 photo(s) failed" in result.stderr
-    assert [p.name for p in out.iterdir()] == [photos[1].stem]
+    assert sorted(p.name for p in out.iterdir()) == [photos[1].stem, "summary.json"]
     assert sorted(p.name for p in (out / photos[1].stem).iterdir()) == sorted(
-        f"{n}.png" for n in (*MAPS, "input")
+        [*(f"{n}.png" for n in MAPS), *FIGURES]
     )
 
 

@@ -5,6 +5,7 @@
     from svbrdf_train.predict import Predictor
     p = Predictor.from_checkpoint("runs/ours-cpu/last.pt")
     svbrdf = p.predict(photo)           # (3, H, W) linear photo -> SVBRDF of 1 at p.resolution
+    svbrdfs = p.predict_batch(photos)   # (N, 3, R, R) linear photos at p.resolution -> SVBRDF of N
 """
 
 from __future__ import annotations
@@ -68,3 +69,8 @@ class Predictor:
         """``(3, H, W)`` linear photo -> maps of one material at :attr:`resolution` (centre square)."""
         x = square_photo(photo.float(), self.resolution).to(self.device)
         return self.generator(x[None]).detach().to("cpu")
+
+    @torch.no_grad()
+    def predict_batch(self, photos: Tensor) -> SVBRDF:
+        """``(N, 3, S, S)`` linear photos, ``S`` a size the generator takes (its resolution) -> maps of N."""
+        return self.generator(photos.float().to(self.device)).detach().to("cpu")

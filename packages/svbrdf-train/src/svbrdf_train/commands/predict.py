@@ -1,4 +1,4 @@
-"""``svbrdf-train predict``: write the maps a trained generator sees in photos."""
+"""``svbrdf-train predict``: capture maps a material artist can use from flash photos."""
 
 from __future__ import annotations
 
@@ -11,13 +11,54 @@ EPILOG = """\b
 Examples:
   svbrdf-train predict photo.jpg --checkpoint runs/ours-cpu/last.pt -o maps/
   svbrdf-train predict shots/*.png --run 3f2a... -o maps/ --linear --bits 16
+  svbrdf-train predict big.jpg --checkpoint last.pt -o maps/ --tiles --map-size 1024
+  svbrdf-train predict IMG_0042.jpg --checkpoint last.pt -o maps/ --crop 600,200,1800
 
 \b
-Each photo gets a folder DIR/NAME/ with normal.png (OpenGL, stored (n+1)/2), diffuse.png,
-roughness.png, specular.png (albedos linear, as Des18 stores them) and input.png (the square
-the network saw, sRGB-encoded). A photo that cannot be read is reported and skipped;
-the exit code is 2 if any was.
+Photos: JPEG or PNG, in colour, the flash roughly at the centre. The EXIF orientation is
+applied, then the largest centred square (or --crop X,Y,SIZE, in pixels of the photo as
+displayed) is resized to the model's resolution and decoded from sRGB (unless --linear).
+With --tiles the square is kept at its own size (or --map-size) and predicted in tiles of
+the model's resolution overlapping by half, blended with raised-cosine weights; each tile
+sees the flash off its centre, which the model may not have been trained for: check the
+re-rendering.
+
+\b
+Each photo gets a folder DIR/NAME/:
+  normal.png      tangent-space normal, stored (n+1)/2 (OpenGL y up; --normal-convention directx)
+  diffuse.png     linear albedo, as Des18 stores it
+  roughness.png   grey, alpha = roughness^2
+  specular.png    linear albedo
+  input.png       the square the maps are of (sRGB)
+  rerender.png    photo | re-rendering under the fitted flash | |error| heat map
+  relit.gif       a point light circling the material (--relit png: a grid; none: skipped)
+and DIR/summary.json holds, per photo, the status, notes, the re-rendering RMSE against the
+photo (linear) and the fitted flash, and the median RMSE over the photos captured.
+
+\b
+Refused photos (each reported on its own line, the others still done): missing, folders,
+not an image, neither JPEG nor PNG, under 64 px on the short side, over 50 megapixels,
+grey, translucent alpha, a crop that does not fit. Processed with a note: EXIF rotation,
+16-bit PNG, opaque alpha, palette or CMYK, grey saved as RGB, clipped highlights, a square
+smaller than the model's resolution.
+
+\b
+stdout: the folder of each photo captured; stderr: progress, notes, errors, a summary table.
+Exit code: 0 every photo captured; 1 some photos failed, others were captured; 2 every
+photo failed, or bad arguments (no model, unreadable checkpoint, bad option).
 """
+
+
+def _parse_crop(ctx, param, value):
+    if value is None:
+        return None
+    try:
+        x, y, size = (int(v) for v in value.split(","))
+    except ValueError:
+        raise click.BadParameter(f"expected X,Y,SIZE (three integers in pixels), got {value!r}") from None
+    if x < 0 or y < 0 or size <= 0:
+        raise click.BadParameter(f"X and Y must be >= 0 and SIZE > 0, got {value!r}")
+    return x, y, size
 
 
 @click.command("predict", epilog=EPILOG)
@@ -34,63 +75,118 @@ the exit code is 2 if any was.
 @click.option(
     "--linear", is_flag=True, help="The photos hold linear values (default: sRGB-encoded, as cameras save)."
 )
+@click.option(
+    "--crop",
+    metavar="X,Y,SIZE",
+    callback=_parse_crop,
+    help="The square to capture, in pixels of the photo as displayed (default: the largest centred one).",
+)
+@click.option("--tiles", is_flag=True, help="Predict at high resolution from overlapping tiles.")
+@click.option(
+    "--map-size",
+    type=click.IntRange(min=1),
+    metavar="N",
+    help="With --tiles: side of the maps in pixels (default: the square's own side).",
+)
+@click.option(
+    "--normal-convention",
+    type=click.Choice(["opengl", "directx"]),
+    default="opengl",
+    show_default=True,
+    help="directx stores the normal's y (green) flipped.",
+)
 @click.option("--bits", type=click.Choice(["8", "16"]), default="8", show_default=True, help="PNG bit depth.")
+@click.option(
+    "--relit",
+    type=click.Choice(["gif", "png", "none"]),
+    default="gif",
+    show_default=True,
+    help="The relit preview: animated GIF, PNG grid, or none.",
+)
 @click.option("--device", default="cpu", show_default=True, help="cpu, cuda or cuda:K.")
-def predict(photos, checkpoint, run_id, out, linear, bits, device):
-    """Predict normal, diffuse, roughness and specular maps from flash photos.
+def predict(
+    photos, checkpoint, run_id, out, linear, crop, tiles, map_size, normal_convention, bits, relit, device
+):
+    """Capture normal, diffuse, roughness and specular maps from flash photos.
 
-    The centre square of each photo is resized to the resolution the generator was trained at.
+    The maps are judged by re-rendering them under a flash fitted to the photo: the RMSE
+    against the photo is printed per photo and as the median of the batch.
     """
-    from svbrdf_render import (
-        SVBRDFError,
-        linear_to_srgb,
-        read_image,
-        srgb_to_linear,
-        write_image,
-        write_map_folder,
-    )
+    from svbrdf_render import SVBRDFError
 
-    from ..data.photos import square_photo
+    from ..capture import CaptureOptions, capture_one, write_summary
     from ..errors import CheckpointError
     from ..predict import Predictor
 
     if (checkpoint is None) == (run_id is None):
         raise CheckpointError("give the generator with --checkpoint FILE or --run RUN_ID (one of them)")
+    if map_size is not None and not tiles:
+        raise click.UsageError("--map-size goes with --tiles")
+    options = CaptureOptions(linear, crop, tiles, map_size, int(bits), normal_convention, relit)
     model = (
         Predictor.from_checkpoint(checkpoint, device) if checkpoint else Predictor.from_run(run_id, device)
     )
+    if map_size is not None and map_size < model.resolution:
+        raise click.BadParameter(
+            f"{map_size} is smaller than the model's resolution ({model.resolution})", param_hint="--map-size"
+        )
     click.echo(
         f"generator {model.recipe.generator.name} from {model.source} (step {model.step}), "
         f"{model.resolution}x{model.resolution}",
         err=True,
     )
-    failed = 0
+    entries: list[dict] = []
     used: set[str] = set()
     for path in photos:
-        try:
-            photo = read_image(path)
-            if not linear:
-                photo = srgb_to_linear(photo)
-            svbrdf = model.predict(photo)
-        except (SVBRDFError, OSError) as e:
-            failed += 1
-            text = str(e) if str(e).startswith(str(path)) else f"{path}: {e}"
-            click.echo(f"svbrdf-train: error: {text}", err=True)
-            continue
         name, k = path.stem, 1
         while name in used:
             k += 1
             name = f"{path.stem}-{k}"
+        try:
+            entry = capture_one(model, path, out / name, options)
+        except (SVBRDFError, OSError, RuntimeError) as e:  # RuntimeError: out of memory, a broken model
+            what = str(e) if isinstance(e, (SVBRDFError, OSError)) else f"{type(e).__name__}: {e}"
+            text = what if what.startswith(str(path)) else f"{path}: {what}"
+            click.echo(f"svbrdf-train: error: {text}", err=True)
+            entries.append({"photo": str(path), "status": "failed", "error": text})
+            continue
         used.add(name)
-        folder = out / name
-        write_map_folder(folder, svbrdf, bits=int(bits))
-        write_image(
-            folder / "input.png", linear_to_srgb(square_photo(photo, model.resolution)), bits=int(bits)
-        )
-        click.echo(str(folder))
+        for note in entry["notes"]:
+            click.echo(f"svbrdf-train: note: {path}: {note}", err=True)
+        entries.append({"name": name, **entry})
+        click.echo(str(out / name))
+    summary = write_summary(
+        out / "summary.json", entries, model=model.source, step=model.step, resolution=model.resolution
+    )
+    click.echo(_table(entries, summary), err=True, nl=False)
+    failed = summary["failed"]
     if failed:
         click.echo(f"{failed} of {len(photos)} photo(s) failed", err=True)
-        sys.exit(2)
+        sys.exit(2 if failed == len(photos) else 1)
+
+
+def _table(entries: list[dict], summary: dict) -> str:
+    """The summary table: one line per photo, then the median."""
+    names = [Path(e["photo"]).name for e in entries]
+    width = max(len("photo"), *(len(n) for n in names))
+    lines = [f"{'photo':<{width}}  status  {'rmse':>7}  {'flash x, y, z':>21}  {'intensity':>9}  notes"]
+    for name, e in zip(names, entries, strict=True):
+        if e["status"] != "ok":
+            lines.append(f"{name:<{width}}  failed  {'-':>7}  {'-':>21}  {'-':>9}")
+            continue
+        rmse = "nan" if e["rmse"] is None else f"{e['rmse']:.4f}"
+        pos = ", ".join("nan" if v is None else f"{v:+.2f}" for v in e["flash"]["position"])
+        k = e["flash"]["intensity"]
+        lines.append(
+            f"{name:<{width}}  ok      {rmse:>7}  {pos:>21}  {'nan' if k is None else f'{k:9.3g}':>9}  "
+            f"{len(e['notes'])}"
+        )
+    median = summary["median_rmse"]
+    lines.append(
+        f"median re-rendering RMSE over {summary['captured']} photo(s): "
+        + ("-" if median is None else f"{median:.4f}")
+    )
+    return "\n".join(lines) + "\n"
 
 
 COMMANDS = [predict]

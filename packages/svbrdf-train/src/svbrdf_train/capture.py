@@ -1,0 +1,550 @@
+"""Capture: from a real flash photo to maps a material artist can use.
+
+The pieces of ``svbrdf-train predict``, each usable alone::
+
+    photo, notes = load_photo("shot.jpg")              # EXIF-oriented, centre square, linear
+    svbrdf = predictor.predict(photo)                   # maps at the model's resolution
+    svbrdf = tile_predict(predictor.predict_batch, photo, predictor.resolution)  # or at full size
+    fit = flash_consistency(svbrdf, photo)              # re-render under the fitted flash
+    entry = capture_one(predictor, "shot.jpg", "maps/shot", CaptureOptions())  # all of it, written
+
+Photos are judged before any pixel is decoded where the file header allows it. Refused, with a
+:class:`PhotoError` naming the file and what to do: a missing file or a folder, a file that is no
+image, an image that is neither JPEG nor PNG, fewer than :data:`MIN_SIDE` pixels on the short side
+(or a crop that small), more than :data:`MAX_PIXELS` pixels, a grey image (the albedo's colour cannot
+be recovered from it), a translucent alpha channel, a crop that does not fit in the photo.
+Processed with a note: an EXIF orientation (applied), a 16-bit PNG (read at full precision), an
+opaque alpha channel (dropped), a palette or CMYK image (converted), RGB channels that are all
+equal (a grey picture saved as RGB), many clipped pixels, a square smaller than the model's
+resolution (upsampled).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import struct
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from svbrdf_render import (
+    DES18_DISTANCE,
+    DES18_EFFECTS,
+    SVBRDF,
+    Camera,
+    FlashFit,
+    MapFileError,
+    PointLight,
+    Scene,
+    fit_flash,
+    linear_to_srgb,
+    read_image,
+    render,
+    safe_normalize,
+    srgb_to_linear,
+    write_image,
+    write_map_folder,
+)
+
+from .data.photos import square_photo
+from .errors import DataError
+
+__all__ = [
+    "CaptureOptions",
+    "MAX_PIXELS",
+    "MIN_SIDE",
+    "NORMAL_CONVENTIONS",
+    "PhotoError",
+    "RELIT_FORMATS",
+    "capture_one",
+    "error_heatmap",
+    "flash_consistency",
+    "load_photo",
+    "orient",
+    "relight_frames",
+    "square",
+    "tile_count",
+    "tile_predict",
+    "to_directx",
+    "write_summary",
+]
+
+#: Photos (and crops) with a shorter side below this many pixels are refused: too little to see.
+MIN_SIDE = 64
+#: Photos with more pixels than this are refused before decoding (50 megapixels).
+MAX_PIXELS = 50_000_000
+#: Image formats read (as Pillow names them; MPO is the JPEG some phones save).
+PHOTO_FORMATS = ("JPEG", "MPO", "PNG")
+#: Share of blown-out pixels (every channel at the top) above which a note warns of overexposure.
+CLIPPED_SHARE = 0.02
+#: ``--normal-convention`` values: OpenGL (y up, the project's own) or DirectX (y down).
+NORMAL_CONVENTIONS = ("opengl", "directx")
+#: ``--relit`` values: an animated GIF, a PNG grid of the frames, or no preview.
+RELIT_FORMATS = ("gif", "png", "none")
+#: Frames of the relit preview, and the largest side it is rendered at.
+RELIT_FRAMES = 24
+RELIT_SIZE = 256
+#: Linear error shown at the top of the heat map's scale.
+HEAT_MAX = 0.25
+
+_EXIF_ORIENTATION = 0x0112
+_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+_GREY_MODES = ("1", "L", "LA", "La", "I", "I;16", "I;16B", "I;16L", "I;16N", "F")
+
+
+class PhotoError(DataError):
+    """A photo that cannot be captured: names the file, what is wrong, and what to do."""
+
+    def __init__(self, path, problem: str, hint: str = ""):
+        self.path = str(path)
+        self.problem = problem
+        self.hint = hint
+        super().__init__(f"{self.path}: {problem}" + (f"; {hint}" if hint else ""))
+
+
+# -- reading ---------------------------------------------------------------------------------
+
+
+def orient(image: Tensor, orientation: int) -> Tensor:
+    """Apply an EXIF orientation (1-8) to ``(C, H, W)``: what ``PIL.ImageOps.exif_transpose`` does."""
+    ops = {
+        1: lambda t: t,
+        2: lambda t: t.flip(-1),
+        3: lambda t: t.flip(-1, -2),
+        4: lambda t: t.flip(-2),
+        5: lambda t: t.transpose(-1, -2),
+        6: lambda t: torch.rot90(t, -1, (-2, -1)),
+        7: lambda t: t.transpose(-1, -2).flip(-1, -2),
+        8: lambda t: torch.rot90(t, 1, (-2, -1)),
+    }
+    return ops.get(int(orientation), ops[1])(image).contiguous()
+
+
+def square(photo: Tensor, crop: tuple[int, int, int] | None = None, *, path=None) -> Tensor:
+    """The square of ``(C, H, W)`` to capture: ``crop = (x, y, size)`` (left column, top row, side,
+    in pixels), or the largest centred square when ``crop`` is None. A crop that does not fit, or
+    is smaller than :data:`MIN_SIDE`, is a :class:`PhotoError` (naming ``path`` when given)."""
+    if crop is None:
+        return square_photo(photo, None)
+    x, y, size = (int(v) for v in crop)
+    _, h, w = photo.shape
+    where = path if path is not None else "photo"
+    if size < MIN_SIDE:
+        raise PhotoError(
+            where, f"the crop is {size} px, smaller than {MIN_SIDE}", "give a larger --crop SIZE"
+        )
+    if x < 0 or y < 0 or x + size > w or y + size > h:
+        raise PhotoError(
+            where,
+            f"the crop {x},{y},{size} does not fit in the {w}x{h} photo (as displayed, after EXIF "
+            "orientation)",
+            f"give --crop X,Y,SIZE with X+SIZE <= {w} and Y+SIZE <= {h}",
+        )
+    return photo[:, y : y + size, x : x + size].contiguous()
+
+
+def _png_bit_depth(path: Path) -> int | None:
+    with open(path, "rb") as f:
+        head = f.read(26)
+    if len(head) < 26 or not head.startswith(_PNG_MAGIC) or head[12:16] != b"IHDR":
+        return None
+    return struct.unpack(">B", head[24:25])[0]
+
+
+def _inspect(path: Path, notes: list[str]) -> int:
+    """Judge the file from its header (and alpha); returns its EXIF orientation."""
+    from PIL import Image
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            im = Image.open(path)
+    except Image.DecompressionBombError as e:
+        raise PhotoError(
+            path, f"is far too large ({e})", f"downscale it below {MAX_PIXELS / 1e6:.0f} megapixels"
+        ) from None
+    except Exception as e:  # UnidentifiedImageError, OSError, SyntaxError...
+        raise PhotoError(
+            path,
+            f"cannot decode it as an image ({type(e).__name__})",
+            "give a JPEG or PNG photo (convert HEIC or RAW files first)",
+        ) from None
+    with im:
+        fmt, mode, (w, h) = im.format, im.mode, im.size
+        if fmt not in PHOTO_FORMATS:
+            raise PhotoError(path, f"is a {fmt} image, not a JPEG or PNG", "convert it to PNG or JPEG")
+        if w * h > MAX_PIXELS:
+            raise PhotoError(
+                path,
+                f"has {w}x{h} = {w * h / 1e6:.1f} megapixels, more than {MAX_PIXELS / 1e6:.0f}",
+                "downscale it (the maps are made at a few hundred to a few thousand pixels)",
+            )
+        if min(w, h) < MIN_SIDE:
+            raise PhotoError(
+                path,
+                f"is {w}x{h}, smaller than {MIN_SIDE} px on its short side",
+                "take a larger photo (the material should fill a square of at least a few hundred pixels)",
+            )
+        if mode in _GREY_MODES or (mode == "P" and im.palette is not None and im.palette.mode == "L"):
+            raise PhotoError(
+                path,
+                f"is a grey image (mode {mode})",
+                "the diffuse colour cannot be recovered from it; give the photo in colour",
+            )
+        has_alpha = mode in ("RGBA", "RGBa", "PA") or (mode == "P" and "transparency" in im.info)
+        if has_alpha:
+            try:
+                lo, _ = im.convert("RGBA").getchannel("A").getextrema()
+            except Exception as e:
+                raise PhotoError(
+                    path, f"cannot decode it ({type(e).__name__}: {e})", "is it complete?"
+                ) from None
+            if lo < 255:
+                raise PhotoError(
+                    path,
+                    f"has a translucent alpha channel (lowest alpha {lo}/255)",
+                    "a photo is opaque: export it without transparency (flattened)",
+                )
+            notes.append("opaque alpha channel dropped")
+        if mode == "P":
+            notes.append("palette image (at most 256 colours) converted to RGB: expect banding")
+        elif mode == "CMYK":
+            notes.append("CMYK image converted to RGB")
+        try:
+            orientation = int(im.getexif().get(_EXIF_ORIENTATION, 1))
+        except Exception:  # a damaged EXIF block: keep the pixels as stored
+            orientation = 1
+            notes.append("EXIF block unreadable: orientation not applied")
+    if fmt == "PNG" and _png_bit_depth(path) == 16:
+        notes.append("16-bit PNG read at full precision")
+    if orientation not in range(1, 9):
+        notes.append(f"EXIF orientation {orientation} is not 1-8: ignored")
+        orientation = 1
+    elif orientation != 1:
+        notes.append(f"EXIF orientation {orientation} applied")
+    return orientation
+
+
+def load_photo(
+    path, *, linear: bool = False, crop: tuple[int, int, int] | None = None
+) -> tuple[Tensor, list[str]]:
+    """Read a flash photo: ``(3, S, S)`` linear float32, the square to capture, and notes.
+
+    The EXIF orientation is applied; ``crop = (x, y, size)`` in pixels of the oriented photo picks
+    the square, else the largest centred one; values are decoded from sRGB unless ``linear``.
+    Refused photos raise :class:`PhotoError` (see the module's docstring for which).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise PhotoError(path, "no such file", "check the path")
+    if not path.is_file():
+        raise PhotoError(path, "is a folder, not a photo", "give the photo files (e.g. DIR/*.jpg)")
+    notes: list[str] = []
+    orientation = _inspect(path, notes)
+    try:
+        image = read_image(path, channels=3)
+    except MapFileError as e:
+        raise PhotoError(
+            path, f"cannot decode it ({e.problem})", "is it a complete PNG or JPEG file?"
+        ) from None
+    if bool(
+        ((image[0] - image[1]).abs().max() < 1.5 / 255) & ((image[1] - image[2]).abs().max() < 1.5 / 255)
+    ):
+        notes.append(
+            "R, G and B are equal everywhere: a grey picture saved as colour? The diffuse will be grey"
+        )
+    image = square(orient(image, orientation), crop, path=path)
+    clipped = float((image.amin(0) >= 254 / 255).float().mean())  # blown out to white
+    if clipped > CLIPPED_SHARE:
+        notes.append(f"{clipped:.0%} of the square is clipped (overexposed): expose for the highlight")
+    return (image if linear else srgb_to_linear(image)), notes
+
+
+# -- predicting --------------------------------------------------------------------------------
+
+
+def _positions(length: int, tile: int, stride: int) -> list[int]:
+    if length <= tile:
+        return [0]
+    n = math.ceil((length - tile) / stride) + 1
+    return sorted({round(i * (length - tile) / (n - 1)) for i in range(n)})
+
+
+def _window(tile: int) -> Tensor:
+    """Raised cosine (Hann) that never reaches 0: ``sin^2(pi (i + 1/2) / tile)``; with 50% overlap
+    neighbouring windows sum to exactly 1."""
+    i = torch.arange(tile, dtype=torch.float64)
+    return torch.sin(math.pi * (i + 0.5) / tile).square().float()
+
+
+def tile_predict(
+    predict_fn: Callable[[Tensor], SVBRDF], photo: Tensor, tile: int, overlap: float = 0.5, *, batch: int = 8
+) -> SVBRDF:
+    """Maps of a photo larger than the model's input, from overlapping tiles blended without seams.
+
+    Args:
+        predict_fn: ``(N, 3, tile, tile)`` linear photos -> SVBRDF of N materials of that size.
+        photo: ``(3, H, W)`` linear, ``H, W >= tile``.
+        tile: side of a tile (the model's resolution).
+        overlap: share of a tile its neighbour covers (0.5: half).
+        batch: tiles per call of ``predict_fn``.
+
+    Tiles start at evenly spread positions that end flush with the borders; each tile's maps are
+    weighted by a separable raised-cosine window, summed, and divided by the sum of the weights,
+    so the result is a smooth partition of unity. Normals are re-normalised after blending;
+    the other maps are clamped to [0, 1]. Returns a batch of one at ``H x W``.
+    """
+    _, h, w = photo.shape
+    if h < tile or w < tile:
+        raise DataError(f"tile_predict: the photo is {w}x{h}, smaller than a tile ({tile})")
+    if not 0 <= overlap < 1:
+        raise DataError(f"tile_predict: overlap must be in [0, 1), got {overlap}")
+    stride = max(1, round(tile * (1 - overlap)))
+    corners = [(y, x) for y in _positions(h, tile, stride) for x in _positions(w, tile, stride)]
+    win = _window(tile)
+    weight = (win[:, None] * win[None, :])[None]  # (1, tile, tile)
+    acc = torch.zeros(10, h, w)
+    total = torch.zeros(1, h, w)
+    for start in range(0, len(corners), batch):
+        chunk = corners[start : start + batch]
+        x = torch.stack([photo[:, y : y + tile, x : x + tile] for y, x in chunk])
+        maps = predict_fn(x)
+        packed = torch.cat([maps.normal, maps.diffuse, maps.roughness, maps.specular], 1).float().cpu()
+        for k, (y, x) in enumerate(chunk):
+            acc[:, y : y + tile, x : x + tile] += packed[k] * weight
+            total[:, y : y + tile, x : x + tile] += weight
+    out = (acc / total)[None]
+    return SVBRDF(
+        safe_normalize(out[:, 0:3], dim=1),
+        out[:, 3:6].clamp(0, 1),
+        out[:, 6:7].clamp(0, 1),
+        out[:, 7:10].clamp(0, 1),
+        validate=False,
+    )
+
+
+def tile_count(size: int, tile: int, overlap: float = 0.5) -> int:
+    """How many tiles :func:`tile_predict` runs on a ``size x size`` photo."""
+    return len(_positions(size, tile, max(1, round(tile * (1 - overlap))))) ** 2
+
+
+def to_directx(normal: Tensor) -> Tensor:
+    """OpenGL (y up, the project's convention) normals ``(B, 3, H, W)`` to DirectX (y down): y negated.
+
+    Its own inverse. Stored as ``(n + 1) / 2``, this is the green channel ``g -> 1 - g``.
+    """
+    return normal * normal.new_tensor([1.0, -1.0, 1.0]).view(1, 3, 1, 1)
+
+
+# -- judging and showing -------------------------------------------------------------------------
+
+
+def flash_consistency(svbrdf: SVBRDF, photo: Tensor, **fit_options) -> FlashFit:
+    """Fit a flash so that the maps re-render the photo (:func:`svbrdf_render.fit_flash`).
+
+    ``photo`` is ``(3, H, W)`` or ``(1, 3, H, W)`` linear, resampled (area) to the maps' size if it
+    differs. ``FlashFit.rmse`` is the self-consistency figure: how well the maps explain the photo.
+    """
+    if photo.dim() == 3:
+        photo = photo[None]
+    photo = photo.float()
+    if tuple(photo.shape[-2:]) != tuple(svbrdf.size):
+        photo = F.interpolate(photo, size=tuple(svbrdf.size), mode="area")
+    return fit_flash(svbrdf.detach().to(torch.float32), photo, **fit_options)
+
+
+def relight_frames(
+    svbrdf: SVBRDF, n: int = RELIT_FRAMES, *, radius: float = 1.5, height: float = 1.6, intensity=None
+) -> Tensor:
+    """``(n, 3, H, W)`` linear renderings of the first material under a point light circling it.
+
+    The camera stays on the axis at the Des18 distance; the light goes round at ``radius`` from the
+    axis and ``height`` above the patch. ``intensity=None`` exposes all frames alike so that their
+    brightest 1% just reaches 0.9; values are clipped to [0, 1].
+    """
+    angles = torch.arange(n, dtype=torch.float32) * (2 * math.pi / n)
+    pos = torch.stack([radius * angles.cos(), radius * angles.sin(), torch.full_like(angles, height)], -1)
+    maps = svbrdf[0].detach().to(torch.float32)
+    scene = Scene(Camera(torch.tensor([0.0, 0.0, DES18_DISTANCE])), (PointLight(pos, 1.0),), DES18_EFFECTS)
+    frames = render(maps, scene)[0]  # (n, 3, H, W)
+    if intensity is None:
+        sample = frames.flatten()[:: max(1, frames.numel() // 1_000_000)]
+        top = float(torch.quantile(sample, 0.99))
+        intensity = 0.9 / top if top > 0 else 1.0
+    return (frames * float(intensity)).nan_to_num(0.0).clamp(0, 1)
+
+
+_HEAT = torch.tensor(  # black -> purple -> orange -> pale yellow (inferno-like)
+    [[0.0, 0.0, 0.0], [0.34, 0.06, 0.43], [0.87, 0.32, 0.23], [0.99, 0.99, 0.64]]
+)
+
+
+def error_heatmap(a: Tensor, b: Tensor, top: float = HEAT_MAX) -> Tensor:
+    """``|a - b|`` (mean over channels) of two ``(3, H, W)`` images as a ``(3, H, W)`` heat map in
+    [0, 1]: black for 0, pale yellow for ``top`` or more."""
+    e = ((a - b).abs().mean(0) / top).clamp(0, 1).nan_to_num(1.0) * (len(_HEAT) - 1)
+    i = e.floor().long().clamp(max=len(_HEAT) - 2)
+    f = (e - i)[None]
+    return (_HEAT[i].permute(2, 0, 1) * (1 - f) + _HEAT[i + 1].permute(2, 0, 1) * f).contiguous()
+
+
+def _write_gif(path: Path, frames: Tensor, ms: int = 80) -> Path:
+    from PIL import Image
+
+    pixels = (linear_to_srgb(frames) * 255).round().byte().permute(0, 2, 3, 1).numpy()
+    images = [Image.fromarray(p) for p in pixels]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    images[0].save(path, save_all=True, append_images=images[1:], duration=ms, loop=0)
+    return path
+
+
+# -- one photo, end to end -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class CaptureOptions:
+    """How :func:`capture_one` reads a photo and what it writes.
+
+    Attributes:
+        linear: the file holds linear values (default: sRGB-encoded, as cameras save).
+        crop: ``(x, y, size)`` in pixels of the oriented photo, or None for the centred square.
+        tiles: predict at high resolution from overlapping tiles of the model's resolution.
+        map_size: with ``tiles``, the side of the maps (default: the square's own side).
+        bits: 8 or 16, the maps' and input.png's PNG depth.
+        normal_convention: ``"opengl"`` or ``"directx"`` (green channel flipped).
+        relit: ``"gif"``, ``"png"`` or ``"none"``.
+    """
+
+    linear: bool = False
+    crop: tuple[int, int, int] | None = None
+    tiles: bool = False
+    map_size: int | None = None
+    bits: int = 8
+    normal_convention: str = "opengl"
+    relit: str = "gif"
+
+    def __post_init__(self):
+        if self.normal_convention not in NORMAL_CONVENTIONS:
+            raise DataError(
+                f"normal convention must be one of {NORMAL_CONVENTIONS}, got {self.normal_convention!r}"
+            )
+        if self.relit not in RELIT_FORMATS:
+            raise DataError(f"relit preview must be one of {RELIT_FORMATS}, got {self.relit!r}")
+        if self.bits not in (8, 16):
+            raise DataError(f"bits must be 8 or 16, got {self.bits}")
+        if self.map_size is not None and not self.tiles:
+            raise DataError("map size is for tiled capture: give tiles=True (--tiles) with it")
+
+
+def _relit_grid(frames: Tensor, cols: int = 6) -> Tensor:
+    from .data.sheet import image_grid
+
+    n = len(frames)
+    rows = [list(linear_to_srgb(frames[i : i + cols])) for i in range(0, n, cols)]
+    labels = [f"{i * 360 // n}°" for i in range(0, n, cols)]
+    return image_grid(rows, [f"+{k * 360 // n}°" for k in range(cols)], labels)
+
+
+def _resample(photo: Tensor, size: int) -> Tensor:
+    if photo.shape[-1] == size:
+        return photo
+    return F.interpolate(
+        photo[None], size=(size, size), mode="bilinear", align_corners=False, antialias=True
+    )[0]
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(float(x)) else None
+
+
+def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None) -> dict:
+    """Capture one photo into ``out_dir``; returns its summary entry (``status`` ``"ok"``).
+
+    ``predictor`` has ``resolution``, ``predict(photo)`` and ``predict_batch(photos)``
+    (:class:`~svbrdf_train.predict.Predictor`). Writes normal.png, diffuse.png, roughness.png,
+    specular.png, input.png (the square the maps are of, sRGB), rerender.png (photo | re-rendering
+    under the fitted flash | error heat map) and relit.gif or relit.png. A photo that cannot be
+    used raises :class:`PhotoError` before anything is written.
+    """
+    options = options or CaptureOptions()
+    path, out_dir = Path(path), Path(out_dir)
+    res = int(predictor.resolution)
+    photo, notes = load_photo(path, linear=options.linear, crop=options.crop)
+    side = photo.shape[-1]
+    tiles = 0
+    if options.tiles:
+        size = options.map_size or side
+        if size < res:
+            notes.append(f"the square ({size} px) is smaller than a tile ({res} px): predicted as one tile")
+            size = res
+        photo = _resample(photo, size)
+        tiles = tile_count(size, res)
+        svbrdf = tile_predict(predictor.predict_batch, photo, res) if tiles > 1 else predictor.predict(photo)
+    else:
+        if side < res:
+            notes.append(
+                f"the square ({side} px) is upsampled to the model's {res} px: the maps will be soft"
+            )
+        photo = _resample(photo, res)
+        svbrdf = predictor.predict(photo)
+    fit = flash_consistency(svbrdf, photo)
+    rmse = float(fit.rmse[0])
+
+    from .data.sheet import image_grid
+
+    # Everything is computed before the first file is written: a failure leaves no half folder.
+    shown = [linear_to_srgb(photo), linear_to_srgb(fit.rendering[0]), error_heatmap(photo, fit.rendering[0])]
+    figure = image_grid([shown], ["photo", "re-rendering", f"|error| 0-{HEAT_MAX:g}"], [f"RMSE {rmse:.4f}"])
+    frames = None
+    if options.relit != "none":
+        frames = relight_frames(svbrdf if max(svbrdf.size) <= RELIT_SIZE else svbrdf.resize(RELIT_SIZE))
+    if options.normal_convention == "directx":
+        svbrdf = SVBRDF(
+            to_directx(svbrdf.normal), svbrdf.diffuse, svbrdf.roughness, svbrdf.specular, validate=False
+        )
+    write_map_folder(out_dir, svbrdf, bits=options.bits)
+    write_image(out_dir / "input.png", linear_to_srgb(photo), bits=options.bits)
+    write_image(out_dir / "rerender.png", figure)
+    if options.relit == "gif":
+        _write_gif(out_dir / "relit.gif", frames)
+    elif options.relit == "png":
+        write_image(out_dir / "relit.png", _relit_grid(frames))
+    return {
+        "photo": str(path),
+        "folder": str(out_dir),
+        "status": "ok",
+        "notes": notes,
+        "square": side,
+        "maps": int(svbrdf.size[0]),
+        "tiles": tiles,
+        "rmse": _finite(rmse),
+        "flash": {
+            "position": [_finite(v) for v in fit.position[0].tolist()],
+            "intensity": _finite(fit.intensity[0]),
+        },
+    }
+
+
+def write_summary(path, entries: list[dict], **extra) -> dict:
+    """``summary.json``: the entries, the median RMSE over the photos captured, and ``extra``."""
+    import statistics
+
+    values = [e["rmse"] for e in entries if e.get("status") == "ok" and e.get("rmse") is not None]
+    summary = {
+        **extra,
+        "photos": len(entries),
+        "captured": sum(e.get("status") == "ok" for e in entries),
+        "failed": sum(e.get("status") != "ok" for e in entries),
+        "median_rmse": statistics.median(values) if values else None,
+        "entries": entries,
+    }
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(summary, indent=2) + "\n")
+    return summary
