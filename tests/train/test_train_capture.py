@@ -478,6 +478,27 @@ def test_command_tiles_directx_16_bit_and_relit_grid(tmp_path, checkpoint):
     assert "relit.png" in names and "relit.gif" not in names
 
 
+def test_command_albedos_in_srgb_for_texture_tools(tmp_path, checkpoint):
+    """--albedo-encoding srgb writes diffuse and specular sRGB-encoded: the linear run's values
+    through the sRGB curve; the other maps are unchanged."""
+    _, photo = _flash_photo(64)
+    path = write_image(tmp_path / "shot.png", linear_to_srgb(photo[0]))
+    common = [path, "--checkpoint", checkpoint, "--relit", "none", "--bits", "16"]
+    lin = _invoke(*common, "-o", tmp_path / "lin")
+    srgb = _invoke(*common, "-o", tmp_path / "srgb", "--albedo-encoding", "srgb")
+    assert lin.exit_code == 0 and srgb.exit_code == 0, lin.stderr + srgb.stderr
+    for name in ("diffuse", "specular"):
+        a = read_image(tmp_path / "lin" / "shot" / f"{name}.png")
+        b = read_image(tmp_path / "srgb" / "shot" / f"{name}.png")
+        assert float((b - linear_to_srgb(a)).abs().max()) < 2e-3, name  # 16-bit steps, curve slope
+        assert not torch.equal(a, b)
+    for name in ("normal", "roughness"):
+        assert torch.equal(
+            read_image(tmp_path / "lin" / "shot" / f"{name}.png"),
+            read_image(tmp_path / "srgb" / "shot" / f"{name}.png"),
+        )
+
+
 @pytest.mark.parametrize(
     "args, says",
     [

@@ -87,6 +87,8 @@ CLIPPED_SHARE = 0.02
 NORMAL_CONVENTIONS = ("opengl", "directx")
 #: ``--relit`` values: an animated GIF, a PNG grid of the frames, or no preview.
 RELIT_FORMATS = ("gif", "png", "none")
+#: How diffuse.png and specular.png store the albedos: linear (Des18) or sRGB (texture tools).
+ALBEDO_ENCODINGS = ("linear", "srgb")
 #: Frames of the relit preview, and the largest side it is rendered at.
 RELIT_FRAMES = 24
 RELIT_SIZE = 256
@@ -419,6 +421,8 @@ class CaptureOptions:
         bits: 8 or 16, the maps' and input.png's PNG depth.
         normal_convention: ``"opengl"`` or ``"directx"`` (green channel flipped).
         relit: ``"gif"``, ``"png"`` or ``"none"``.
+        albedo_encoding: ``"linear"`` (Des18's convention) or ``"srgb"`` (what base-colour
+            inputs of texture tools such as Blender and Substance expect).
     """
 
     linear: bool = False
@@ -428,8 +432,13 @@ class CaptureOptions:
     bits: int = 8
     normal_convention: str = "opengl"
     relit: str = "gif"
+    albedo_encoding: str = "linear"
 
     def __post_init__(self):
+        if self.albedo_encoding not in ALBEDO_ENCODINGS:
+            raise DataError(
+                f"albedo encoding must be one of {ALBEDO_ENCODINGS}, got {self.albedo_encoding!r}"
+            )
         if self.normal_convention not in NORMAL_CONVENTIONS:
             raise DataError(
                 f"normal convention must be one of {NORMAL_CONVENTIONS}, got {self.normal_convention!r}"
@@ -509,6 +518,9 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None)
             to_directx(svbrdf.normal), svbrdf.diffuse, svbrdf.roughness, svbrdf.specular, validate=False
         )
     write_map_folder(out_dir, svbrdf, bits=options.bits)
+    if options.albedo_encoding == "srgb":  # replace the linear albedos written above
+        for name in ("diffuse", "specular"):
+            write_image(out_dir / f"{name}.png", linear_to_srgb(getattr(svbrdf, name)[0]), bits=options.bits)
     write_image(out_dir / "input.png", linear_to_srgb(photo), bits=options.bits)
     write_image(out_dir / "rerender.png", figure)
     if options.relit == "gif":

@@ -26,9 +26,9 @@ re-rendering.
 \b
 Each photo gets a folder DIR/NAME/:
   normal.png      tangent-space normal, stored (n+1)/2 (OpenGL y up; --normal-convention directx)
-  diffuse.png     linear albedo, as Des18 stores it
+  diffuse.png     albedo, linear as Des18 stores it (--albedo-encoding srgb for texture tools)
   roughness.png   grey, alpha = roughness^2
-  specular.png    linear albedo
+  specular.png    albedo, encoded like diffuse.png
   input.png       the square the maps are of (sRGB)
   rerender.png    photo | re-rendering under the fitted flash | |error| heat map
   relit.gif       a point light circling the material (--relit png: a grid; none: skipped)
@@ -97,6 +97,14 @@ def _parse_crop(ctx, param, value):
 )
 @click.option("--bits", type=click.Choice(["8", "16"]), default="8", show_default=True, help="PNG bit depth.")
 @click.option(
+    "--albedo-encoding",
+    type=click.Choice(["linear", "srgb"]),
+    default="linear",
+    show_default=True,
+    help="How diffuse.png and specular.png store values: linear (Des18) or srgb (base-colour "
+    "inputs of Blender, Substance and most texture tools).",
+)
+@click.option(
     "--relit",
     type=click.Choice(["gif", "png", "none"]),
     default="gif",
@@ -105,7 +113,19 @@ def _parse_crop(ctx, param, value):
 )
 @click.option("--device", default="cpu", show_default=True, help="cpu, cuda or cuda:K.")
 def predict(
-    photos, checkpoint, run_id, out, linear, crop, tiles, map_size, normal_convention, bits, relit, device
+    photos,
+    checkpoint,
+    run_id,
+    out,
+    linear,
+    crop,
+    tiles,
+    map_size,
+    normal_convention,
+    bits,
+    albedo_encoding,
+    relit,
+    device,
 ):
     """Capture normal, diffuse, roughness and specular maps from flash photos.
 
@@ -122,7 +142,9 @@ def predict(
         raise CheckpointError("give the generator with --checkpoint FILE or --run RUN_ID (one of them)")
     if map_size is not None and not tiles:
         raise click.UsageError("--map-size goes with --tiles")
-    options = CaptureOptions(linear, crop, tiles, map_size, int(bits), normal_convention, relit)
+    options = CaptureOptions(
+        linear, crop, tiles, map_size, int(bits), normal_convention, relit, albedo_encoding=albedo_encoding
+    )
     model = (
         Predictor.from_checkpoint(checkpoint, device) if checkpoint else Predictor.from_run(run_id, device)
     )
