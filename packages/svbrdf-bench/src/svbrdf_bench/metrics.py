@@ -21,7 +21,7 @@ import torch
 from torch import Tensor
 
 from svbrdf_render import MAP_NAMES, SVBRDF, evaluation_scene
-from svbrdf_train.metrics import display_rendering, map_rmse, render_rmse
+from svbrdf_train.metrics import display_rendering, map_rmse, per_sample_rmse
 
 from .errors import BenchError
 
@@ -92,16 +92,15 @@ def evaluate(pred: SVBRDF, target: SVBRDF, *, lpips: LpipsFn | None = None) -> d
 
     for name, v in map_rmse(pred, target).items():
         out[f"rmse/{name}"] = as_array(v)
-    out["rmse/render"] = as_array(render_rmse(pred, target))
-
     p_maps, t_maps = _stored(pred), _stored(target)
     for name in MAP_NAMES:
         out[f"ssim/{name}"] = np.array([_ssim(p_maps[name][k], t_maps[name][k], win) for k in range(b)])
 
     scene = evaluation_scene(device=target.device)
     with torch.no_grad():
-        p_img = display_rendering(pred, scene)  # (B, 6, 3, H, W)
+        p_img = display_rendering(pred, scene)  # (B, 6, 3, H, W), rendered once for RMSE and SSIM
         t_img = display_rendering(target, scene)
+    out["rmse/render"] = as_array(per_sample_rmse(p_img, t_img))
     p_np, t_np = as_array(p_img), as_array(t_img)
     out["ssim/render"] = np.array(
         [np.mean([_ssim(p_np[k, i], t_np[k, i], win) for i in range(p_np.shape[1])]) for k in range(b)]

@@ -147,11 +147,14 @@ def pareto(
     return _save(fig, path)
 
 
-def comparison_grid(rows: Sequence[tuple[str, Sequence[Tensor]]], columns: Sequence[str], path) -> Path:
+def comparison_grid(
+    rows: Sequence[tuple[str, Sequence[Tensor]]], columns: Sequence[str], path, *, min_tile: int = 0
+) -> Path:
     """Side-by-side pictures: one labelled row per ``(label, tiles)``, under ``columns`` titles.
 
     Tiles are ``(3, H, W)`` (or grey ``(1, H, W)``) display images in [0, 1], all the same size,
-    one per column. Written as an 8-bit PNG at ``path``.
+    one per column; tiles narrower than ``min_tile`` are enlarged (nearest neighbour). Written
+    as an 8-bit PNG at ``path``.
     """
     from svbrdf_render import write_image
     from svbrdf_train.data.sheet import image_grid
@@ -182,5 +185,5 @@ def comparison_grid(rows: Sequence[tuple[str, Sequence[Tensor]]], columns: Seque
                 )
             row.append(tile.expand(3, -1, -1) if tile.shape[0] == 1 else tile)
         tiles_rows.append(row)
-    image = image_grid(tiles_rows, columns, [label for label, _ in rows])
+    image = image_grid(tiles_rows, columns, [label for label, _ in rows], min_tile=min_tile)
     return write_image(Path(path), image)

@@ -38,6 +38,8 @@ TRAIN_RUN_TAG = "svbrdf.train_run"
 PER_SAMPLE = "eval/per_sample.json"
 #: Test samples shown in the visual comparison grid.
 GRID_SAMPLES = 3
+#: Tiles of the comparison grid smaller than this many pixels are enlarged.
+GRID_MIN_SIZE = 96
 #: Side of the input of the latency measurement.
 LATENCY_SIZE = 256
 
@@ -114,8 +116,8 @@ def _check_models(models: Sequence[str]) -> None:
             raise BenchError(f"unknown model {m!r}{hint}; models are recipes: {', '.join(known)}")
 
 
-def _train(model: str, options: BenchOptions, parent: str, work: Path) -> tuple[str, float]:
-    """Train one recipe in its own process (as a user would); its run id and wall seconds."""
+def _train(model: str, options: BenchOptions, parent: str, work: Path) -> tuple[str, float, Path]:
+    """Train one recipe in its own process (as a user would); its run id, wall seconds and checkpoint."""
     p = options.preset
     minutes = options.minutes if options.minutes is not None else p.minutes
     out = work / Path(model).stem
@@ -136,14 +138,16 @@ def _train(model: str, options: BenchOptions, parent: str, work: Path) -> tuple[
     if done.returncode != 0:
         raise BenchError(f"training {model} failed (exit {done.returncode}); its messages are above")
     summary = json.loads((out / "last.json").read_text())
-    return summary["run_id"], wall
+    return summary["run_id"], wall, out / "last.pt"
 
 
-def _checkpoint(run_id: str, work: Path) -> dict:
+def _checkpoint(run_id: str, work: Path, local: Path | None) -> dict:
+    """The fit's checkpoint: the file it wrote here, else the one logged in its run."""
     from svbrdf_train.checkpoint import load_checkpoint
     from svbrdf_train.predict import RUN_CHECKPOINT
 
-    local = _client().download_artifacts(run_id, RUN_CHECKPOINT, str(work))
+    if local is None:
+        local = Path(_client().download_artifacts(run_id, RUN_CHECKPOINT, str(work)))
     return load_checkpoint(local)
 
 
@@ -175,11 +179,11 @@ def _evaluate(generator, test: TestSet, device: torch.device, lpips) -> tuple[di
 def _self_consistency(generator, photos, resolution: int, device: torch.device) -> np.ndarray:
     """Per photo: RMSE of the predicted maps re-rendered under the flash fitted to the photo.
 
-    The photo's centre square at the model's resolution is predicted, then
-    ``svbrdf_render.fit_flash`` finds the flash that re-renders those maps closest to the
-    photo; its RMSE (clipped re-rendering against the photo) is the real-data figure.
+    The photo's centre square at the model's resolution is predicted, then the capture tool's
+    :func:`~svbrdf_train.capture.flash_consistency` finds the flash that re-renders those maps
+    closest to the photo; its RMSE (clipped re-rendering against the photo) is the figure.
     """
-    from svbrdf_render import fit_flash
+    from svbrdf_train.capture import flash_consistency
     from svbrdf_train.data.photos import square_photo
 
     out = []
@@ -187,7 +191,7 @@ def _self_consistency(generator, photos, resolution: int, device: torch.device) 
         x = square_photo(photos[i]["input"], resolution).to(device)[None]
         with torch.no_grad():
             maps = generator(x)
-        out.append(float(fit_flash(maps, x).rmse[0]))
+        out.append(float(flash_consistency(maps, x).rmse[0]))
     return np.asarray(out, dtype=np.float64)
 
 
@@ -213,12 +217,9 @@ def _log_child(run_id: str, figures: dict[str, float], per_sample: dict[str, np.
     client = _client()
     now = int(time.time() * 1000)
     client.log_batch(run_id, metrics=[Metric(k, float(v), now, 0) for k, v in figures.items()])
-    path = work / f"per_sample-{run_id}.json"
-    path.write_text(json.dumps({k: v.tolist() for k, v in per_sample.items()}))
-    folder = work / f"eval-{run_id}"
-    folder.mkdir(exist_ok=True)
-    target = folder / Path(PER_SAMPLE).name
-    path.replace(target)
+    target = work / f"eval-{run_id}" / Path(PER_SAMPLE).name
+    target.parent.mkdir(exist_ok=True)
+    target.write_text(json.dumps({k: v.tolist() for k, v in per_sample.items()}))
     client.log_artifact(run_id, str(target), str(Path(PER_SAMPLE).parent))
 
 
@@ -307,22 +308,23 @@ def run_bench(options: BenchOptions) -> str:
     try:
         with tempfile.TemporaryDirectory(prefix="svbrdf-bench-") as tmp:
             work = Path(tmp)
-            jobs: list[tuple[str, str, float | None, str | None]] = []  # label, eval run, wall, source
+            # label, evaluation run, training wall seconds, reused run, local checkpoint
+            jobs: list[tuple[str, str, float | None, str | None, Path | None]] = []
             for i, model in enumerate(to_train, 1):
                 options.say(f"[{i}/{len(labels)}] training {model} ({size} size)")
-                run_id, wall = _train(model, options, parent_id, work)
-                jobs.append((Path(model).stem, run_id, wall, None))
+                run_id, wall, local = _train(model, options, parent_id, work)
+                jobs.append((Path(model).stem, run_id, wall, None, local))
             for label, source in reuse:
                 child = client.create_run(
                     parent.experiment_id,
                     run_name=f"{label} (reused)",
                     tags={"mlflow.parentRunId": parent_id, TRAIN_RUN_TAG: source, "recipe": label},
                 )
-                jobs.append((label, child.info.run_id, None, source))
+                jobs.append((label, child.info.run_id, None, source, None))
             shown_by_model = {}
-            for label, run_id, wall, source in jobs:
+            for label, run_id, wall, source, local in jobs:
                 options.say(f"evaluating {label} on {len(test)} test images")
-                state = _checkpoint(source or run_id, work)
+                state = _checkpoint(source or run_id, work, local)
                 from svbrdf_train.trainer import load_generator
 
                 generator, recipe = load_generator(state, device)
@@ -373,15 +375,13 @@ def run_bench(options: BenchOptions) -> str:
 
 def _comparison_grid(shown: dict[str, list], path: Path) -> Path:
     """Per test sample: the input and true maps, then each model's maps; flash re-renderings."""
-    import math
-
-    from svbrdf_render import DES18_DISTANCE, Scene, linear_to_srgb
+    from svbrdf_render import linear_to_srgb
     from svbrdf_train.data.sheet import map_tiles
-    from svbrdf_train.metrics import display_rendering
+    from svbrdf_train.metrics import display_rendering, preview_flash
 
     from .plots import comparison_grid
 
-    flash = Scene.flash(intensity=math.pi * DES18_DISTANCE**2)
+    flash = preview_flash()
     rows = []
     first = next(iter(shown.values()))
     for k, (photo, _, target) in enumerate(first):
@@ -391,9 +391,5 @@ def _comparison_grid(shown: dict[str, list], path: Path) -> Path:
             pred = items[k][1]
             rows.append((f"#{k} {label}", [linear_to_srgb(photo), *map_tiles(pred.pack()[0]),
                                           display_rendering(pred, flash)[0]]))  # fmt: skip
-    grow = max(1, 96 // rows[0][1][0].shape[-1])  # small tiles enlarged, pixels kept sharp
-    rows = [
-        (label, [t.repeat_interleave(grow, -1).repeat_interleave(grow, -2) for t in tiles])
-        for label, tiles in rows
-    ]
-    return comparison_grid(rows, ["input", "normal", "diffuse", "roughness", "specular", "flash"], path)
+    columns = ["input", "normal", "diffuse", "roughness", "specular", "flash"]
+    return comparison_grid(rows, columns, path, min_tile=GRID_MIN_SIZE)

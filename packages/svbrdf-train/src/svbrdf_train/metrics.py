@@ -11,12 +11,14 @@ Every figure is an RMSE per sample, so callers can average, or bootstrap over sa
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor
 
-from svbrdf_render import MAP_NAMES, SVBRDF, Scene, evaluation_scene, linear_to_srgb, render
+from svbrdf_render import DES18_DISTANCE, MAP_NAMES, SVBRDF, Scene, evaluation_scene, linear_to_srgb, render
 
-__all__ = ["map_rmse", "render_rmse", "display_rendering", "METRIC_NAMES"]
+__all__ = ["map_rmse", "render_rmse", "display_rendering", "per_sample_rmse", "preview_flash", "METRIC_NAMES"]
 
 #: Names of :func:`map_rmse`'s figures and then :func:`render_rmse`'s.
 METRIC_NAMES = (*MAP_NAMES, "render")
@@ -27,6 +29,11 @@ def _stored(svbrdf: SVBRDF) -> dict[str, Tensor]:
     return {name: (m[name] + 1) / 2 if name == "normal" else m[name] for name in MAP_NAMES}
 
 
+def per_sample_rmse(a: Tensor, b: Tensor) -> Tensor:
+    """``(B,)`` RMSE over everything but the first dimension of two equal-shaped batches."""
+    return (a.float() - b.float()).square().flatten(1).mean(1).sqrt()
+
+
 def map_rmse(pred: SVBRDF, target: SVBRDF) -> dict[str, Tensor]:
     """``{map name: (B,) RMSE}`` between the stored encodings of two map sets."""
     if pred.shape != target.shape:
@@ -34,14 +41,18 @@ def map_rmse(pred: SVBRDF, target: SVBRDF) -> dict[str, Tensor]:
             f"map_rmse: pred is {pred.shape}, target {target.shape}; expected the same (B, H, W)"
         )
     p, t = _stored(pred), _stored(target)
-    return {
-        name: (p[name].float() - t[name].float()).square().flatten(1).mean(1).sqrt() for name in MAP_NAMES
-    }
+    return {name: per_sample_rmse(p[name], t[name]) for name in MAP_NAMES}
 
 
 def display_rendering(svbrdf: SVBRDF, scene: Scene) -> Tensor:
     """Renderings as a screen shows them: clipped to [0, 1], sRGB-encoded."""
     return linear_to_srgb(render(svbrdf, scene).clamp(0, 1))
+
+
+def preview_flash(device=None) -> Scene:
+    """The Des18 phone flash, bright enough that an albedo of 1 at the centre shows as 1:
+    what sample grids re-render maps under for people to look at."""
+    return Scene.flash(intensity=math.pi * DES18_DISTANCE**2).to(device)
 
 
 def render_rmse(pred: SVBRDF, target: SVBRDF, scene: Scene | None = None) -> Tensor:
@@ -54,4 +65,4 @@ def render_rmse(pred: SVBRDF, target: SVBRDF, scene: Scene | None = None) -> Ten
     with torch.no_grad():
         a = display_rendering(pred, scene)
         b = display_rendering(target, scene)
-    return (a - b).square().flatten(1).mean(1).sqrt()
+    return per_sample_rmse(a, b)

@@ -23,7 +23,6 @@ never stopped; bitwise on CPU with the same number of threads and processes.
 
 from __future__ import annotations
 
-import math
 import signal
 import time
 from collections.abc import Iterator
@@ -35,9 +34,8 @@ import torch
 from torch import Tensor, nn
 from torch.utils.data import DataLoader, Dataset, DistributedSampler, Sampler, Subset
 
-from svbrdf_models import create_discriminator, create_generator, resolve_config
+from svbrdf_models import config_to_dict, create_discriminator, create_generator, resolve_config
 from svbrdf_render import (
-    DES18_DISTANCE,
     SVBRDF,
     Scene,
     evaluation_scene,
@@ -50,7 +48,7 @@ from . import distributed
 from .checkpoint import CHECKPOINT_NAME, load_checkpoint, rng_state, save_checkpoint, set_rng_state
 from .errors import CheckpointError, TrainingError
 from .losses import LossWeights, discriminator_loss, generator_loss
-from .metrics import METRIC_NAMES, display_rendering, map_rmse, render_rmse
+from .metrics import METRIC_NAMES, display_rendering, map_rmse, preview_flash, render_rmse
 from .progress import Progress, format_duration
 from .recipe import Recipe, recipe_differences, recipe_from_dict
 from .tracking import Tracker, flatten_params, run_tags
@@ -318,7 +316,7 @@ class _Fit:
             if self.D is not None:
                 self.D = DDP(self.D, device_ids=ids)
         self.eval_scene = evaluation_scene(device=self.device)
-        self.flash = Scene.flash(intensity=math.pi * DES18_DISTANCE**2).to(self.device)
+        self.flash = preview_flash(self.device)
 
     # -- state ------------------------------------------------------------------------------
 
@@ -527,6 +525,7 @@ class _Fit:
             grid_rows[:keep],
             ("input", "normal", "diffuse", "roughness", "specular", "flash"),
             [s[-28:] for s in labels[:keep]],
+            min_tile=GRID_MIN_SIZE,
         )
         return {f"val/rmse/{k}": v / n for k, v in sums.items()}, grid
 
@@ -541,11 +540,9 @@ class _Fit:
             "true": display_rendering(target, self.flash).cpu(),
             "pred": display_rendering(pred, self.flash).cpu(),
         }
-        grow = max(1, GRID_MIN_SIZE // photo.shape[-1])  # small tiles enlarged, pixels kept sharp
         for k in range(photo.shape[0]):
             for which, maps in (("true", target), ("pred", pred)):
-                tiles = [shown[k], *map_tiles(maps.pack()[k]), looks[which][k]]
-                rows.append([t.repeat_interleave(grow, -1).repeat_interleave(grow, -2) for t in tiles])
+                rows.append([shown[k], *map_tiles(maps.pack()[k]), looks[which][k]])
         return rows
 
 
@@ -743,10 +740,10 @@ def _tracker(recipe: Recipe, options: FitOptions, run: _Fit, dist: distributed.D
         )
     params = flatten_params(recipe.to_dict())
     g_cfg = resolve_config("generator", recipe.generator.name, recipe.generator.config)
-    params.update(flatten_params({"generator.resolved": _plain(g_cfg)}))
+    params.update(flatten_params({"generator.resolved": config_to_dict(g_cfg)}))
     if recipe.discriminator is not None:
         d_cfg = resolve_config("discriminator", recipe.discriminator.name, recipe.discriminator.config)
-        params.update(flatten_params({"discriminator.resolved": _plain(d_cfg)}))
+        params.update(flatten_params({"discriminator.resolved": config_to_dict(d_cfg)}))
     params["parameters.generator"] = str(_count_params(_unwrap(run.G)))
     params["parameters.discriminator"] = str(_count_params(_unwrap(run.D) if run.D is not None else None))
     params["steps_per_epoch"] = str(run.steps_per_epoch)
@@ -758,12 +755,6 @@ def _tracker(recipe: Recipe, options: FitOptions, run: _Fit, dist: distributed.D
         tags={**tags, **({"mlflow.parentRunId": options.parent_run} if options.parent_run else {})},
         params=params,
     )
-
-
-def _plain(config) -> dict:
-    import dataclasses
-
-    return {f.name: getattr(config, f.name) for f in dataclasses.fields(config)}
 
 
 def _validate(run: _Fit, tracker: Tracker, step: int) -> dict[str, float]:

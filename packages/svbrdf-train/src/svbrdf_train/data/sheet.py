@@ -97,11 +97,18 @@ def contact_sheet(
 
 
 def image_grid(
-    rows: Sequence[Sequence[Tensor]], columns: Sequence[str], labels: Sequence[str], *, gap: int = 4
+    rows: Sequence[Sequence[Tensor]],
+    columns: Sequence[str],
+    labels: Sequence[str],
+    *,
+    gap: int = 4,
+    min_tile: int = 0,
 ) -> Tensor:
     """Tiles ``(3, H, W)`` in [0, 1] laid out in rows, under column titles, each row labelled.
 
-    Returns ``(3, H', W')`` values in [0, 1] (8-bit steps), ready for ``svbrdf_render.write_image``.
+    Tiles narrower than ``min_tile`` pixels are enlarged by a whole factor (nearest neighbour,
+    so pixels stay sharp) to be seen at all. Returns ``(3, H', W')`` values in [0, 1] (8-bit
+    steps), ready for ``svbrdf_render.write_image``.
     """
     from PIL import Image, ImageDraw
 
@@ -111,6 +118,9 @@ def image_grid(
         raise DataError(f"image grid: {len(labels)} labels for {n} rows")
     if n == 0:
         raise DataError("image grid: no rows to draw")
+    grow = max(1, min_tile // rows[0][0].shape[-1])
+    if grow > 1:
+        rows = [[t.repeat_interleave(grow, -1).repeat_interleave(grow, -2) for t in row] for row in rows]
     h, w = rows[0][0].shape[-2:]
     font = _font(max(10, min(h, w) // 14))
     draw = ImageDraw.Draw(Image.new("RGB", (1, 1)))
