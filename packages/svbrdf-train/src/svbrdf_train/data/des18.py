@@ -11,6 +11,12 @@ Two folder layouts are accepted:
 Training takes a random ``crop`` from the tile and one of the eight transforms of the square
 (quarter turns, flips, transposes), applied alike to the photo and to the maps; testing takes
 the centre crop (:meth:`SVBRDF.center_crop`'s window) untransformed.
+
+``fov="resize"`` keeps the field of view a model trains at (:mod:`.fov`): a test sample is the
+whole tile resized to ``crop``, and a training tile is first resized by ``crop / 256`` so that
+its random ``crop`` window covers the same share of the surface as Des18's own 256-of-288
+training crops, at any resolution. ``fov="crop"`` (the default, and Des18's protocol at 256 px)
+cuts windows from the tile as it is.
 """
 
 from __future__ import annotations
@@ -27,13 +33,17 @@ from svbrdf_render import SVBRDF, read_des18
 
 from ..errors import DataError
 
-__all__ = ["Des18Folder", "Des18Crop", "SPLIT_FOLDERS", "dihedral", "dihedral_image"]
+__all__ = ["Des18Folder", "Des18Crop", "SPLIT_FOLDERS", "FOV_MODES", "dihedral", "dihedral_image"]
 
 #: The subfolder of each split in the published data set.
 SPLIT_FOLDERS = {"train": "trainBlended", "test": "testBlended"}
 
 #: Number of transforms of the square: 4 quarter turns, each with or without a mirror.
 DIHEDRAL_COUNT = 8
+#: The crop size Des18 trains at; ``fov="resize"`` scales tiles by ``crop / DES18_CROP``.
+DES18_CROP = 256
+#: How a sample is brought to ``crop`` pixels (see the module doc).
+FOV_MODES = ("crop", "resize")
 
 
 class Des18Crop(NamedTuple):
@@ -91,6 +101,8 @@ class Des18Folder(Dataset):
             (default: on for ``"train"``, off for ``"test"``).
         seed: with the epoch (:meth:`set_epoch`) and the index, fixes every random draw, so
             an epoch reproduces exactly whichever worker loads which sample.
+        fov: ``"crop"`` cuts ``crop``-pixel windows from the tile as it is; ``"resize"`` brings
+            the tile to the model's field of view first (see the module doc).
 
     Each sample is the dict of :mod:`svbrdf_train.data.sample`: ``input`` ``(3, crop, crop)``
     linear photo in ``[0, 1]``, ``maps`` ``(10, crop, crop)``, ``name`` the file name.
@@ -110,7 +122,10 @@ class Des18Folder(Dataset):
         *,
         random_crop: bool | None = None,
         seed: int = 0,
+        fov: str = "crop",
     ):
+        if fov not in FOV_MODES:
+            raise DataError(f"Des18Folder: fov must be one of {', '.join(FOV_MODES)}, got {fov!r}")
         if split not in SPLIT_FOLDERS:
             raise DataError(f"Des18Folder: split must be 'train' or 'test', got {split!r}")
         if crop is not None and (isinstance(crop, bool) or not isinstance(crop, int) or crop <= 0):
@@ -123,6 +138,7 @@ class Des18Folder(Dataset):
         self.augment = split == "train" if augment is None else bool(augment)
         self.random_crop = split == "train" if random_crop is None else bool(random_crop)
         self.seed = seed
+        self.fov = fov
         self.epoch = 0
         self.folder = self._find_folder()
         self.files = _strips(self.folder)
@@ -179,6 +195,14 @@ class Des18Folder(Dataset):
         sample = read_des18(path)  # a damaged file raises MapFileError naming it
         tile = sample.svbrdf.size[0]
         crop = tile if self.crop is None else self.crop
+        if self.fov == "resize" and crop != tile:
+            from .fov import resize_maps, resize_photo
+
+            side = crop
+            if self.random_crop:  # the share of the surface Des18's own 256-of-288 crops cover
+                side = min(tile, max(crop, round(tile * crop / DES18_CROP)))
+            sample = type(sample)(resize_photo(sample.input, side), resize_maps(sample.svbrdf, side))
+            tile = side
         if crop > tile:
             raise DataError(
                 f"{path}: tiles are {tile}x{tile} pixels, smaller than the crop of {crop}; "
@@ -199,5 +223,5 @@ class Des18Folder(Dataset):
     def __repr__(self) -> str:
         return (
             f"Des18Folder({str(self.folder)!r}, split={self.split!r}, {len(self)} strips, crop={self.crop}, "
-            f"random_crop={self.random_crop}, augment={self.augment}, seed={self.seed})"
+            f"random_crop={self.random_crop}, augment={self.augment}, seed={self.seed}, fov={self.fov!r})"
         )
