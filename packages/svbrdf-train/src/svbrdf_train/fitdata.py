@@ -9,8 +9,15 @@ shards         every sample of the files but the last              the last ``va
                ``validation``
 des18          the folder's ``trainBlended/`` (or the strips),     ``testBlended/`` when there is one,
                random crops and the 8 symmetries                   else the last ``validation`` strips;
-                                                                   centre crops
+                                                                   whole tiles resized
 =============  ==================================================  =====================================
+
+Des18 tiles are brought to ``train.resolution`` without changing the share of the surface a
+model sees (:mod:`svbrdf_train.data.fov`): training tiles are scaled by ``resolution / 256``
+before their random crop, validation tiles are resized whole.
+
+``data.real_validation`` names a second validation set of real materials (a Des18 folder or
+shards), resized whole to the training resolution: :func:`real_validation_set`.
 """
 
 from __future__ import annotations
@@ -23,7 +30,7 @@ from .data import Des18Folder, ProceduralMaterials
 from .errors import DataError
 from .recipe import Recipe
 
-__all__ = ["build_datasets", "data_paths"]
+__all__ = ["build_datasets", "data_paths", "real_validation_set", "Resized"]
 
 
 def data_paths(path: str | tuple[str, ...] | list[str] | None) -> list[Path]:
@@ -78,10 +85,10 @@ def build_datasets(recipe: Recipe) -> tuple[Dataset, Dataset]:
     if len(paths) != 1:
         raise DataError(f"data.source des18 reads one folder; got {len(paths)} paths")
     root = paths[0]
-    train = Des18Folder(root, "train", crop=res, seed=d.seed)
+    train = Des18Folder(root, "train", crop=res, seed=d.seed, fov="resize")
     if (root / "testBlended").is_dir():
-        return train, Des18Folder(root, "test", crop=res)
-    val = Des18Folder(root, "train", crop=res, augment=False, random_crop=False)
+        return train, Des18Folder(root, "test", crop=res, fov="resize")
+    val = Des18Folder(root, "train", crop=res, augment=False, random_crop=False, fov="resize")
     n = len(train)
     if d.validation >= n:
         raise DataError(
@@ -89,3 +96,62 @@ def build_datasets(recipe: Recipe) -> tuple[Dataset, Dataset]:
             "set data.validation lower, or add a testBlended/ folder"
         )
     return Subset(train, range(n - d.validation)), Subset(val, range(n - d.validation, n))
+
+
+class Resized(Dataset):
+    """Every sample of ``data`` resized whole to ``resolution`` (field of view kept)."""
+
+    def __init__(self, data: Dataset, resolution: int):
+        self.data, self.resolution = data, resolution
+
+    def __len__(self) -> int:
+        return len(self.data)
+
+    def __getitem__(self, index: int) -> dict:
+        from .data.fov import resize_sample
+
+        sample = self.data[index]
+        if min(sample["input"].shape[-2:]) < self.resolution:
+            raise DataError(
+                f"{sample.get('name', index)}: {tuple(sample['input'].shape[-2:])} pixels, smaller than "
+                f"the training resolution {self.resolution}; real validation needs samples at least that large"
+            )
+        return resize_sample(sample, self.resolution)
+
+
+def real_validation_set(path: str | None, resolution: int) -> tuple[Dataset, str] | None:
+    """``(dataset, description)`` of ``data.real_validation``, or None when it is not set.
+
+    Raises:
+        DataError: a path that is missing, empty, or neither a Des18 folder nor shards
+            (one line naming it).
+    """
+    if path is None:
+        return None
+    p = Path(path).expanduser()
+    where = f"data.real_validation {p}"
+    if not p.exists():
+        raise DataError(f"{where}: no such file or folder; give a Des18 folder or .h5 shards of real materials")
+    shards = [p] if p.suffix == ".h5" and p.is_file() else sorted(p.glob("*.h5")) if p.is_dir() else []
+    if shards:
+        from .data.shards import ShardDataset
+
+        data: Dataset = ShardDataset(shards)
+        what = f"{len(data)} samples of {p}"
+    elif p.is_dir():
+        if not any(p.iterdir()):
+            raise DataError(f"{where}: the folder is empty; give a Des18 folder or .h5 shards of real materials")
+        try:
+            data = Des18Folder(p, "test", crop=None)
+        except DataError as e:
+            raise DataError(f"{where}: not a Des18 folder nor shards ({e})") from None
+        what = f"{len(data)} Des18 materials of {data.folder}"
+    else:
+        raise DataError(f"{where}: not a Des18 folder nor .h5 shards; give a folder of Des18 strips or shards")
+    if len(data) == 0:
+        raise DataError(f"{where}: holds no samples")
+    try:  # a folder of photos or other PNGs is found here, not at the first validation
+        data[0]
+    except Exception as e:  # MapFileError, DataError, h5py's errors: all name the file
+        raise DataError(f"{where}: cannot be read as real materials with ground truth: {e}") from None
+    return Resized(data, resolution), what

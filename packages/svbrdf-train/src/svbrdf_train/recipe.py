@@ -115,6 +115,11 @@ class DataSection:
     seed: int = param(0, "procedural data seed; validation uses seed + 1, so the two never overlap")
     validation: int = param(64, "held-out samples for periodic validation")
     workers: int = param(0, "DataLoader worker processes")
+    real_validation: str | None = param(
+        None,
+        "a Des18 folder or .h5 shards of real materials to validate on as well, brought to the "
+        "training resolution by resizing (logged as val_real/...); None: none",
+    )
 
     def __post_init__(self):
         if self.source != "procedural" and not self.path:
@@ -135,6 +140,19 @@ class TrainSection:
     log_every: int = param(10, "log losses every this many steps")
     validate_every: int = param(500, "validate every this many steps (and at the end)")
     checkpoint_every: int = param(500, "write a checkpoint every this many steps (and at the end)")
+    render_backend: str = param(
+        "compiled",
+        "renderer of the loss and discriminator renderings: compiled (torch.compile, 2-3x faster "
+        "forward+backward after a compile of seconds) or eager",
+        choices=("compiled", "eager"),
+    )
+    clock: str = param(
+        "auto",
+        "what max_minutes and the logged training time count: cpu (the process's CPU time over its "
+        "torch threads, which other programs on the machine cannot tilt), wall, or auto (cpu on a "
+        "CPU; on a GPU wall time with the GPU synchronised, i.e. GPU time)",
+        choices=("auto", "cpu", "wall"),
+    )
 
     def __post_init__(self):
         if min(self.resolution, self.batch, self.epochs, self.renderings) < 1:

@@ -46,6 +46,7 @@ from svbrdf_render import (
 
 from . import distributed
 from .checkpoint import CHECKPOINT_NAME, load_checkpoint, rng_state, save_checkpoint, set_rng_state
+from .clock import CLOCK_TAG, TrainClock
 from .errors import CheckpointError, TrainingError
 from .losses import LossWeights, discriminator_loss, generator_loss
 from .metrics import METRIC_NAMES, display_rendering, map_rmse, preview_flash, render_rmse
@@ -280,9 +281,10 @@ class _Fit:
             else None
         )
 
-        from .fitdata import build_datasets
+        from .fitdata import build_datasets, real_validation_set
 
         self.train_set, self.val_set = build_datasets(recipe)
+        self.real_val = real_validation_set(recipe.data.real_validation, t.resolution)
         per_step = t.batch * dist.world
         self.steps_per_epoch = len(self.train_set) // per_step
         if self.steps_per_epoch == 0:
@@ -301,6 +303,8 @@ class _Fit:
         self.weights = LossWeights(adv=recipe.loss.adv, render=recipe.loss.render, svbrdf=recipe.loss.svbrdf)
         self.step = 0
         self.train_seconds = 0.0
+        self.wall_seconds = 0.0
+        self.clock = TrainClock(t.clock, self.device)
         self.run_id: str | None = None
         if state is not None:
             self._restore(state)
@@ -336,6 +340,7 @@ class _Fit:
         self.g_sched.load_state_dict(state["schedulers"]["g"])
         self.step = int(state["step"])
         self.train_seconds = float(state.get("train_seconds", 0.0))
+        self.wall_seconds = float(state.get("wall_seconds", self.train_seconds))
         self.run_id = state.get("run_id")
         set_rng_state(state["rng"][self.dist.rank], self.scene_gen)
 
@@ -357,6 +362,7 @@ class _Fit:
             "rng": rngs,
             "run_id": self.run_id,
             "train_seconds": self.train_seconds,
+            "wall_seconds": self.wall_seconds,
             "world_size": self.dist.world,
         }
 
@@ -430,9 +436,10 @@ class _Fit:
         rendered = None
         if loss.render > 0 or self.D is not None:
             scene = self.scene()
-            fake = render(pred, scene)
+            backend = self.recipe.train.render_backend
+            fake = render(pred, scene, backend=backend)
             with torch.no_grad():
-                real = render(target, scene)
+                real = render(target, scene, backend=backend)
             rendered = (fake, real)
         out: dict[str, float] = {}
 
@@ -495,16 +502,28 @@ class _Fit:
 
     @torch.no_grad()
     def validate(self) -> tuple[dict[str, float], Tensor | None]:
-        """Mean per-sample RMSE of each map and of renderings on the held-out set, and the sample grid."""
-        if len(self.val_set) == 0:
-            return {}, None
+        """Mean per-sample RMSE of each map and of renderings on the held-out set (``val/``) and on
+        the real validation set if any (``val_real/``), and the sample grid of the held-out set."""
         g = _unwrap(self.G)
         g.eval()
+        try:
+            metrics, grid = self._validate_set(g, self.val_set, "val", grid=True)
+            if self.real_val is not None:
+                metrics.update(self._validate_set(g, self.real_val[0], "val_real", grid=False)[0])
+        finally:
+            g.train()
+        return metrics, grid
+
+    def _validate_set(
+        self, g: nn.Module, data: Dataset, prefix: str, *, grid: bool
+    ) -> tuple[dict[str, float], Tensor | None]:
+        if len(data) == 0:
+            return {}, None
         sums = dict.fromkeys(METRIC_NAMES, 0.0)
         grid_rows: list = []
         labels: list[str] = []
         loader = DataLoader(
-            self.val_set, batch_size=self.recipe.train.batch, generator=torch.Generator().manual_seed(0)
+            data, batch_size=self.recipe.train.batch, generator=torch.Generator().manual_seed(0)
         )  # its own generator: validating must not draw from the training RNG
         for batch in loader:
             photo = batch["input"].to(self.device)
@@ -513,21 +532,23 @@ class _Fit:
             for name, v in map_rmse(pred, target).items():
                 sums[name] += float(v.sum())
             sums["render"] += float(render_rmse(pred, target, self.eval_scene).sum())
-            if len(grid_rows) < 2 * GRID_SAMPLES:
+            if grid and len(grid_rows) < 2 * GRID_SAMPLES:
                 grid_rows += self._grid_rows(photo, pred, target)
                 labels += [f"{n} {k}" for n in batch["name"] for k in ("true", "pred")]
-        g.train()
-        n = len(self.val_set)
+        n = len(data)
+        metrics = {f"{prefix}/rmse/{k}": v / n for k, v in sums.items()}
+        if not grid:
+            return metrics, None
         keep = 2 * GRID_SAMPLES
         from .data.sheet import image_grid
 
-        grid = image_grid(
+        sheet = image_grid(
             grid_rows[:keep],
             ("input", "normal", "diffuse", "roughness", "specular", "flash"),
             [s[-28:] for s in labels[:keep]],
             min_tile=GRID_MIN_SIZE,
         )
-        return {f"val/rmse/{k}": v / n for k, v in sums.items()}, grid
+        return metrics, sheet
 
     def _grid_rows(self, photo: Tensor, pred: SVBRDF, target: SVBRDF) -> list:
         from svbrdf_render import linear_to_srgb
@@ -636,14 +657,15 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
     saved_at = start_step
     samples = 0
     steady: tuple[float, int] | None = None  # (train seconds, samples) when warm-up ended
-    tick = time.perf_counter()
+    tick = run.clock.now()
+    wall_tick = time.perf_counter()
     window_start, window_samples = run.train_seconds, 0
     with _Interrupt(progress) as interrupt:
         try:
             for batch in run.batches():
                 terms, bad = run.train_step(batch)
-                now = time.perf_counter()
-                run.train_seconds += now - tick
+                run.train_seconds += run.clock.now() - tick
+                run.wall_seconds += time.perf_counter() - wall_tick
                 n = batch["input"].shape[0] * dist.world
                 samples += n
                 window_samples += n
@@ -688,7 +710,8 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
                 if time_up:
                     message = f"time budget of {t.max_minutes:g} min reached at step {step}"
                     break
-                tick = time.perf_counter()
+                tick = run.clock.now()
+                wall_tick = time.perf_counter()
         except KeyboardInterrupt:
             status = "KILLED"
             message = f"stopped at once at step {run.step}; the checkpoint of step {saved_at} is kept"
@@ -706,7 +729,11 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
         message = f"{run.step} steps, {format_duration(run.train_seconds)} of training"
     if dist.main:
         tracker.set_tags({"svbrdf.stop": message, "svbrdf.steps": run.step})
-        summary = {"train/total_seconds": run.train_seconds, **_peak_memory(dist.device)}
+        summary = {
+            "train/total_seconds": run.train_seconds,
+            "train/total_wall_seconds": run.wall_seconds,
+            **_peak_memory(dist.device),
+        }
         if samples_per_s is not None:
             summary["train/steady_samples_per_s"] = samples_per_s
         tracker.log_metrics(summary, run.step)
@@ -734,6 +761,7 @@ def _tracker(recipe: Recipe, options: FitOptions, run: _Fit, dist: distributed.D
         device=str(dist.device),
         world_size=dist.world,
     )
+    tags[CLOCK_TAG] = run.clock.name
     if run.run_id is not None:
         return MlflowTracker(
             experiment=options.experiment, run_id=run.run_id, tags={"svbrdf.resumed_at": str(run.step)}
@@ -779,12 +807,13 @@ def _plan(recipe: Recipe, run: _Fit, dist: distributed.Dist, tracker: Tracker, s
     )
     budget = f"{run.total_steps} steps ({run.steps_per_epoch}/epoch)"
     if t.max_minutes is not None:
-        budget += f" or {format_duration(t.max_minutes * 60)} of training"
+        budget += f" or {format_duration(t.max_minutes * 60)} of training ({run.clock.describe()})"
     return (
         f"{what}: {budget}, batch {t.batch} x {dist.world} process(es) at {t.resolution} px "
         f"on {dist.device}; "
         f"G {_count_params(_unwrap(run.G)) / 1e6:.2f}M params"
         + (f", D {_count_params(_unwrap(run.D)) / 1e6:.2f}M" if run.D is not None else ", no D")
+        + (f"\n  real validation: {run.real_val[1]}" if run.real_val is not None else "")
         + f"\n  checkpoints: {run.ckpt_path}\n  tracking: {tracker.describe()}"
     )
 

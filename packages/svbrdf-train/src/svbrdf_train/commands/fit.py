@@ -15,6 +15,7 @@ Examples:
   svbrdf-train fit --recipe ours --size cpu            # minutes on a laptop CPU
   svbrdf-train fit --recipe ours --data train.h5 --max-minutes 60
   svbrdf-train fit --recipe no-adv --size cpu --set optim.lr=1e-4 --set train.batch=4
+  svbrdf-train fit --recipe ours --size cpu --set data.real_validation=des18-dev/   # + val_real/
   svbrdf-train fit --out runs/ours-cpu --resume        # continue after Ctrl-C or a crash
   torchrun --nproc_per_node=2 -m svbrdf_train fit --recipe ours --size cpu   # data parallel
 
@@ -73,7 +74,13 @@ def _data_overrides(items: tuple[str, ...]) -> dict:
     help="Training data: 'procedural' (generated, the default), .h5 shards (repeat for several) "
     "or a Des18 folder. Overrides the recipe's data section.",
 )
-@click.option("--max-minutes", type=float, help="Stop after this much training time (validation excluded).")
+@click.option(
+    "--max-minutes",
+    type=float,
+    help="Stop after this much training time, validation excluded, on the recipe's train.clock: "
+    "by default the process's CPU time over its threads on a CPU (a busy machine cannot shorten "
+    "it), GPU time on a GPU.",
+)
 @click.option("--max-steps", type=int, help="Stop after this many generator steps.")
 @click.option(
     "--set",
@@ -165,11 +172,12 @@ def fit(
     lines = [f"{result.status.lower()}: {result.message}"]
     if result.samples_per_s is not None:
         lines.append(f"  throughput: {result.samples_per_s:.1f} samples/s after warm-up")
-    if result.metrics:
-        lines.append(
-            "  validation RMSE: "
-            + ", ".join(f"{k.rsplit('/', 1)[-1]} {v:.4f}" for k, v in result.metrics.items())
-        )
+    for prefix, title in (("val/", "validation RMSE"), ("val_real/", "real validation RMSE")):
+        shown = {k: v for k, v in result.metrics.items() if k.startswith(prefix + "rmse/")}
+        if shown:
+            lines.append(
+                f"  {title}: " + ", ".join(f"{k.rsplit('/', 1)[-1]} {v:.4f}" for k, v in shown.items())
+            )
     if result.checkpoint is not None:
         lines.append(f"  checkpoint: {result.checkpoint} (step {_saved_step(result.checkpoint)})")
     if result.run_id is not None:
