@@ -1,0 +1,207 @@
+"""``svbrdf-train data compare``: procedural materials set against real ones, statistic by statistic."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+import torch
+
+from ..errors import DataError
+
+__all__ = ["COMMANDS", "compare"]
+
+_EPILOG = """\b
+Examples:
+  svbrdf-train data compare ../shared/data/des18-dev
+  svbrdf-train data compare ../shared/data/des18-dev -n 256 -r 128 -o compare.png --json compare.json
+
+\b
+REAL_FOLDER holds Des18 strips (input | normal | diffuse | roughness | specular), read as
+Des18Folder(REAL_FOLDER, "test", crop=R, fov="resize"): whole tiles resized to R pixels, so
+both sets show the surface [-1, 1]^2 at the same resolution. Photos without ground truth
+cannot be compared.
+
+\b
+Statistics, one value per material (all on linear values; luminance with Rec. 709 weights,
+saturation = (max - min) / max):
+  diffuse luminance, diffuse saturation   means over the diffuse albedo
+  roughness mean                          mean roughness
+  roughness pixels                        all roughness pixels pooled (64-bin histogram)
+  specular level, specular saturation     means over the specular albedo
+  slope mean, slope p90                   per-pixel tan of the normal's angle from +z
+  photo mean, photo median                luminance of the linear photo
+  highlight size                          share of the smoothed photo above half-way
+                                          from its 1st percentile to its maximum
+  highlight offset                        distance of that bright region's centroid from
+                                          the centre, in patch half-widths (edge = 1)
+
+\b
+Columns: the mean and the 10th-90th percentiles of each set, and W1, the 1-D Wasserstein
+(earth mover's) distance between the two sets' distributions of per-material values (for
+roughness pixels: of the pooled pixel values), in the statistic's own unit: how far, on
+average, the values must move to turn one distribution into the other; 0 when they agree.
+"""
+
+
+def _collate(items: list[dict]) -> dict:
+    return {
+        "input": torch.stack([s["input"] for s in items]),
+        "maps": torch.stack([s["maps"] for s in items]),
+        "name": [s["name"] for s in items],
+    }
+
+
+def _read_real(folder: Path, resolution: int, limit: int | None) -> dict:
+    from svbrdf_render import MapFileError
+
+    from ..data.des18 import Des18Folder
+
+    data = Des18Folder(folder, "test", crop=resolution, fov="resize")
+    count = len(data) if limit is None else min(limit, len(data))
+
+    def read(i: int) -> dict:
+        try:
+            return data[i]
+        except MapFileError as e:
+            raise DataError(
+                f"{folder}: not a folder of Des18 strips with ground truth ({Path(e.path).name} {e.problem}); "
+                "compare needs 5-tile strips (input | normal | diffuse | roughness | specular), not photos alone"
+            ) from None
+
+    items = [read(0)]  # a folder of the wrong kind fails before any progress is shown
+    with click.progressbar(range(1, count), label="reading real", file=sys.stderr, width=30) as bar:
+        items += [read(i) for i in bar]
+    return _collate(items)
+
+
+def _procedural(count: int, resolution: int, seed: int) -> tuple[dict, list[str]]:
+    from ..data.procedural import ProceduralMaterials
+
+    data = ProceduralMaterials(count, resolution, seed)
+    parts = []
+    step = 8
+    with click.progressbar(range(0, count, step), label="generating", file=sys.stderr, width=30) as bar:
+        for first in bar:
+            parts.append(data.batch(range(first, min(first + step, count))))
+    batch = {key: torch.cat([p[key] for p in parts]) for key in ("input", "maps")}
+    batch["name"] = [n for p in parts for n in p["name"]]
+    return batch, [data.family(i) for i in range(count)]
+
+
+def _cell(s: dict[str, float]) -> str:
+    return f"{s['mean']:.3f} [{s['p10']:.3f}, {s['p90']:.3f}]"
+
+
+def table(rows) -> str:
+    """The comparison as a Markdown table."""
+    lines = [
+        "| statistic | unit | procedural mean [p10, p90] | real mean [p10, p90] | W1 |",
+        "| --- | --- | ---: | ---: | ---: |",
+    ]
+    lines += [f"| {r.name} | {r.unit} | {_cell(r.first)} | {_cell(r.second)} | {r.distance:.3f} |" for r in rows]
+    return "\n".join(lines)
+
+
+def _sheet(proc: dict, families: list[str], real: dict, rows: int):
+    from svbrdf_render.mapfiles import linear_to_srgb
+
+    from ..data.sheet import COLUMNS, image_grid, map_tiles
+
+    tiles, labels = [], []
+    for k in range(rows):
+        left = [linear_to_srgb(proc["input"][k].float()), *map_tiles(proc["maps"][k])]
+        right = [linear_to_srgb(real["input"][k].float()), *map_tiles(real["maps"][k])]
+        tiles.append(left + right)
+        real_id = Path(str(real["name"][k])).stem.split(";")[0]
+        labels.append(f"#{k} {families[k]}\nreal {real_id}")
+    columns = ["procedural", *COLUMNS[1:], "real", *COLUMNS[1:]]
+    return image_grid(tiles, columns, labels, min_tile=96)
+
+
+@click.command("compare", epilog=_EPILOG)
+@click.argument("real_folder", type=click.Path(path_type=Path))
+@click.option(
+    "-n",
+    "--count",
+    default=64,
+    show_default=True,
+    type=click.IntRange(1, 4096),
+    help="Number of procedural samples.",
+)
+@click.option(
+    "-r",
+    "--resolution",
+    default=128,
+    show_default=True,
+    type=click.IntRange(8, 1024),
+    help="Side in pixels of both sets (real tiles are resized whole to it).",
+)
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(0), help="Procedural data set seed.")
+@click.option(
+    "--real-count",
+    default=None,
+    type=click.IntRange(1),
+    help="Read only the first this many real strips (default: all).",
+)
+@click.option(
+    "-o",
+    "--out",
+    "sheet_path",
+    default=None,
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Write a side-by-side sheet PNG: procedural samples (photo and maps) next to real ones.",
+)
+@click.option("--rows", default=8, show_default=True, type=click.IntRange(1, 64), help="Rows of the sheet.")
+@click.option(
+    "--json",
+    "json_path",
+    default=None,
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="Also write the statistics (summaries, distances, per-material values) as JSON.",
+)
+def compare(real_folder, count, resolution, seed, real_count, sheet_path, rows, json_path):
+    """Set N procedural samples against the real materials of REAL_FOLDER: one row per
+    statistic with each set's summary and the distance between them (see below)."""
+    from ..data.procedural import GENERATOR_VERSION
+    from ..data.stats import compare as compare_sets
+
+    real = _read_real(real_folder, resolution, real_count)
+    proc, families = _procedural(count, resolution, seed)
+    results = compare_sets(proc, real)
+    click.echo(
+        f"procedural: {count} samples of seed {seed} (generator {GENERATOR_VERSION}); "
+        f"real: {len(real['name'])} materials of {real_folder}; both {resolution}x{resolution}"
+    )
+    click.echo(table(results))
+    click.echo("W1: 1-D Wasserstein distance between the two distributions, in the statistic's unit")
+    if json_path is not None:
+        doc = {
+            "procedural": {
+                "count": count,
+                "seed": seed,
+                "generator_version": GENERATOR_VERSION,
+                "families": families,
+            },
+            "real": {"folder": str(real_folder), "count": len(real["name"]), "names": list(real["name"])},
+            "resolution": resolution,
+            "distance": "1-D Wasserstein distance of per-material values (roughness pixels: pooled pixels), "
+            "in the statistic's unit",
+            "statistics": [r.to_dict() for r in results],
+        }
+        json_path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = json_path.with_name(json_path.name + ".tmp")
+        tmp.write_text(json.dumps(doc, indent=2) + "\n")
+        tmp.replace(json_path)
+        click.echo(f"wrote {json_path}")
+    if sheet_path is not None:
+        from svbrdf_render import write_image
+
+        n = min(rows, count, len(real["name"]))
+        path = write_image(sheet_path, _sheet(proc, families, real, n), bits=8)
+        click.echo(f"wrote {path} ({n} rows: procedural | real)")
+
+
+COMMANDS = [compare]
