@@ -1,9 +1,17 @@
 """The test set every model of a benchmark is judged on.
 
 - default: ``count`` procedural materials from :data:`~svbrdf_bench.presets.TEST_SEED`, a seed
-  no training or validation set uses;
-- a Des18 folder (its ``testBlended/`` if it has one), centre crops;
-- HDF5 shards (``.h5`` files or a folder of them), centre crops when larger.
+  no training or validation set uses, made at the models' resolution;
+- a Des18 folder (its ``testBlended/`` if it has one): whole tiles resized to the models'
+  resolution;
+- HDF5 shards (``.h5`` files or a folder of them): samples larger than the models resized.
+
+Resizing, not cropping: an image always covers the surface ``[-1, 1]^2``, and a model must see
+test images at the field of view it was trained on. The centre 128 px of a 288 px Des18 tile
+show 44% of the surface's width and a flash highlight more than twice as large as any the model
+trained on. :func:`svbrdf_train.data.fov.resize_sample` brings a sample down with the area filter
+(photo and maps alike, normals renormalised), so the resized maps still re-render the resized
+photo under the flash of the full-size photo.
 """
 
 from __future__ import annotations
@@ -19,7 +27,7 @@ __all__ = ["TestSet", "test_set"]
 
 
 class TestSet(Dataset):
-    """Samples of another data set, centre-cropped to ``resolution``; says where they came from."""
+    """Samples of another data set, resized to ``resolution`` when larger; says where they came from."""
 
     __test__ = False  # not a pytest class
 
@@ -33,16 +41,20 @@ class TestSet(Dataset):
         sample = self.data[index]
         h, w = sample["input"].shape[-2:]
         r = self.resolution
-        if min(h, w) < r:
+        if h != w:
+            raise BenchError(
+                f"{self.description}: sample {index} is {h}x{w}; test samples must be square images "
+                "of the whole surface"
+            )
+        if h < r:
             raise BenchError(
                 f"{self.description}: sample {index} is {h}x{w}, smaller than the {r} px the models run at"
             )
-        top, left = (h - r) // 2, (w - r) // 2
-        return {
-            "input": sample["input"][:, top : top + r, left : left + r],
-            "maps": sample["maps"][:, top : top + r, left : left + r],
-            "name": sample["name"],
-        }
+        if h != r:
+            from svbrdf_train.data.fov import resize_sample
+
+            sample = resize_sample(sample, r)
+        return {"input": sample["input"], "maps": sample["maps"], "name": sample["name"]}
 
 
 def test_set(path: str | Path | None, resolution: int, count: int) -> TestSet:
@@ -60,12 +72,12 @@ def test_set(path: str | Path | None, resolution: int, count: int) -> TestSet:
         from svbrdf_train.data.shards import ShardDataset
 
         data = ShardDataset(shards)
-        what = f"{len(data)} samples of {p}"
+        what = f"{len(data)} samples of {p} (resized to {resolution} px where larger)"
     elif p.is_dir():
         from svbrdf_train.data import Des18Folder
 
         data = Des18Folder(p, "test", crop=None)
-        what = f"{len(data)} Des18 samples of {data.folder}"
+        what = f"{len(data)} Des18 samples of {data.folder} (whole tiles resized to {resolution} px)"
     else:
         raise BenchError(f"--test-data {p}: not a Des18 folder nor .h5 shards")
     if len(data) == 0:
