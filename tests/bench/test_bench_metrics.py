@@ -76,24 +76,50 @@ def test_normal_change_by_hand():
         np.testing.assert_allclose(out[f"rmse/{name}"], 0.0, atol=1e-12)
 
 
-def test_ssim_is_skimage_on_the_stored_maps_and_the_display_renderings():
+WANG = {"gaussian_weights": True, "sigma": 1.5, "use_sample_covariance": False, "data_range": 1.0}
+
+
+def test_ssim_is_wangs_variant_on_the_stored_maps_and_the_display_renderings():
     target = random_svbrdf(2, 16, seed=4)
     pred = random_svbrdf(2, 16, seed=5)
     out = evaluate(pred, target)
     k = 1
     p, t = ((pred.normal[k] + 1) / 2).double().numpy(), ((target.normal[k] + 1) / 2).double().numpy()
-    want = structural_similarity(p, t, data_range=1.0, channel_axis=0)
+    want = structural_similarity(p, t, channel_axis=0, **WANG)
     assert out["ssim/normal"][k] == pytest.approx(want, abs=1e-9)
-    want = structural_similarity(
-        pred.roughness[k, 0].double().numpy(), target.roughness[k, 0].double().numpy(), data_range=1.0
-    )
+    # not scikit-image's default (7x7 uniform window, sample covariance), which gives another figure
+    assert abs(out["ssim/normal"][k] - structural_similarity(p, t, data_range=1.0, channel_axis=0)) > 1e-3
+    want = structural_similarity(pred.roughness[k, 0].double().numpy(), target.roughness[k, 0].double().numpy(), **WANG)
     assert out["ssim/roughness"][k] == pytest.approx(want, abs=1e-9)
     scene = evaluation_scene()
     pr = display_rendering(pred, scene)[k].double().numpy()
     tr = display_rendering(target, scene)[k].double().numpy()
     assert pr.shape[0] == 6
-    want = np.mean([structural_similarity(pr[i], tr[i], data_range=1.0, channel_axis=0) for i in range(6)])
+    want = np.mean([structural_similarity(pr[i], tr[i], channel_axis=0, **WANG) for i in range(6)])
     assert out["ssim/render"][k] == pytest.approx(want, abs=1e-6)
+
+
+def test_ssim_matches_wang_et_al_written_out():
+    """Wang et al. 2004, eq. 13 with their choices: 11-tap Gaussian weights (sigma 1.5), weighted
+    (population) moments, C1 = (0.01 L)^2, C2 = (0.03 L)^2 with L = 1, the mean SSIM over the pixels
+    a whole window covers."""
+    from scipy.ndimage import gaussian_filter
+
+    g = torch.Generator().manual_seed(9)
+    t = torch.rand(1, 1, 24, 24, generator=g)
+    p = (t + 0.1 * torch.randn(1, 1, 24, 24, generator=g)).clamp(0, 1)
+    m = SVBRDF.constant(1, 24)
+    out = evaluate(_replace(m, roughness=p), _replace(m, roughness=t))
+    x, y = p[0, 0].double().numpy(), t[0, 0].double().numpy()
+
+    def w(a):
+        return gaussian_filter(a, sigma=1.5, truncate=3.5, mode="reflect")
+
+    mx, my = w(x), w(y)
+    vx, vy, cxy = w(x * x) - mx**2, w(y * y) - my**2, w(x * y) - mx * my
+    c1, c2 = 0.01**2, 0.03**2
+    s = ((2 * mx * my + c1) * (2 * cxy + c2)) / ((mx**2 + my**2 + c1) * (vx + vy + c2))
+    assert out["ssim/roughness"][0] == pytest.approx(s[5:-5, 5:-5].mean(), abs=1e-9)
 
 
 def test_ssim_decreases_with_noise():
@@ -110,7 +136,8 @@ def test_ssim_decreases_with_noise():
 
 
 def test_tiny_images_use_a_smaller_ssim_window():
-    assert [ssim_win_size(s, s) for s in (3, 4, 5, 6, 7, 8, 256)] == [3, 3, 5, 5, 7, 7, 7]
+    sizes = (3, 4, 5, 6, 7, 8, 10, 11, 12, 256)
+    assert [ssim_win_size(s, s) for s in sizes] == [3, 3, 5, 5, 7, 7, 9, 11, 11, 11]
     assert ssim_win_size(4, 100) == 3
     for size in (3, 4, 6):
         m = random_svbrdf(2, size, seed=7)

@@ -2,7 +2,10 @@
 
 :func:`evaluate` gives, per sample, the RMSE (the figures of :mod:`svbrdf_train.metrics`: maps on
 their stored encodings in [0, 1], renderings as a display shows them under the 6 evaluation
-light/view pairs), the SSIM on the same images, and LPIPS when its weights are at hand
+light/view pairs), the SSIM on the same images as the literature computes it (Wang et al. 2004:
+an 11-tap Gaussian window of sigma 1.5, population rather than sample covariances, data range
+1; scikit-image's defaults are a 7x7 uniform window with sample covariances, which gives other
+numbers), and LPIPS when its weights are at hand
 (:func:`load_lpips`, never a download). :func:`bootstrap_ci` and :func:`paired_difference`
 turn per-sample figures into a mean with a 95% interval, and tell whether two models differ
 by more than the choice of test images.
@@ -32,6 +35,8 @@ __all__ = [
     "paired_difference",
     "Difference",
     "ssim_win_size",
+    "SSIM_SIGMA",
+    "SSIM_NAME",
     "ALEXNET_WEIGHTS",
 ]
 
@@ -45,14 +50,26 @@ LpipsFn = Callable[[Tensor, Tensor], np.ndarray]
 # -- per-sample figures -------------------------------------------------------------------
 
 
+#: Wang et al. 2004's SSIM: Gaussian weights of this standard deviation (in pixels).
+SSIM_SIGMA = 1.5
+#: The window of that Gaussian as scikit-image truncates it (3.5 sigma): 11 taps, as in the paper.
+SSIM_WINDOW = 2 * int(3.5 * SSIM_SIGMA + 0.5) + 1
+#: How reports name the SSIM variant of :func:`evaluate`.
+SSIM_NAME = "SSIM (Wang et al. 2004: Gaussian window sigma 1.5, no sample covariance, data range 1)"
+
+
 def ssim_win_size(height: int, width: int) -> int:
-    """scikit-image's default SSIM window (7), or the largest odd size that fits smaller images."""
+    """The SSIM window: Wang et al.'s 11 px, or the largest odd size that fits a smaller image.
+
+    With Gaussian weights the window size only decides the border left out of the mean (half a
+    window on each side) and the smallest image accepted; the weights stay the same Gaussian.
+    """
     side = min(height, width)
     if side < 3:
         raise BenchError(
-            f"SSIM needs images of at least 3x3 pixels, got {height}x{width}; evaluate larger crops"
+            f"SSIM needs images of at least 3x3 pixels, got {height}x{width}; evaluate larger images"
         )
-    return min(7, side if side % 2 else side - 1)
+    return min(SSIM_WINDOW, side if side % 2 else side - 1)
 
 
 def _stored(svbrdf: SVBRDF) -> dict[str, np.ndarray]:
@@ -65,19 +82,21 @@ def _stored(svbrdf: SVBRDF) -> dict[str, np.ndarray]:
 
 
 def _ssim(a: np.ndarray, b: np.ndarray, win_size: int) -> float:
-    """SSIM of two ``(C, H, W)`` images in [0, 1]."""
+    """SSIM of two ``(C, H, W)`` images in [0, 1], Wang et al. 2004's variant (see :data:`SSIM_NAME`)."""
     from skimage.metrics import structural_similarity
 
+    wang = {"gaussian_weights": True, "sigma": SSIM_SIGMA, "use_sample_covariance": False, "data_range": 1.0}
     if a.shape[0] == 1:
-        return float(structural_similarity(a[0], b[0], data_range=1.0, win_size=win_size))
-    return float(structural_similarity(a, b, data_range=1.0, win_size=win_size, channel_axis=0))
+        return float(structural_similarity(a[0], b[0], win_size=win_size, **wang))
+    return float(structural_similarity(a, b, win_size=win_size, channel_axis=0, **wang))
 
 
 def evaluate(pred: SVBRDF, target: SVBRDF, *, lpips: LpipsFn | None = None) -> dict[str, np.ndarray]:
     """Per-sample figures of ``pred`` against ``target``, each a float64 array ``(B,)``.
 
     Keys: ``rmse/<map>`` and ``ssim/<map>`` for each map of ``MAP_NAMES``, ``rmse/render`` and
-    ``ssim/render`` (the mean SSIM over the 6 evaluation renderings of a sample), and, when an
+    ``ssim/render`` (the mean SSIM over the 6 evaluation renderings of a sample; SSIM is
+    :data:`SSIM_NAME`, colour images averaged over channels), and, when an
     ``lpips`` callable is given (see :func:`load_lpips`), ``lpips/<map>`` and ``lpips/render``.
     Roughness is shown to LPIPS as grey RGB.
     """
