@@ -97,8 +97,13 @@ def test_roughness_mean_and_histogram():
     h = stats.roughness_histogram(m)
     assert h.counts.shape == (2, 64) and torch.allclose(h.counts.sum(dim=1), torch.ones(2))
     # The pooled distribution holds both materials alike: its median is between them.
-    assert h.quantile(0.25) == pytest.approx(0.2, abs=1 / 64) and h.quantile(0.75) == pytest.approx(0.6, abs=1 / 64)
-    low, high = stats.roughness_histogram(_maps(roughness=0.3)), stats.roughness_histogram(_maps(roughness=0.5))
+    assert h.quantile(0.25) == pytest.approx(0.2, abs=1 / 64) and h.quantile(0.75) == pytest.approx(
+        0.6, abs=1 / 64
+    )
+    low, high = (
+        stats.roughness_histogram(_maps(roughness=0.3)),
+        stats.roughness_histogram(_maps(roughness=0.5)),
+    )
     assert stats.histogram_wasserstein(low, low) == 0
     assert stats.histogram_wasserstein(low, high) == pytest.approx(0.2, abs=1 / 64)
 
@@ -126,7 +131,9 @@ def test_highlight_size_is_the_bright_share_of_the_photo():
     assert float(stats.highlight_size(photo)[0]) == pytest.approx(area, rel=0.08)
     assert float(stats.highlight_offset(photo)[0]) == pytest.approx(0.2, abs=0.01)
     # A sharper highlight is smaller; a uniform photo has none and sits in the centre.
-    assert float(stats.highlight_size(_spot(0, 0, 0.05))[0]) < float(stats.highlight_size(_spot(0, 0, 0.2))[0])
+    assert float(stats.highlight_size(_spot(0, 0, 0.05))[0]) < float(
+        stats.highlight_size(_spot(0, 0, 0.2))[0]
+    )
     flat = torch.full((1, 3, 32, 32), 0.3)
     assert float(stats.highlight_size(flat)[0]) == 0 and float(stats.highlight_offset(flat)[0]) == 0
 
@@ -189,7 +196,13 @@ def _strip_folder(folder, count=3, size=48):
     a = math.radians(30)
     for i in range(count):
         maps = SVBRDF.unpack(
-            _maps(1, normal=(math.sin(a), 0.0, math.cos(a)), diffuse=(0.4, 0.2, 0.1), specular=(0.05,) * 3, size=size)
+            _maps(
+                1,
+                normal=(math.sin(a), 0.0, math.cos(a)),
+                diffuse=(0.4, 0.2, 0.1),
+                specular=(0.05,) * 3,
+                size=size,
+            )
         )
         write_des18(folder / f"{i:07d};MatAXMatB;0X1.png", _spot(0.25, 0.0, 0.1, size=size), maps)
     return folder
@@ -199,7 +212,20 @@ def test_compare_command_prints_the_table_and_writes_sheet_and_json(tmp_path, ca
     real = _strip_folder(tmp_path / "real")
     sheet, doc = tmp_path / "sheet.png", tmp_path / "out" / "stats.json"
     code, out, err = _run(
-        capsys, "data", "compare", str(real), "-n", "3", "-r", "24", "--seed", "2", "-o", str(sheet), "--json", str(doc)
+        capsys,
+        "data",
+        "compare",
+        str(real),
+        "-n",
+        "3",
+        "-r",
+        "24",
+        "--seed",
+        "2",
+        "-o",
+        str(sheet),
+        "--json",
+        str(doc),
     )
     assert code == 0, err
     rows = [line for line in out.splitlines() if line.startswith("| ")]
@@ -211,7 +237,9 @@ def test_compare_command_prints_the_table_and_writes_sheet_and_json(tmp_path, ca
     by_name = {s["name"]: s for s in data["statistics"]}
     assert set(by_name) == {s.name for s in stats.STATISTICS}
     real_stats = {k: v["real"]["mean"] for k, v in by_name.items()}
-    assert real_stats["diffuse luminance"] == pytest.approx(0.2126 * 0.4 + 0.7152 * 0.2 + 0.0722 * 0.1, abs=0.01)
+    assert real_stats["diffuse luminance"] == pytest.approx(
+        0.2126 * 0.4 + 0.7152 * 0.2 + 0.0722 * 0.1, abs=0.01
+    )
     assert real_stats["diffuse saturation"] == pytest.approx(0.75, abs=0.03)
     assert real_stats["specular saturation"] == pytest.approx(0, abs=0.01)
     assert real_stats["slope mean"] == pytest.approx(math.tan(math.radians(30)), abs=0.02)

@@ -136,21 +136,55 @@ def test_thread_count_does_not_change_the_bytes():
     assert torch.equal(one["maps"], two["maps"]) and torch.equal(one["input"], two["input"])
 
 
+def _luminance(rgb: torch.Tensor) -> torch.Tensor:
+    return 0.2126 * rgb[:, 0] + 0.7152 * rgb[:, 1] + 0.0722 * rgb[:, 2]
+
+
 @pytest.mark.parametrize("family", DIELECTRICS)
 def test_dielectrics_have_grey_low_specular(family):
-    m, _ = materials(3, range(8), 32, family=family)
-    spread = m.specular.amax(dim=1) - m.specular.amin(dim=1)
+    # Everywhere but on the metal studs that some tiles carry (see the next tests).
+    f = family_fields(family, list(range(12)), 32)
+    dielectric = (
+        f.parts["stud"][:, 0] == 0
+        if "stud" in f.parts
+        else torch.ones_like(f.roughness[:, 0], dtype=torch.bool)
+    )
+    spread = (f.specular.amax(dim=1) - f.specular.amin(dim=1))[dielectric]
     assert spread.max() < 1e-6
-    assert 0.02 <= m.specular.min() and m.specular.max() <= 0.065
+    level = f.specular[:, 0][dielectric]
+    assert 0.02 <= level.min() and level.max() <= 0.065
+    if family != "tiles":  # and so in the samples themselves
+        m, _ = materials(3, range(8), 32, family=family)
+        assert (m.specular.amax(dim=1) - m.specular.amin(dim=1)).max() < 1e-6
+        assert 0.02 <= m.specular.min() and m.specular.max() <= 0.065
 
 
-def test_metals_have_coloured_high_specular_and_dark_diffuse():
-    m, _ = materials(3, range(16), 32, family="metal")
-    mean = m.specular.mean(dim=(1, 2, 3))
-    assert (mean >= 0.5).all() and (m.specular.max() <= 1)
+def test_metals_have_coloured_specular_above_dielectrics_and_dark_diffuse():
+    m, _ = materials(3, range(24), 32, family="metal")
+    level = _luminance(m.specular).mean(dim=(1, 2))
+    assert (level >= 0.08).all() and (m.specular.max() <= 1)  # above every dielectric (<= 0.06)
+    assert (level >= 0.5).any() and (level < 0.4).any()  # bright metals, and dark (tarnished) ones
     assert m.diffuse.mean(dim=(1, 2, 3)).max() < 0.07
     spread = (m.specular.amax(dim=1) - m.specular.amin(dim=1)).mean(dim=(1, 2))
-    assert (spread > 0.2).any()  # gold, copper or brass among them: coloured, not grey
+    assert (spread > 0.2).any()  # gold, copper, brass or anodised among them: coloured, not grey
+
+
+def test_some_tiles_carry_metal_studs_on_their_corners():
+    f = family_fields("tiles", list(range(40)), 64)
+    stud = f.parts["stud"][:, 0]
+    with_studs = [k for k in range(40) if (stud[k] > 0.99).any()]
+    assert 3 <= len(with_studs) <= 30  # some, not all
+    for k in with_studs:
+        on = stud[k] > 0.99
+        level = _luminance(f.specular[k : k + 1])[0]
+        assert level[on].min() >= 0.08  # metal
+        assert f.diffuse[k][:, on].max() <= 0.03  # dark diffuse
+        assert f.height[k, 0][on].mean() > f.height[k, 0][stud[k] == 0].mean()  # raised
+        assert (stud[k] > 0.99).float().mean() < 0.2  # small
+    # Studs sit where four tiles meet: on the grout lines.
+    k = with_studs[0]
+    near = F.max_pool2d(f.parts["grout"][k : k + 1], 9, stride=1, padding=4)[0, 0]
+    assert (near[stud[k] > 0.99] > 0.5).float().mean() > 0.5
 
 
 def test_grout_is_rougher_and_lower_than_the_tiles():
@@ -232,7 +266,10 @@ def test_photo_scene_declares_exactly_the_phone_effects():
         fov = scene.camera.fov
         distance = 1 / math.tan(math.radians(fov) / 2)
         assert 40 <= fov <= 58
-        assert torch.allclose(scene.camera.position, torch.tensor([0.0, 0.0, distance]))
+        # The camera is held off the patch's axis (by 0.03-0.3 half-widths), at the height
+        # that frames the patch.
+        assert math.isclose(float(scene.camera.position[2]), distance, rel_tol=1e-6)
+        assert 0.03 - 1e-6 <= float(scene.camera.position[:2].norm()) <= 0.3 + 1e-6
         (flash,) = scene.lights
         assert float(flash.offset.norm()) <= 0.2 + 1e-6 and float(flash.offset[2]) == 0
         assert math.isclose(float(flash.intensity), math.pi * distance**2, rel_tol=1e-6)
@@ -244,6 +281,27 @@ def test_photo_scene_declares_exactly_the_phone_effects():
     assert gamma.effects["gamma"]["gamma"] == 2.0
     # The gamma draw does not move the other draws: the same flash with or without it.
     assert gamma.effects["noise"] == photo_scene(0, 3).effects["noise"]
+
+
+def test_the_highlight_lies_off_centre_under_camera_and_flash():
+    # A flat, dark, glossy surface: the highlight is the mirror point of the flash seen from
+    # the camera, halfway between them; the camera is held 0.03-0.3 half-widths off the axis.
+    from svbrdf_train.data.stats import highlight_position
+
+    n = 96
+    flat = SVBRDF(
+        torch.tensor([0.0, 0.0, 1.0]).view(1, 3, 1, 1).expand(1, 3, n, n).contiguous(),
+        torch.full((1, 3, n, n), 0.02),
+        torch.full((1, 1, n, n), 0.25),
+        torch.full((1, 3, n, n), 0.5),
+    )
+    for i in range(6):
+        scene = photo_scene(0, i)
+        mirror = scene.camera.position[:2] + scene.lights[0].offset[:2] / 2
+        found = highlight_position(render(flat, scene))[0]
+        assert torch.allclose(found, mirror, atol=0.04), (i, found, mirror)
+    shifts = torch.stack([photo_scene(0, i).camera.position[:2].norm() for i in range(200)])
+    assert 0.13 < float(shifts.mean()) < 0.2 and float(shifts.min()) >= 0.03 and float(shifts.max()) <= 0.3
 
 
 def test_dataloader_with_two_workers_gives_the_same_bytes():
@@ -278,3 +336,7 @@ def test_bad_arguments_are_clear_errors():
         ProceduralMaterials(4, 16)[4]
     with pytest.raises(DataError, match="exposure_ev"):
         PhotoSettings(exposure_ev=(1.0, -1.0))
+    with pytest.raises(DataError, match="camera_shift"):
+        PhotoSettings(camera_shift=(0.3, 0.1))
+    with pytest.raises(DataError, match="camera_shift"):
+        PhotoSettings(camera_shift=(-0.1, 0.1))

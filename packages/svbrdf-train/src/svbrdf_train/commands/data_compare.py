@@ -67,8 +67,9 @@ def _read_real(folder: Path, resolution: int, limit: int | None) -> dict:
             return data[i]
         except MapFileError as e:
             raise DataError(
-                f"{folder}: not a folder of Des18 strips with ground truth ({Path(e.path).name} {e.problem}); "
-                "compare needs 5-tile strips (input | normal | diffuse | roughness | specular), not photos alone"
+                f"{folder}: not a folder of Des18 strips with ground truth "
+                f"({Path(e.path).name} {e.problem}); compare needs 5-tile strips "
+                "(input | normal | diffuse | roughness | specular), not photos alone"
             ) from None
 
     items = [read(0)]  # a folder of the wrong kind fails before any progress is shown
@@ -101,7 +102,9 @@ def table(rows) -> str:
         "| statistic | unit | procedural mean [p10, p90] | real mean [p10, p90] | W1 |",
         "| --- | --- | ---: | ---: | ---: |",
     ]
-    lines += [f"| {r.name} | {r.unit} | {_cell(r.first)} | {_cell(r.second)} | {r.distance:.3f} |" for r in rows]
+    lines += [
+        f"| {r.name} | {r.unit} | {_cell(r.first)} | {_cell(r.second)} | {r.distance:.3f} |" for r in rows
+    ]
     return "\n".join(lines)
 
 
@@ -139,7 +142,9 @@ def _sheet(proc: dict, families: list[str], real: dict, rows: int):
     type=click.IntRange(8, 1024),
     help="Side in pixels of both sets (real tiles are resized whole to it).",
 )
-@click.option("--seed", default=0, show_default=True, type=click.IntRange(0), help="Procedural data set seed.")
+@click.option(
+    "--seed", default=0, show_default=True, type=click.IntRange(0), help="Procedural data set seed."
+)
 @click.option(
     "--real-count",
     default=None,

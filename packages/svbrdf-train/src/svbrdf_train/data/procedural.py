@@ -1,19 +1,24 @@
 """Procedural SVBRDF materials photographed by a simulated phone: training data with no download.
 
 Every sample is a seeded function of ``(seed, index)``: a material of one of six
-:data:`FAMILIES` (or, with probability ``mix``, two of them blended through a soft noise
-mask, as Deschaintre et al. 2018 mix materials), and its photo rendered by svbrdf-render
-under a jittered phone flash (:func:`photo_scene`).
+:data:`FAMILIES`, drawn with :data:`FAMILY_WEIGHTS` (or, with probability ``mix``, two of
+them blended through a soft noise mask, as Deschaintre et al. 2018 mix materials), its
+diffuse albedo shown at a drawn brightness and chroma, and its photo rendered by
+svbrdf-render under a jittered phone flash held a little off the patch's axis
+(:func:`photo_scene`). The ranges were moved towards real materials with
+``svbrdf-train data compare`` (README, "Training data").
 
 =========  ===================================================================
 family     what it draws
 =========  ===================================================================
 stone      marble with veins, granite, sandstone, slate: domain-warped fBm
-tiles      tiles, bricks, mosaics; grout recessed, rougher, another colour
+tiles      tiles, bricks, mosaics; grout recessed, rougher, another colour;
+           some with metal studs where the tiles meet
 cells      leather, cobbles, cracked earth and paint: Worley cells
 wood       rings, fibres, pores; optionally planks with seams
-metal      brushed, polished and scratched, hammered, sandblasted; coloured
-           specular (measured F0), dark diffuse
+metal      brushed, polished and scratched, hammered, sandblasted, embossed;
+           coloured specular (measured F0, or tarnished and anodised: darker),
+           dark diffuse
 fabric     plain, twill and satin weaves of round threads; stripes and checks
 =========  ===================================================================
 
@@ -61,6 +66,7 @@ from .procedural_noise import mix as blend
 __all__ = [
     "GENERATOR_VERSION",
     "FAMILIES",
+    "FAMILY_WEIGHTS",
     "PhotoSettings",
     "ProceduralMaterials",
     "material",
@@ -69,9 +75,19 @@ __all__ = [
 ]
 
 #: Changes whenever the output for a given (seed, index, resolution) changes; recorded in shards.
-GENERATOR_VERSION = "1"
+GENERATOR_VERSION = "2"
 #: The material families, in the order they are drawn from.
 FAMILIES: tuple[str, ...] = tuple(FAMILY_TABLE)
+#: How often each family is drawn, relatively: metals (often dark, often coloured) a little
+#: more, wood and fabric (absent from the Des18 test set, kept for variety) a little less.
+FAMILY_WEIGHTS: dict[str, float] = {
+    "stone": 1.0,
+    "tiles": 1.0,
+    "cells": 1.0,
+    "wood": 0.7,
+    "metal": 1.3,
+    "fabric": 0.6,
+}
 
 # Streams of random numbers of one sample, so that each part can be drawn on its own.
 _MATERIAL, _PHOTO, _COMPONENT, _MASK = 1, 2, 3, 4
@@ -112,6 +128,12 @@ class PhotoSettings:
     flash_offset: float = 0.2
     """Largest distance of the flash from the lens, in patch half-widths (drawn uniformly
     over a disc in the lens plane)."""
+    camera_shift: tuple[float, float] = (0.03, 0.3)
+    """Distance of the camera, and the flash with it, from the patch's axis, in patch
+    half-widths (uniform in this range, in a uniform direction): the phone is not held
+    exactly over the centre, so the highlight, which lies under the flash, is off-centre.
+    The flash fitted to each des18-dev photo sits 0.08-0.30 off the axis (0.20 on average);
+    the image still covers the patch ``[-1, 1]^2``."""
     exposure_ev: tuple[float, float] = (-0.75, 0.75)
     """Exposure in stops. The flash intensity is ``pi * distance^2``, which shows a white
     Lambertian patch at 1.0 in the centre at 0 EV."""
@@ -125,14 +147,16 @@ class PhotoSettings:
     """The gamma of gamma-encoded photos."""
 
     def __post_init__(self):
-        for name in ("fov", "exposure_ev", "noise_sigma", "noise_shot"):
+        for name in ("fov", "exposure_ev", "noise_sigma", "noise_shot", "camera_shift"):
             low, high = getattr(self, name)
             if not low <= high:
                 raise DataError(f"PhotoSettings.{name}: expected low <= high, got ({low}, {high})")
         if not (0 < self.fov[0] and self.fov[1] < 180):
             raise DataError(f"PhotoSettings.fov: expected degrees in (0, 180), got {self.fov}")
-        if self.flash_offset < 0 or self.noise_sigma[0] < 0 or self.noise_shot[0] < 0:
-            raise DataError("PhotoSettings: flash_offset, noise_sigma and noise_shot must be >= 0")
+        if min(self.flash_offset, self.noise_sigma[0], self.noise_shot[0], self.camera_shift[0]) < 0:
+            raise DataError(
+                "PhotoSettings: flash_offset, camera_shift, noise_sigma and noise_shot must be >= 0"
+            )
         if not 0 <= self.gamma_probability <= 1 or self.gamma <= 0:
             raise DataError(
                 f"PhotoSettings: expected gamma_probability in [0, 1] and gamma > 0, got "
@@ -143,8 +167,9 @@ class PhotoSettings:
 def photo_scene(seed: int, index: int, settings: PhotoSettings | None = None) -> Scene:
     """The simulated phone flash photo of sample ``index``: camera, flash and effects.
 
-    An on-axis camera at the distance its jittered field of view frames the patch from, a
-    flash of intensity ``pi * distance^2`` offset a little from the lens, and exactly these
+    A camera at the height its jittered field of view frames the patch from, shifted off the
+    patch's axis by ``settings.camera_shift`` (the image still covers the patch), a flash
+    of intensity ``pi * distance^2`` offset a little from the lens, and exactly these
     effects: the Des18 shading (diffuse, specular, fresnel, masking, cosine, falloff),
     exposure, noise (seeded from ``(seed, index)``, so the photo reproduces), clip, and
     gamma only for the ``settings.gamma_probability`` share of photos.
@@ -158,6 +183,8 @@ def photo_scene(seed: int, index: int, settings: PhotoSettings | None = None) ->
     ev, sigma, shot = d.uniform(*s.exposure_ev), d.uniform(*s.noise_sigma), d.uniform(*s.noise_shot)
     noise_seed = d.seed()
     gamma = d.chance(s.gamma_probability)
+    shift = d.uniform(*s.camera_shift)
+    shift_cos, shift_sin = d.angle()
     effects: list[Any] = [
         *DES18_EFFECTS,
         {"exposure": {"ev": ev}},
@@ -166,7 +193,7 @@ def photo_scene(seed: int, index: int, settings: PhotoSettings | None = None) ->
     ]
     if gamma:
         effects.append({"gamma": {"gamma": s.gamma}})
-    camera = Camera(torch.tensor([0.0, 0.0, distance]), fov)
+    camera = Camera(torch.tensor([shift * shift_cos, shift * shift_sin, distance]), fov)
     flash = Flash(math.pi * distance * distance, torch.tensor([radius * cs, radius * sn, 0.0]))
     return Scene(camera, (flash,), effects)
 
@@ -177,12 +204,15 @@ def photo_scene(seed: int, index: int, settings: PhotoSettings | None = None) ->
 @dataclass(frozen=True)
 class _Recipe:
     """What one sample is made of: its family name, components ``(family, seed)``, the seed
-    of the mixing mask and a bump strength."""
+    of the mixing mask, a bump strength, and the scale of its diffuse albedo's value
+    (brightness) and chroma (distance from grey)."""
 
     family: str
     components: tuple[tuple[str, int], ...]
     mask_seed: int
     bump: float
+    value: float = 1.0
+    chroma: float = 1.0
 
 
 def _check_families(families: Sequence[str] | None) -> tuple[str, ...]:
@@ -204,8 +234,12 @@ def _check_families(families: Sequence[str] | None) -> tuple[str, ...]:
 
 def _recipe(seed: int, index: int, families: tuple[str, ...], mix_p: float, family: str | None) -> _Recipe:
     d = Draw(_key(seed, index, _MATERIAL))
-    mixed, first, second = d.chance(mix_p), d.choice(families), d.choice(families)
-    bump = d.log_uniform(0.8, 2.0)
+    weights = [FAMILY_WEIGHTS[f] for f in families]
+    mixed, first, second = d.chance(mix_p), d.choice(families, weights), d.choice(families, weights)
+    bump = d.log_uniform(0.8, 2.4)
+    # Real albedos are darker and greyer than the families' palettes alone: every material
+    # is shown at a brightness of 30-100% and a chroma of 20-90% of its palette's.
+    value, chroma = d.log_uniform(0.3, 1.0), d.uniform(0.2, 0.9)
     if family is not None:
         names = tuple(family.split("+"))
         if len(names) > 2:
@@ -214,7 +248,7 @@ def _recipe(seed: int, index: int, families: tuple[str, ...], mix_p: float, fami
     else:
         names = (first, second) if mixed else (first,)
     components = tuple((name, _key(seed, index, _COMPONENT, slot)) for slot, name in enumerate(names))
-    return _Recipe("+".join(names), components, _key(seed, index, _MASK), bump)
+    return _Recipe("+".join(names), components, _key(seed, index, _MASK), bump, value, chroma)
 
 
 def _mask(seeds: list[int], x: Tensor, y: Tensor) -> tuple[Tensor, Tensor]:
@@ -334,10 +368,16 @@ def _packed(
         for first in range(0, len(recipes), chunk):
             part = recipes[first : first + chunk]
             f = _fields(part, resolution)
-            bump = torch.tensor([r.bump for r in part], dtype=torch.float32).view(-1, 1, 1, 1)
+            bump, value, chroma = (
+                torch.tensor([getattr(r, k) for r in part], dtype=torch.float32).view(-1, 1, 1, 1)
+                for k in ("bump", "value", "chroma")
+            )
+            diffuse = f.diffuse[crop]
+            grey = (diffuse[:, 0:1] + diffuse[:, 1:2] + diffuse[:, 2:3]) / 3
+            diffuse = (grey + chroma * (diffuse - grey)) * value
             maps = [
                 _normals(f.height * bump),
-                f.diffuse[crop].clamp(0, 1),
+                diffuse.clamp(0, 1),
                 f.roughness[crop].clamp(0, 1),
                 f.specular[crop].clamp(0, 1),
             ]

@@ -16,10 +16,13 @@ blend without a cliff), linear diffuse and specular albedos, and roughness, all
 parts (grout, gaps, grooves) for tests and inspection.
 
 Physical plausibility, by construction: dielectrics have grey specular albedo in
-[0.02, 0.06]; metals a coloured one in [0.5, 1] (measured F0 of real metals, linear) with
-a dark diffuse albedo; recessed structure (grout, gaps, cracks, grooves) is rougher than
-the surface around it. Heights are drawn as *slopes* and divided by the pattern's
-frequency, so a bump looks equally steep at every scale.
+[0.025, 0.06]; metals (the metal family, and the studs of some tiles) a coloured one with
+a dark diffuse albedo: a measured F0 of a real metal (linear, mean >= 0.5), or, for
+tarnished, oxidised and anodised metal, as Des18's metals mostly are, the same or a dyed
+colour at a luminance of 0.09-0.3, still above every dielectric; recessed structure
+(grout, gaps, cracks, grooves) is rougher than the surface around it. Heights are drawn
+as *slopes* and divided by the pattern's frequency, so a bump looks equally steep at
+every scale.
 
 Only the ops listed in :mod:`.procedural_noise` touch batched tensors, so that a batch
 computes what its members compute alone, bit for bit.
@@ -172,12 +175,12 @@ def _draw_stone(d: Draw) -> dict[str, Any]:
     p["speck_light"] = d.colour((0.0, 0.1), (0.0, 0.35), (0.7, 0.95))
     p["speck_freq"] = d.uniform(12.0, 30.0)  # cells per patch unit
     if polished:
-        p["roughness"], p["roughness_var"] = d.uniform(0.06, 0.3), d.uniform(0.0, 0.05)
+        p["roughness"], p["roughness_var"] = d.uniform(0.1, 0.32), d.uniform(0.0, 0.05)
         p["relief"], p["grain_relief"] = d.uniform(0.0, 0.015), d.uniform(0.0, 0.005)
     else:
-        p["roughness"], p["roughness_var"] = d.uniform(0.45, 0.85), d.uniform(0.05, 0.15)
-        p["relief"], p["grain_relief"] = d.uniform(0.015, 0.07), d.uniform(0.01, 0.04)
-    p["specular"] = grey(d.uniform(0.03, 0.06) if polished else d.uniform(0.02, 0.045))
+        p["roughness"], p["roughness_var"] = d.uniform(0.4, 0.72), d.uniform(0.05, 0.15)
+        p["relief"], p["grain_relief"] = d.uniform(0.02, 0.1), d.uniform(0.01, 0.05)
+    p["specular"] = grey(d.uniform(0.035, 0.06) if polished else d.uniform(0.03, 0.05))
     p["lattice"] = d.lattice(4)  # warp u, warp v, base, veins
     p["grain_lattice"] = d.lattice(3)  # dark specks, light specks, grain
     return p
@@ -232,7 +235,7 @@ def _draw_tiles(d: Draw) -> dict[str, Any]:
     if style == "glazed":
         colour = d.colour((0.0, 1.0), (0.05, 0.7), (0.25, 0.95))
         jitter, mottle = d.uniform(0.0, 0.12), d.uniform(0.0, 0.1)
-        rough, spec, relief = d.uniform(0.03, 0.25), d.uniform(0.04, 0.06), d.uniform(0.005, 0.03)
+        rough, spec, relief = d.uniform(0.06, 0.3), d.uniform(0.04, 0.06), d.uniform(0.005, 0.03)
         grout = d.colour((0.0, 1.0), (0.0, 0.1), (0.2, 0.9))
     elif style == "terracotta":
         colour = d.colour((0.02, 0.08), (0.45, 0.75), (0.45, 0.75))
@@ -257,9 +260,16 @@ def _draw_tiles(d: Draw) -> dict[str, Any]:
     p["tilt"] = d.uniform(0.0, 0.04)
     p["colour"], p["grout_colour"] = colour, grout
     p["jitter"], p["mottle"], p["relief"] = jitter, mottle, relief
-    p["roughness"], p["grout_roughness"] = rough, d.uniform(0.85, 1.0)
-    p["specular"], p["grout_specular"] = grey(spec), grey(d.uniform(0.02, 0.035))
+    p["roughness"], p["grout_roughness"] = rough, d.uniform(0.72, 0.9)
+    p["specular"], p["grout_specular"] = grey(spec), grey(d.uniform(0.025, 0.04))
     p["noise_freq"] = rows * d.uniform(2.0, 6.0)
+    # Metal studs (rivets) where four tiles meet, on grids whose corners line up.
+    p["studs"] = 1.0 if layout in ("grid", "stack") and d.chance(0.35) else 0.0
+    p["stud_specular"], _ = draw_metal_specular(d)
+    p["stud_diffuse"] = grey(d.uniform(0.0, 0.03))
+    p["stud_roughness"] = d.uniform(0.15, 0.4)
+    p["stud_radius"] = size * d.uniform(0.08, 0.16)
+    p["stud_dome"] = d.uniform(0.2, 0.5)  # height over radius
     p["lattice"] = d.lattice(3)  # mottling, bumps, grout grain
     p["row_shift"] = d.table(256)
     p["tile_value"] = d.table(1024, -1.0, 1.0)
@@ -298,10 +308,21 @@ def _tiles(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
 
     face = p["colour"] * (1 + p["jitter"] * (value + 0.3 * tint)) * (1 + p["mottle"] * mottle)
     diffuse = mix(face, p["grout_colour"] * (1 + 0.15 * sand), grout)
-    face_rough = (p["roughness"] * (1 + 0.15 * mottle)).clamp(max=0.78)  # grout stays rougher
+    face_rough = (p["roughness"] * (1 + 0.15 * mottle)).clamp(max=0.65)  # grout stays rougher
     roughness = mix(face_rough, p["grout_roughness"] + 0.03 * sand, grout)
     specular = mix(p["specular"], p["grout_specular"], grout)
-    return Fields(height, diffuse, roughness, specular, {"grout": grout})
+
+    # Studs: domes of metal centred on the tile corners (distance in patch units).
+    cx, cy = torch.minimum(fa, 1 - fa) / kx, torch.minimum(fb, 1 - fb) / ky
+    r = p["stud_radius"]
+    t = (1 - (cx * cx + cy * cy) / (r * r)).clamp(0, 1)  # 1 at the corner, 0 at the rim
+    stud = smoothstep(0.0, 0.12, t) * p["studs"]
+    top = 0.2 * p["depth"] + p["stud_dome"] * r * t
+    height = mix(height, top, stud)
+    diffuse = mix(diffuse, p["stud_diffuse"], stud)
+    roughness = mix(roughness, p["stud_roughness"], stud)
+    specular = mix(specular, p["stud_specular"], stud)
+    return Fields(height, diffuse, roughness, specular, {"grout": grout * (1 - stud), "stud": stud})
 
 
 # -- cells: leather, cobbles, cracked earth and paint --------------------------------------
@@ -330,14 +351,14 @@ def _draw_cells(d: Draw) -> dict[str, Any]:
         p["grain"] = d.uniform(0.03, 0.1)
     elif kind == "cobbles":
         p["freq"] = d.uniform(1.2, 3.0)
-        regularity, p["gap"], p["round"] = d.uniform(0.0, 0.5), d.uniform(0.06, 0.2), d.uniform(0.1, 0.25)
-        p["dome"], p["slope"] = d.uniform(0.3, 0.8), d.uniform(0.2, 0.5)
+        regularity, p["gap"], p["round"] = d.uniform(0.0, 0.5), d.uniform(0.06, 0.2), d.uniform(0.15, 0.3)
+        p["dome"], p["slope"] = d.uniform(0.15, 0.45), d.uniform(0.15, 0.35)
         base = d.colour((0.0, 0.13), (0.0, 0.35), (0.25, 0.7))
         p["base"], p["second"] = base, d.colour((0.0, 0.13), (0.0, 0.35), (0.2, 0.75))
         p["gap_colour"] = d.colour((0.07, 0.12), (0.1, 0.4), (0.2, 0.6))
         p["cell_jitter"], p["multi"] = d.uniform(0.15, 0.4), 1.0
-        p["roughness"], p["gap_roughness"] = d.uniform(0.45, 0.75), d.uniform(0.85, 1.0)
-        p["specular"] = grey(d.uniform(0.02, 0.045))
+        p["roughness"], p["gap_roughness"] = d.uniform(0.4, 0.7), d.uniform(0.75, 0.92)
+        p["specular"] = grey(d.uniform(0.03, 0.05))
         p["grain"] = d.uniform(0.05, 0.15)
     else:  # cracked earth or paint
         p["freq"] = d.uniform(1.5, 4.0)
@@ -345,14 +366,14 @@ def _draw_cells(d: Draw) -> dict[str, Any]:
         p["dome"], p["slope"] = d.uniform(0.0, 0.1), d.uniform(0.3, 0.8)
         if d.chance(0.5):  # dried earth
             base = d.colour((0.05, 0.12), (0.2, 0.55), (0.3, 0.7))
-            p["roughness"], p["specular"] = d.uniform(0.65, 0.85), grey(d.uniform(0.02, 0.035))
+            p["roughness"], p["specular"] = d.uniform(0.55, 0.75), grey(d.uniform(0.025, 0.04))
         else:  # cracked paint
             base = d.colour((0.0, 1.0), (0.05, 0.7), (0.4, 0.95))
             p["roughness"], p["specular"] = d.uniform(0.3, 0.6), grey(d.uniform(0.035, 0.05))
         p["base"], p["second"] = base, _vary(d, base, (0.85, 1.1))
         p["gap_colour"] = _vary(d, base, (0.15, 0.4))
         p["cell_jitter"], p["multi"] = d.uniform(0.02, 0.1), 0.2
-        p["gap_roughness"] = d.uniform(0.88, 1.0)
+        p["gap_roughness"] = d.uniform(0.75, 0.92)
         p["grain"] = d.uniform(0.03, 0.1)
     p["grain_freq"] = p["freq"] * d.uniform(4.0, 8.0)
     p["points"] = d.cells(regularity)
@@ -417,7 +438,7 @@ def _draw_wood(d: Draw) -> dict[str, Any]:
     p["early"], p["late"] = early, _vary(d, early, (0.45, 0.8), (1.0, 1.3))
     p["late_weight"] = d.uniform(0.5, 1.0)
     if d.chance(0.5):  # varnished
-        p["roughness"], p["specular"] = d.uniform(0.08, 0.3), grey(d.uniform(0.04, 0.06))
+        p["roughness"], p["specular"] = d.uniform(0.12, 0.35), grey(d.uniform(0.04, 0.06))
         p["relief"], p["fibre_relief"] = d.uniform(0.0, 0.01), d.uniform(0.005, 0.02)
     else:
         p["roughness"], p["specular"] = d.uniform(0.45, 0.75), grey(d.uniform(0.03, 0.045))
@@ -466,7 +487,7 @@ def _wood(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
     fibres = p["fibre_relief"] / p["fibre_across"]
     height = rings * late + fibres * (fibre - 0.5 * pores) - 0.01 * seam
     roughness = p["roughness"] * (1 + 0.1 * late + 0.2 * pores)
-    roughness = mix(roughness, 0.9, seam)
+    roughness = mix(roughness, 0.8, seam)
     return Fields(height, diffuse, roughness, p["specular"].expand_as(diffuse), {"seam": seam})
 
 
@@ -490,23 +511,51 @@ METALS = {
 }
 
 
+#: Metals whose specular albedo is clearly coloured; drawn twice as often as the others.
+COLOURED_METALS = ("gold", "copper", "brass")
+#: Rec. 709 luminance weights of linear RGB.
+_LUMINANCE = (0.2126, 0.7152, 0.0722)
+
+
+def draw_metal_specular(d: Draw) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """The specular albedo of one metal and its hue (for a tinted diffuse).
+
+    *Bright* (25%): a measured F0 of :data:`METALS`. *Dark* (45%): the same colour at a
+    luminance of 0.09-0.3, as tarnished, oxidised or darkened metal appears in captured and
+    authored materials (Des18's metals are mostly such). *Anodised* (30%): a dyed colour at
+    that luminance.
+    """
+    names = sorted(METALS)
+    f0 = METALS[d.choice(names, [2.0 if n in COLOURED_METALS else 1.0 for n in names])]
+    tone = d.choice(["bright", "dark", "anodised"], [0.25, 0.45, 0.3])
+    if tone == "bright":
+        k = d.uniform(0.96, 1.0)
+        return tuple(k * c for c in f0), f0
+    colour = f0 if tone == "dark" else d.colour((0.0, 1.0), (0.2, 0.6), (0.6, 1.0))
+    level = d.log_uniform(0.09, 0.3)
+    lum = sum(w * c for w, c in zip(_LUMINANCE, colour, strict=True))
+    return tuple(min(c * level / lum, 1.0) for c in colour), colour
+
+
 def _draw_metal(d: Draw) -> dict[str, Any]:
     p = _draw_frame(d)
-    f0 = METALS[d.choice(sorted(METALS))]
-    k = d.uniform(0.96, 1.0)
-    p["specular"] = tuple(k * c for c in f0)
+    p["specular"], tint = draw_metal_specular(d)
     dark = d.uniform(0.0, 0.04)
-    p["diffuse"] = tuple(dark * c for c in f0) if d.chance(0.5) else grey(dark)
-    finish = d.choice(["brushed", "polished", "hammered", "sandblasted"], [0.4, 0.2, 0.2, 0.2])
+    p["diffuse"] = tuple(dark * c for c in tint) if d.chance(0.5) else grey(dark)
+    finish = d.choice(
+        ["brushed", "polished", "hammered", "sandblasted", "embossed"], [0.3, 0.15, 0.2, 0.15, 0.2]
+    )
     p["brushed"] = 1.0 if finish == "brushed" else 0.0
     p["hammered"] = 1.0 if finish == "hammered" else 0.0
     p["sandblasted"] = 1.0 if finish == "sandblasted" else 0.0
+    p["embossed"] = 1.0 if finish == "embossed" else 0.0
     p["scratches"] = 1.0 if finish == "polished" else d.uniform(0.0, 0.6)
     p["roughness"] = {
         "brushed": d.uniform(0.15, 0.4),
-        "polished": d.uniform(0.05, 0.2),
+        "polished": d.uniform(0.08, 0.25),
         "hammered": d.uniform(0.1, 0.35),
         "sandblasted": d.uniform(0.35, 0.55),
+        "embossed": d.uniform(0.15, 0.45),
     }[finish]
     p["streak_along"], p["streak_across"] = d.uniform(1.0, 4.0), d.uniform(40.0, 120.0)
     p["streak_roughness"], p["streak_relief"] = d.uniform(0.03, 0.12), d.uniform(0.02, 0.08)
@@ -516,6 +565,11 @@ def _draw_metal(d: Draw) -> dict[str, Any]:
     p["scratch_density"] = d.uniform(0.1, 0.6)
     p["dent_freq"], p["dent_relief"] = d.uniform(2.0, 5.0), d.uniform(0.05, 0.2)
     p["sand_freq"], p["sand_relief"] = d.uniform(25.0, 60.0), d.uniform(0.03, 0.1)
+    # Embossed (tread plate, studded sheet): round bumps on a square or staggered grid;
+    # their steepest slope is 1.54 relief / radius, here 0.3-1.2.
+    p["emboss_freq"], p["emboss_radius"] = d.uniform(4.0, 12.0), d.uniform(0.12, 0.32)
+    p["emboss_relief"] = d.uniform(0.3, 1.2) * p["emboss_radius"] / 1.54
+    p["emboss_stagger"] = 0.5 if d.chance(0.4) else 0.0
     p["smudge"] = d.uniform(0.0, 1.0)
     p["smudge_freq"] = d.uniform(1.0, 3.0)
     p["points"] = d.cells(d.uniform(0.0, 0.5))
@@ -547,12 +601,19 @@ def _metal(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
     sand = fbm(p["lattice"][:, 3:4], u * p["sand_freq"], v * p["sand_freq"], 2)
     smudge = fbm(p["lattice"][:, 4:5], u * p["smudge_freq"], v * p["smudge_freq"], 3)
     dirt = smoothstep(0.0, 0.8, smudge) * p["smudge"]
+    fe, radius = p["emboss_freq"], p["emboss_radius"]
+    ev = v * fe
+    eu = u * fe + p["emboss_stagger"] * torch.floor(ev)
+    cu, cv = fract(eu) - 0.5, fract(ev) - 0.5
+    boss = (1 - (cu * cu + cv * cv) / (radius * radius)).clamp(0, 1)
+    boss = boss * boss  # (1 - r^2 / R^2)^2: round, flat-footed bumps
 
     height = (
         p["brushed"] * (p["streak_relief"] / p["streak_across"]) * streak
         - 0.3 / p["scratch_across"] * scratch
         - p["hammered"] * (p["dent_relief"] / p["dent_freq"]) * (dent - 0.3)
         + p["sandblasted"] * (p["sand_relief"] / p["sand_freq"]) * sand
+        + p["embossed"] * (p["emboss_relief"] / fe) * (boss - 0.2)
     )
     roughness = (
         p["roughness"]
@@ -600,8 +661,8 @@ def _draw_fabric(d: Draw) -> dict[str, Any]:
     p["period"] = float(period)
     p["warp_colours"], p["weft_colours"] = warp_tab, weft_tab
     satin = weave == "satin"
-    p["roughness"] = d.uniform(0.3, 0.55) if satin else d.uniform(0.6, 0.95)
-    p["specular"] = grey(d.uniform(0.03, 0.05) if satin else d.uniform(0.02, 0.04))
+    p["roughness"] = d.uniform(0.3, 0.55) if satin else d.uniform(0.5, 0.8)
+    p["specular"] = grey(d.uniform(0.035, 0.055) if satin else d.uniform(0.025, 0.045))
     p["fuzz"] = d.uniform(0.0, 0.3)
     p["lattice"] = d.lattice(3)  # warp fibres, weft fibres, fuzz
     return p
@@ -645,10 +706,17 @@ FAMILY_TABLE: dict[str, Family] = {
     f.name: f
     for f in (
         Family("stone", "marble with veins, granite, sandstone, slate (warped fBm)", _draw_stone, _stone),
-        Family("tiles", "tiles, bricks and mosaics with recessed, rougher grout", _draw_tiles, _tiles),
+        Family(
+            "tiles",
+            "tiles, bricks and mosaics with recessed, rougher grout; metal studs",
+            _draw_tiles,
+            _tiles,
+        ),
         Family("cells", "leather, cobbles, cracked earth and paint (Worley cells)", _draw_cells, _cells),
         Family("wood", "rings, fibres and pores, optionally planks with seams", _draw_wood, _wood),
-        Family("metal", "brushed, polished and scratched, hammered, sandblasted", _draw_metal, _metal),
+        Family(
+            "metal", "brushed, polished and scratched, hammered, sandblasted, embossed", _draw_metal, _metal
+        ),
         Family("fabric", "plain, twill and satin weaves, stripes and checks", _draw_fabric, _fabric),
     )
 }

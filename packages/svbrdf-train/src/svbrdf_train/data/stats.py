@@ -317,7 +317,9 @@ class Statistic:
 
 
 STATISTICS: tuple[Statistic, ...] = (
-    Statistic("diffuse luminance", "linear", "maps", diffuse_luminance, "mean luminance of the diffuse albedo"),
+    Statistic(
+        "diffuse luminance", "linear", "maps", diffuse_luminance, "mean luminance of the diffuse albedo"
+    ),
     Statistic("diffuse saturation", "0-1", "maps", diffuse_saturation, "mean HSV saturation of the diffuse"),
     Statistic("roughness mean", "0-1", "maps", roughness_mean, "mean roughness per material"),
     Statistic(
@@ -332,7 +334,11 @@ STATISTICS: tuple[Statistic, ...] = (
     Statistic("photo mean", "linear", "photos", photo_mean, "mean luminance of the linear photo"),
     Statistic("photo median", "linear", "photos", photo_median, "median luminance of the linear photo"),
     Statistic(
-        "highlight size", "area share", "photos", highlight_size, "share of the photo above half-way from p1 to max"
+        "highlight size",
+        "area share",
+        "photos",
+        highlight_size,
+        "share of the photo above half-way from p1 to max",
     ),
     Statistic(
         "highlight offset",
