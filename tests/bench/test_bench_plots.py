@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from svbrdf_bench.errors import BenchError
-from svbrdf_bench.plots import comparison_grid, learning_curves, pareto, pareto_front
+from svbrdf_bench.plots import comparison_grid, learning_curves, learning_curves_figure, pareto, pareto_front
 from svbrdf_render import read_image
 
 
@@ -28,6 +28,23 @@ def test_learning_curves_writes_a_png(tmp_path):
     assert path == tmp_path / "plots" / "curves.png"
     image = _is_png(path)
     assert image.shape[1:] == (int(4.5 * 120), int(7 * 120))  # 7 x 4.5 inches at 120 dpi
+
+
+def test_learning_curves_draw_the_real_validation_dashed_in_the_model_colour(tmp_path):
+    curves = {"unet": ([1.0, 2.0, 4.0], [0.3, 0.2, 0.15]), "des18": ([2.0, 5.0], [0.35, 0.22])}
+    real = {"unet": ([1.0, 2.0, 4.0], [0.4, 0.38, 0.37]), "des18": ([], [])}
+    fig = learning_curves_figure(curves, real=real)
+    lines = {line.get_label(): line for line in fig.axes[0].get_lines()}
+    assert set(lines) == {"unet", "des18", "unet (real)"}  # a model without real points gets no line
+    assert lines["unet (real)"].get_linestyle() == "--" and lines["unet"].get_linestyle() == "-"
+    assert lines["unet (real)"].get_color() == lines["unet"].get_color() != lines["des18"].get_color()
+    assert list(lines["unet (real)"].get_ydata()) == [0.4, 0.38, 0.37]
+    _is_png(learning_curves(curves, tmp_path / "both.png", real=real))
+    # Without `real`, as before; real points alone are enough to draw.
+    assert [x.get_label() for x in learning_curves_figure(curves).axes[0].get_lines()] == ["unet", "des18"]
+    assert learning_curves_figure({}, real={"unet": real["unet"]}).axes[0].get_lines()[0].get_label() == "unet (real)"
+    with pytest.raises(BenchError, match="3 times but 1 values"):
+        learning_curves_figure(curves, real={"unet": ([1, 2, 3], [0.1])})
 
 
 def test_learning_curves_needs_points(tmp_path):

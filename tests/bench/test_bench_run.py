@@ -1,8 +1,8 @@
 """``svbrdf-bench run`` and ``report`` end to end on a tiny benchmark, and their refusals.
 
-One benchmark (two recipes at the smoke size, a few steps, 6 test images) is run once per module
-and checked from every side: the terminal table, the report folder, MLflow's parent/child runs,
-and the report rebuilt from MLflow alone.
+One benchmark (two recipes at the smoke size, a few steps, 6 test images, plus the untrained
+baselines ``mean`` and ``photo``) is run once per module and checked from every side: the terminal
+table, the report folder, MLflow's parent/child runs, and the report rebuilt from MLflow alone.
 """
 
 from __future__ import annotations
@@ -42,10 +42,28 @@ def bench(tmp_path_factory):
     photos = ProceduralMaterials(3, 40, seed=11)  # sRGB-encoded as a phone saves them
     for i in range(3):
         write_image(real / f"photo{i}.png", linear_to_srgb(photos[i]["input"]))
-    result = _invoke("run", "--models", "ours,radn", *TINY, "--real-data", real, "-o", out)
+    # A folder of two Des18 strips: the fits validate on it as well (val_real/ learning curves).
+    from svbrdf_render import SVBRDF, write_des18
+
+    strips = tmp_path_factory.mktemp("des18")
+    materials = ProceduralMaterials(2, 64, seed=12)
+    for i in range(2):
+        s = materials[i]
+        write_des18(strips / f"{i:07d};a;b.png", s["input"][None], SVBRDF.unpack(s["maps"][None]))
+    result = _invoke("run", "--models", "ours,radn", *TINY, "--real-data", real, "--set",
+                     f"data.real_validation={strips}", "-o", out)  # fmt: skip
     assert result.exit_code == 0, result.output
     parent = json.loads((out / "results.json").read_text())["parent_run"]
     return out, result, parent
+
+
+def _children(parent_id: str) -> list:
+    client = _client()
+    return client.search_runs(
+        [client.get_run(parent_id).info.experiment_id],
+        filter_string=f"tags.`mlflow.parentRunId` = '{parent_id}'",
+        order_by=["attributes.start_time ASC"],
+    )
 
 
 def _section(text: str, title: str) -> list[str]:
@@ -55,17 +73,81 @@ def _section(text: str, title: str) -> list[str]:
     return lines[start:end]
 
 
+ROWS = ["ours", "radn", "mean", "photo"]  # the trained models, then the baselines
+
+
 def test_terminal_tables_in_the_paper_layout_with_time_columns(bench):
     _, result, _ = bench
     rmse = _section(result.stdout, "RMSE")
     assert rmse[1].split() == ["model", "normal", "diffuse", "roughness", "specular", "render"]
-    assert [line.split()[0] for line in rmse[3:]] == ["ours", "radn"]
+    assert [line.split()[0] for line in rmse[3:]] == ROWS
+    assert [line.split()[1] for line in rmse[5:]] == ["(baseline)", "(baseline)"]
+    ssim = _section(result.stdout, "SSIM")
+    assert "Wang et al. 2004" in ssim[0] and "sigma 1.5" in ssim[0]  # the variant is named
+    assert [line.split()[0] for line in ssim[3:]] == ROWS
     time_table = _section(result.stdout, "Time and memory")
-    for column in ("train samples/s", "latency 256px (ms)", "params (M)", "peak RSS (MB)"):
+    for column in ("train time, budget clock (s)", "train wall (s)", "train samples/s", "latency 256px (ms)",
+                   "params (M)", "peak RSS (MB)"):  # fmt: skip
         assert column in time_table[1]
-    assert "What accuracy costs" in result.stdout
-    assert "ours vs radn" in result.stdout or "radn vs ours" in result.stdout
+    assert [line.split()[0] for line in time_table[3:]] == ROWS
+    for line in time_table[5:]:  # baselines: no training, no parameters
+        cells = line.split()
+        assert cells[2:6] == ["-", "-", "-", "-"] and "0.00" in cells
+    for line in time_table[3:5]:
+        train, wall = (float(x) for x in line.split()[1:3])
+        assert 0 < train and 0 < wall
+    costs = _section(result.stdout, "What accuracy costs")
+    assert costs[0] == "What accuracy costs (trained models)"
+    assert [line.split()[:3] for line in costs[3:4]] in ([["ours", "vs", "radn"]], [["radn", "vs", "ours"]])
+    assert not any("mean" in line or "photo" in line for line in costs[3:4])  # baselines have no cost
     assert "LPIPS skipped" in result.stdout  # stated, never downloaded
+
+
+def test_the_report_says_which_clock_budgeted_the_training(bench):
+    from svbrdf_train.clock import CLOCK_TAG
+
+    out, result, parent_id = bench
+    children = _children(parent_id)
+    clocks = {c.data.tags.get(CLOCK_TAG) for c in children if "svbrdf.baseline" not in c.data.tags}
+    assert clocks == {"cpu"}  # the trainer's default on a CPU
+    line = "training time budgeted and reported on the CPU clock (process CPU time divided by torch threads)"
+    assert line in result.stdout.splitlines()[:6]
+    assert f"- {line}" in (out / "report.md").read_text()
+    assert all(r["clock"] == "cpu" for r in json.loads((out / "results.json").read_text())["models"]
+               if not r["baseline"])  # fmt: skip
+
+
+def test_against_mean_table_and_headline(bench):
+    """Every trained model is held against `mean`, map by map, and the headline says it in words."""
+    out, result, _ = bench
+    table = _section(result.stdout, "Against the mean baseline")
+    assert table[1].split() == ["model", "normal", "diffuse", "roughness", "specular", "render"]
+    assert [line.split()[0] for line in table[3:]] == ["ours", "radn"]
+    rows = list(csv.DictReader(open(out / "against_mean.csv")))
+    assert {(r["model"], r["column"]) for r in rows} == {(m, c) for m in ("ours", "radn") for c in
+                                                        ("normal", "diffuse", "roughness", "specular", "render")}  # fmt: skip
+    for r in rows:
+        low, d, high = float(r["low"]), float(r["rmse_difference"]), float(r["high"])
+        assert r["versus"] == "mean" and low <= d <= high
+        expected = "within noise" if low <= 0 <= high else "beats" if high < 0 else "worse"
+        assert r["verdict"] == expected
+        assert f"{d:+.4f} [{low:+.4f}, {high:+.4f}] {expected}" in result.stdout
+    # The headline: right under the first line, one sentence per trained model.
+    lines = result.stdout.splitlines()
+    headline = lines[1:3]
+    md = (out / "report.md").read_text()
+    for model, sentence in zip(["ours", "radn"], headline, strict=True):
+        failing = [r["column"] for r in rows if r["model"] == model and r["verdict"] != "beats"]
+        if failing:
+            assert sentence.startswith(f"{model} does NOT beat the constant-map baseline `mean` on "
+                                       f"{', '.join(failing)}: it has learned nothing")  # fmt: skip
+        else:
+            assert sentence.startswith(f"{model} beats the constant-map baseline `mean`")
+        assert f"**{sentence}**" in md.split("## ")[0]  # at the top of report.md too
+    # Six training steps learn nothing: at least the renderings are not better than constant maps.
+    assert all("does NOT beat" in h and "render" in h for h in headline)
+    assert "do not beat the constant-map baseline `mean` on renderings" in result.stdout
+    assert json.loads((out / "results.json").read_text())["headline"] == headline
 
 
 def test_report_folder_holds_markdown_tables_and_plots(bench):
@@ -78,7 +160,9 @@ def test_report_folder_holds_markdown_tables_and_plots(bench):
     md = (out / "report.md").read_text()
     assert "![Validation render RMSE against training time](learning_curves.png)" in md
     rows = list(csv.DictReader(open(out / "results.csv")))
-    assert [r["model"] for r in rows] == ["ours", "radn"]
+    assert [r["model"] for r in rows] == ROWS
+    assert [r["baseline"] for r in rows] == ["False", "False", "True", "True"]
+    assert (out / "against_mean.csv").is_file()
     for r in rows:
         low, mean, high = (float(r[k]) for k in ("rmse_render_low", "rmse_render", "rmse_render_high"))
         assert low <= mean <= high
@@ -92,15 +176,21 @@ def test_mlflow_parent_and_one_child_per_model(bench):
     assert parent.data.params["preset"] == "quick" and parent.data.params["test_count"] == "6"
     logged = {a.path for a in client.list_artifacts(parent_id, "report")}
     assert {"report/report.md", "report/pareto.png", "report/learning_curves.png"} <= logged
-    children = client.search_runs(
-        [parent.info.experiment_id], filter_string=f"tags.`mlflow.parentRunId` = '{parent_id}'"
-    )
-    assert sorted(c.data.tags["svbrdf.model"] for c in children) == ["ours", "radn"]
+    children = _children(parent_id)
+    assert sorted(c.data.tags["svbrdf.model"] for c in children) == sorted(ROWS)
+    assert parent.data.params["baselines"] == "mean,photo"
     results = {m["model"]: m for m in json.loads((out / "results.json").read_text())["models"]}
     for child in children:
         m = child.data.metrics
-        assert child.data.tags["recipe"] == child.data.tags["svbrdf.model"]  # the fit itself is the child
-        assert m["time/latency_ms"] > 0 and m["model/params"] > 0
+        if child.data.tags["svbrdf.model"] in ("mean", "photo"):  # untrained, built from the registry
+            assert child.data.tags["svbrdf.baseline"] == "true" and "recipe" not in child.data.tags
+            assert child.info.status == "FINISHED" and child.data.params["model.name"] in ("mean", "photo")
+            assert m["model/params"] == 0 and m["time/latency_ms"] > 0
+            assert not any(k.startswith(("train/", "time/train")) for k in m)
+        else:
+            assert child.data.tags["recipe"] == child.data.tags["svbrdf.model"]  # the fit itself is the child
+            assert m["time/latency_ms"] > 0 and m["model/params"] > 0
+            assert m["time/train_steps_wall_s"] == m["train/total_wall_seconds"] > 0
         local = client.download_artifacts(child.info.run_id, "eval/per_sample.json", str(out.parent))
         per_sample = json.loads(open(local).read())
         assert len(per_sample["rmse/render"]) == 6
@@ -111,12 +201,53 @@ def test_mlflow_parent_and_one_child_per_model(bench):
 
 
 def test_report_rebuilds_the_same_tables_from_mlflow(bench, tmp_path):
-    _, result, parent_id = bench
+    out, result, parent_id = bench
     again = _invoke("report", parent_id, "-o", tmp_path / "again")
     assert again.exit_code == 0, again.output
-    for title in ("RMSE", "SSIM", "Time and memory", "What accuracy costs"):
+    for title in ("RMSE", "SSIM", "Against the mean baseline", "Real photos", "Time and memory",
+                  "What accuracy costs"):  # fmt: skip
         assert _section(again.stdout, title) == _section(result.stdout, title), title
+    assert again.stdout.splitlines()[:5] == result.stdout.splitlines()[:5]  # the headline too
     assert (tmp_path / "again" / "pareto.png").is_file()
+    assert (tmp_path / "again" / "against_mean.csv").read_text() == (out / "against_mean.csv").read_text()
+
+
+def test_learning_curves_read_both_validation_sets(bench):
+    """The fits validated on the real-material folder too: the report reads both curves."""
+    from svbrdf_bench.report import build_report
+
+    _, _, parent_id = bench
+    report = build_report(parent_id)
+    for e in report.trained:
+        assert e.curve[0] and e.curve_real[0], e.label
+        assert e.curve[0] == e.curve_real[0]  # logged at the same steps
+        assert all(0 < v < 1 for v in e.curve_real[1])
+    assert all(not e.curve[0] and not e.curve_real[0] for e in report.models if e.baseline)
+
+
+def test_no_baselines_drops_them(bench, tmp_path):
+    """--no-baselines: only the models, no comparison with `mean`, and the headline says so."""
+    result = _invoke("run", "--from-runs", "ours", *TINY, "--no-baselines", "-o", tmp_path / "r")
+    assert result.exit_code == 0, result.output
+    assert "training ours" not in result.stderr  # reused, not trained
+    assert [line.split()[0] for line in _section(result.stdout, "RMSE")[3:]] == ["ours"]
+    assert "Against the mean baseline" not in result.stdout and "(baseline)" not in result.stdout
+    assert result.stdout.splitlines()[1].startswith("No baseline was evaluated (--no-baselines)")
+    parent = json.loads((tmp_path / "r" / "results.json").read_text())["parent_run"]
+    assert [c.data.tags["svbrdf.model"] for c in _children(parent)] == ["ours"]
+    assert not (tmp_path / "r" / "against_mean.csv").exists()
+    again = _invoke("report", parent)
+    assert again.stdout == result.stdout
+
+
+def test_a_model_named_like_a_baseline_is_refused(tmp_path):
+    from svbrdf_train.recipe import recipe_path
+
+    (tmp_path / "mean.yaml").write_text(recipe_path("radn").read_text())
+    result = _invoke("run", "--models", tmp_path / "mean.yaml", *TINY, "-o", tmp_path / "r")
+    assert result.exit_code == 2
+    err = [line for line in result.stderr.splitlines() if " INFO mlflow." not in line]
+    assert len(err) == 1 and "name of a baseline" in err[0] and "--no-baselines" in err[0]
 
 
 def test_from_runs_reuses_a_finished_fit_as_a_child(bench, tmp_path):
@@ -190,11 +321,18 @@ def test_real_photos_add_the_self_consistency_figure(bench):
     out, result, parent_id = bench
     table = _section(result.stdout, "Real photos")
     assert table[1].split()[:2] == ["model", "photos"]
-    assert [line.split()[0] for line in table[3:]] == ["ours", "radn"]
-    assert all(line.split()[1] == "3" for line in table[3:])
+    assert [line.split()[0] for line in table[3:]] == ROWS  # the photo baseline beside the models
+    assert all(line.split()[-5] == "3" for line in table[3:])
+    after = result.stdout.split("\n".join(table))[1].splitlines()[2]
+    assert after.startswith("Re-rendering RMSE measures consistency with the photo, not correctness")
     rows = list(csv.DictReader(open(out / "results.csv")))
     for r in rows:
-        assert 0 < float(r["real_rerender_rmse_median"]) < 1
+        assert 0 <= float(r["real_rerender_rmse_median"]) < 1
+    # Copying the photo into the diffuse map re-renders the photo almost exactly: consistency, not truth.
+    photo_row = next(r for r in rows if r["model"] == "photo")
+    assert float(photo_row["real_rerender_rmse_median"]) < min(
+        float(r["real_rerender_rmse_median"]) for r in rows if r["model"] in ("ours", "radn")
+    )
     client = _client()
     children = client.search_runs(
         [client.get_run(parent_id).info.experiment_id],

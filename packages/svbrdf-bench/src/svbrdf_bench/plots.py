@@ -14,7 +14,7 @@ from torch import Tensor
 
 from .errors import BenchError
 
-__all__ = ["learning_curves", "pareto", "pareto_front", "comparison_grid"]
+__all__ = ["learning_curves", "learning_curves_figure", "pareto", "pareto_front", "comparison_grid"]
 
 _DPI = 120
 
@@ -32,36 +32,61 @@ def _save(fig, path) -> Path:
     return path
 
 
+def _points(curves, what: str) -> dict[str, tuple[list[float], list[float]]]:
+    drawn = {}
+    for name, (xs, ys) in (curves or {}).items():
+        xs, ys = [float(x) for x in xs], [float(y) for y in ys]
+        if len(xs) != len(ys):
+            raise BenchError(f"learning curves: {what} {name!r} has {len(xs)} times but {len(ys)} values")
+        if xs:
+            drawn[name] = (xs, ys)
+    return drawn
+
+
 def learning_curves(
     curves: Mapping[str, tuple[Sequence[float], Sequence[float]]],
     path,
     *,
+    real: Mapping[str, tuple[Sequence[float], Sequence[float]]] | None = None,
     ylabel: str = "validation render RMSE",
     xlabel: str = "training time (s)",
 ) -> Path:
-    """One line per model, ``{name: (training wall time in seconds, metric)}``, as a PNG at ``path``.
+    """One line per model, ``{name: (training time in seconds, metric)}``, as a PNG at ``path``.
 
+    ``real`` adds, per model, the same figure on a second validation set of real materials
+    (the trainer's ``val_real/``): a dashed line in the model's colour, labelled "<name> (real)".
     Models with no points are left out; no points at all is a :class:`BenchError`.
     """
-    drawn = {}
-    for name, (xs, ys) in curves.items():
-        xs, ys = [float(x) for x in xs], [float(y) for y in ys]
-        if len(xs) != len(ys):
-            raise BenchError(f"learning curves: model {name!r} has {len(xs)} times but {len(ys)} values")
-        if xs:
-            drawn[name] = (xs, ys)
-    if not drawn:
+    return _save(learning_curves_figure(curves, real=real, ylabel=ylabel, xlabel=xlabel), path)
+
+
+def learning_curves_figure(
+    curves: Mapping[str, tuple[Sequence[float], Sequence[float]]],
+    *,
+    real: Mapping[str, tuple[Sequence[float], Sequence[float]]] | None = None,
+    ylabel: str = "validation render RMSE",
+    xlabel: str = "training time (s)",
+):
+    """The :class:`matplotlib.figure.Figure` that :func:`learning_curves` saves."""
+    drawn = _points(curves, "model")
+    dashed = _points(real, "real curve of model")
+    if not drawn and not dashed:
         raise BenchError("learning curves: no points to draw (no model logged a validation figure)")
     fig = _figure()
     ax = fig.add_subplot()
+    colours = {}
     for name, (xs, ys) in drawn.items():
-        ax.plot(xs, ys, marker="o", markersize=3.5, linewidth=1.5, label=name)
+        (line,) = ax.plot(xs, ys, marker="o", markersize=3.5, linewidth=1.5, label=name)
+        colours[name] = line.get_color()
+    for name, (xs, ys) in dashed.items():
+        ax.plot(xs, ys, linestyle="--", marker="s", markersize=3, linewidth=1.3, label=f"{name} (real)",
+                **({"color": colours[name]} if name in colours else {}))  # fmt: skip
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
-    ax.set_title(f"{ylabel} against {xlabel}")
+    ax.set_title(f"{ylabel} against {xlabel}" + (" (dashed: real materials)" if dashed else ""))
     ax.grid(True, alpha=0.35)
     ax.legend(fontsize="small")
-    return _save(fig, path)
+    return fig
 
 
 def _check_points(points: Mapping[str, tuple[float, float, float, float]], what: str) -> None:

@@ -1,9 +1,12 @@
 """Benchmark reports, built from MLflow alone (so ``svbrdf-bench report PARENT`` rebuilds them).
 
-Tables in the layout of the paper's Tables 1-4 (rows = models; columns = the four maps and the
-renderings), one per metric, each figure with its 95% bootstrap interval over test images; the
-time table (training time, throughput, latency, parameters, memory); and what each model's
-extra accuracy costs against each other model, saying when the difference lies within noise.
+Tables in the layout of the paper's Tables 1-4 (rows = models, then the untrained baselines
+``mean`` and ``photo``; columns = the four maps and the renderings), one per metric, each figure
+with its 95% bootstrap interval over test images; whether each trained model beats the
+constant-map baseline ``mean``, map by map (paired bootstrap of the RMSE difference), which the
+headline repeats in words; the time table (training time on the budget clock and wall time,
+throughput, latency, parameters, memory); and what each trained model's extra accuracy costs
+against each other one, saying when the difference lies within noise.
 """
 
 from __future__ import annotations
@@ -20,16 +23,29 @@ import numpy as np
 
 from .errors import BenchError
 
-__all__ = ["Report", "ModelEntry", "build_report", "write_report", "COLUMNS"]
+__all__ = ["Report", "ModelEntry", "build_report", "write_report", "COLUMNS", "REFERENCE"]
 
 COLUMNS = ("normal", "diffuse", "roughness", "specular", "render")
 METRICS = (
     ("rmse", "RMSE", "lower is better"),
-    ("ssim", "SSIM", "higher is better"),
+    (
+        "ssim",
+        "SSIM (Wang et al. 2004: Gaussian window sigma 1.5, no sample covariance, data range 1)",
+        "higher is better",
+    ),
     ("lpips", "LPIPS", "lower"),
 )
+#: The baseline every trained model is held against, map by map.
+REFERENCE = "mean"
+#: How the report names the clock a fit's training time was budgeted on (tag svbrdf.clock).
+CLOCK_WORDS = {
+    "cpu": "CPU clock (process CPU time divided by torch threads)",
+    "wall": "wall clock",
+    "cuda": "GPU clock (wall time with the device synchronised)",
+}
 TIME_COLUMNS = (
-    ("time/train_s", "train time (s)", "{:.1f}"),
+    ("time/train_s", "train time, budget clock (s)", "{:.1f}"),
+    ("time/train_steps_wall_s", "train wall (s)", "{:.1f}"),
     ("train/steps", "steps", "{:.0f}"),
     ("time/train_samples_per_s", "train samples/s", "{:.1f}"),
     ("time/train_ms_per_step", "train ms/step", "{:.0f}"),
@@ -48,6 +64,17 @@ class ModelEntry:
     per_sample: dict[str, np.ndarray]
     figures: dict[str, float]
     curve: tuple[list[float], list[float]] = field(default_factory=lambda: ([], []))
+    #: The same validation figure on real materials (the trainer's ``val_real/``), when logged.
+    curve_real: tuple[list[float], list[float]] = field(default_factory=lambda: ([], []))
+    #: An untrained baseline (tag svbrdf.baseline), not a trained model.
+    baseline: bool = False
+    #: The clock the fit's training time was budgeted on (tag svbrdf.clock); None: not recorded.
+    clock: str | None = None
+
+    @property
+    def name(self) -> str:
+        """The row label of the tables: baselines are marked."""
+        return f"{self.label} (baseline)" if self.baseline else self.label
 
 
 @dataclass
@@ -59,8 +86,98 @@ class Report:
     minutes: str
     models: list[ModelEntry]
     real_data: str = "-"
+    #: The baselines the benchmark was asked for ("-": none, --no-baselines; None: not recorded).
+    baselines: str | None = None
 
     # -- figures ----------------------------------------------------------------------------
+
+    @property
+    def trained(self) -> list[ModelEntry]:
+        return [e for e in self.models if not e.baseline]
+
+    def reference(self) -> ModelEntry | None:
+        """The ``mean`` baseline's entry, if it was evaluated."""
+        return next((e for e in self.models if e.baseline and e.label == REFERENCE), None)
+
+    def against_reference(self) -> list[dict]:
+        """Per trained model and column: its RMSE minus ``mean``'s over the same images, and the verdict.
+
+        ``verdict`` is ``"beats"`` when the whole 95% paired bootstrap interval lies below 0,
+        ``"worse"`` when it lies above, ``"within noise"`` when it contains 0.
+        """
+        from .metrics import paired_difference
+
+        ref = self.reference()
+        if ref is None:
+            return []
+        out = []
+        for e in self.trained:
+            for c in COLUMNS:
+                a, b = e.per_sample.get(f"rmse/{c}"), ref.per_sample.get(f"rmse/{c}")
+                if a is None or b is None:
+                    continue
+                if len(a) != len(b):
+                    raise BenchError(f"{e.label} and {ref.label} were tested on different test sets")
+                d = paired_difference(a, b)
+                verdict = "within noise" if d.within_noise else "beats" if d.mean < 0 else "worse"
+                out.append({"model": e.label, "versus": ref.label, "column": c, "rmse_difference": d.mean,
+                            "low": d.low, "high": d.high, "verdict": verdict})  # fmt: skip
+        return out
+
+    def not_beating(self) -> dict[str, list[dict]]:
+        """Trained model -> the columns on which it does not beat ``mean`` (worse or within noise)."""
+        out: dict[str, list[dict]] = {e.label: [] for e in self.trained}
+        for row in self.against_reference():
+            if row["verdict"] != "beats":
+                out[row["model"]].append(row)
+        return out
+
+    def headline(self) -> list[str]:
+        """What a reader must see first: per trained model, whether it beats the constant maps."""
+        if self.reference() is None:
+            if self.baselines in ("-", ""):
+                return ["No baseline was evaluated (--no-baselines): nothing here says whether the models "
+                        "beat constant maps derived from the photo."]  # fmt: skip
+            return []
+        synthetic = "procedural" in self.test_set
+        lines = []
+        for label, rows in self.not_beating().items():
+            if not rows:
+                lines.append(f"{label} beats the constant-map baseline `{REFERENCE}` on every map and on "
+                             "renderings (RMSE, 95% paired bootstrap).")  # fmt: skip
+                continue
+            cols = [r["column"] for r in rows]
+            worse = [r["column"] for r in rows if r["verdict"] == "worse"]
+            noise = [r["column"] for r in rows if r["verdict"] == "within noise"]
+            why = "; ".join(
+                part for part in (f"worse on {', '.join(worse)}" if worse else "",
+                                  f"within noise on {', '.join(noise)}" if noise else "") if part
+            )  # fmt: skip
+            where = (
+                "there that constant maps do not already give, even on synthetic test images"
+                if synthetic
+                else "that transfers there"
+            )
+            lines.append(
+                f"{label} does NOT beat the constant-map baseline `{REFERENCE}` on {', '.join(cols)}: it has "
+                f"learned nothing {where} ({why})."
+            )
+        return lines
+
+    def clock_note(self) -> str:
+        """Which clock budgeted the trained models' training time."""
+        trained = self.trained
+        if not trained:
+            return "no trained model"
+        words = {
+            e.label: CLOCK_WORDS.get(e.clock, f"{e.clock} clock") if e.clock else "wall clock (none recorded)"
+            for e in trained
+        }
+        if len(set(words.values())) == 1:
+            return f"training time budgeted and reported on the {next(iter(words.values()))}"
+        return "training time budgeted and reported on " + "; ".join(
+            f"{label}: the {w}" for label, w in words.items()
+        )
 
     def interval(self, model: ModelEntry, metric: str, column: str) -> tuple[float, float, float] | None:
         from .metrics import bootstrap_ci
@@ -76,8 +193,8 @@ class Report:
         from .metrics import paired_difference
 
         out = []
-        for a in self.models:
-            for b in self.models:
+        for a in self.trained:
+            for b in self.trained:
                 if a is b:
                     continue
                 ra, rb = a.per_sample["rmse/render"], b.per_sample["rmse/render"]
@@ -112,18 +229,32 @@ class Report:
         head = ["model", *COLUMNS]
         rows = []
         for e in self.models:
-            cells = [e.label]
+            cells = [e.name]
             for c in COLUMNS:
                 ci = self.interval(e, metric, c)
                 cells.append("-" if ci is None else f"{ci[0]:.4f} [{ci[1]:.4f}, {ci[2]:.4f}]")
             rows.append(cells)
         return _table(f"{title} ({sense}; 95% bootstrap interval over test images)", head, rows, markdown)
 
+    def _against_table(self, markdown: bool) -> list[str]:
+        rows_by_model: dict[str, dict[str, str]] = {}
+        for r in self.against_reference():
+            cell = f"{r['rmse_difference']:+.4f} [{r['low']:+.4f}, {r['high']:+.4f}] {r['verdict']}"
+            rows_by_model.setdefault(r["model"], {})[r["column"]] = cell
+        if not rows_by_model:
+            return []
+        rows = [[m, *(cells.get(c, "-") for c in COLUMNS)] for m, cells in rows_by_model.items()]
+        title = (
+            f"Against the {REFERENCE} baseline (RMSE of the model minus RMSE of `{REFERENCE}` on the same "
+            "images, 95% paired bootstrap interval; beats: the whole interval below 0)"
+        )
+        return _table(title, ["model", *COLUMNS], rows, markdown)
+
     def _time_table(self, markdown: bool) -> list[str]:
         cols = [c for c in TIME_COLUMNS if any(c[0] in e.figures for e in self.models)]
         rows = []
         for e in self.models:
-            cells = [e.label]
+            cells = [e.name]
             for key, _, fmt in cols:
                 v = e.figures.get(key, math.nan)
                 if key == "model/params":
@@ -143,18 +274,20 @@ class Report:
                 continue
             mean, low, high = bootstrap_ci(values)
             rows.append(
-                [e.label, str(len(values)), f"{np.median(values):.4f}", f"{mean:.4f} [{low:.4f}, {high:.4f}]"]
+                [e.name, str(len(values)), f"{np.median(values):.4f}", f"{mean:.4f} [{low:.4f}, {high:.4f}]"]
             )
         if not rows:
             return []
         head = ["model", "photos", "median re-render RMSE", "mean [95%]"]
-        return _table(
+        table = _table(
             f"Real photos ({self.real_data}): maps re-rendered under the fitted flash", head, rows, markdown
         )
+        return [*table, "", REAL_CAVEAT]
 
     def _cost_lines(self, markdown: bool) -> list[str]:
         rows, notes = [], []
-        for c in self.costs():
+        costs = self.costs()
+        for c in costs:
             noise = "within noise" if c["within_noise"] else "beyond noise"
             rows.append(
                 [
@@ -177,40 +310,58 @@ class Report:
                     f"for {_ratio(c['train_time_per_step_ratio'])} the training time per step and "
                     f"{_ratio(c['latency_ratio'])} the latency."
                 )
+        failing = {m for m, rows in self.not_beating().items() if any(r["column"] == "render" for r in rows)}
+        pairs = dict.fromkeys(x for c in costs for x in (c["model"], c["versus"]))
+        compared = [m for m in pairs if m in failing]
+        if compared:
+            notes.append(
+                f"{', '.join(compared)} {'does' if len(compared) == 1 else 'do'} not beat the constant-map "
+                f"baseline `{REFERENCE}` on renderings: what these pairs trade against time is accuracy "
+                "a constant map already has."
+            )
         head = ["pair", "render RMSE difference [95%]", "noise", "train time/step", "latency", "params"]
-        return [*_table("What accuracy costs", head, rows, markdown), *notes]
+        title = "What accuracy costs (trained models)"
+        return [*_table(title, head, rows, markdown), *notes]
+
+    def _tables(self, markdown: bool) -> list[str]:
+        lines = []
+        for metric, title, sense in self.metrics_present():
+            lines += [*self._accuracy_table(metric, title, sense, markdown), ""]
+        against = self._against_table(markdown)
+        lines += [*against, ""] if against else []
+        real = self._real_table(markdown)
+        lines += [*real, ""] if real else []
+        lines += [*self._time_table(markdown), ""]
+        if len(self.trained) > 1:
+            lines += [*self._cost_lines(markdown), ""]
+        return lines
 
     def terminal(self) -> str:
-        lines = [f"svbrdf-bench: {', '.join(e.label for e in self.models)} ({self.preset}; {self.minutes})",
-                 f"test set: {self.test_set}; {self.lpips_note}", ""]  # fmt: skip
-        for metric, title, sense in self.metrics_present():
-            lines += [*self._accuracy_table(metric, title, sense, False), ""]
-        real = self._real_table(False)
-        lines += [*real, ""] if real else []
-        lines += [*self._time_table(False), ""]
-        if len(self.models) > 1:
-            lines += self._cost_lines(False)
-        return "\n".join(lines)
+        lines = [
+            f"svbrdf-bench: {', '.join(e.name for e in self.models)} ({self.preset}; {self.minutes})",
+            *self.headline(),
+            f"test set: {self.test_set}; {self.lpips_note}",
+            self.clock_note(),
+            "",
+            *self._tables(False),
+        ]
+        return "\n".join(lines).rstrip("\n")
 
     def markdown(self, files: dict[str, str]) -> str:
         lines = [
-            f"# Benchmark: {', '.join(e.label for e in self.models)}",
+            f"# Benchmark: {', '.join(e.name for e in self.models)}",
             "",
+            *(line for h in self.headline() for line in (f"**{h}**", "")),
             f"- preset: {self.preset} ({self.minutes})",
+            f"- {self.clock_note()}",
             f"- test set: {self.test_set}",
             f"- {self.lpips_note}",
             f"- MLflow parent run: `{self.parent_id}`; rebuild with `svbrdf-bench report {self.parent_id}`",
             "",
         ]
-        for metric, title, sense in self.metrics_present():
-            lines += [*self._accuracy_table(metric, title, sense, True), ""]
-        real = self._real_table(True)
-        lines += [*real, ""] if real else []
-        lines += [*self._time_table(True), ""]
-        if len(self.models) > 1:
-            lines += [*self._cost_lines(True), ""]
+        lines += self._tables(True)
         for name, caption in (
-            ("learning_curves", "Validation render RMSE against training time"),
+            ("learning_curves", "Validation render RMSE against training time"),  # dashed: real materials
             ("pareto", "Inference latency against render RMSE"),
             ("comparison", "Input, true maps and each model's maps, with flash re-renderings"),
         ):
@@ -221,7 +372,10 @@ class Report:
     def records(self) -> list[dict]:
         out = []
         for e in self.models:
-            rec = {"model": e.label, "run_id": e.run_id, "train_run_id": e.train_run_id}
+            rec = {"model": e.label, "baseline": e.baseline, "run_id": e.run_id}
+            rec["train_run_id"] = "-" if e.baseline else e.train_run_id
+            if not e.baseline:
+                rec["clock"] = e.clock or "wall (not recorded)"
             for metric, _, _ in self.metrics_present():
                 for c in COLUMNS:
                     ci = self.interval(e, metric, c)
@@ -235,6 +389,12 @@ class Report:
                 rec["real_rerender_rmse_median"] = float(np.median(real))
             out.append(rec)
         return out
+
+
+REAL_CAVEAT = (
+    "Re-rendering RMSE measures consistency with the photo, not correctness: copying the photo into the "
+    "diffuse map (the `photo` baseline) scores well without recovering any material."
+)
 
 
 def _ratio(x: float) -> str:
@@ -258,8 +418,9 @@ def _table(title: str, head: list[str], rows: list[list[str]], markdown: bool) -
 # -- from MLflow --------------------------------------------------------------------------------
 
 
-def _curve(client, run_id: str) -> tuple[list[float], list[float]]:
-    rmse = {m.step: m.value for m in client.get_metric_history(run_id, "val/rmse/render")}
+def _curve(client, run_id: str, key: str = "val/rmse/render") -> tuple[list[float], list[float]]:
+    """``(training seconds, metric)`` at the validation steps of a fit (``key``: which figure)."""
+    rmse = {m.step: m.value for m in client.get_metric_history(run_id, key)}
     seconds = {m.step: m.value for m in client.get_metric_history(run_id, "val/train_seconds")}
     steps = sorted(set(rmse) & set(seconds))
     return [seconds[s] for s in steps], [rmse[s] for s in steps]
@@ -269,7 +430,9 @@ def build_report(parent_id: str) -> Report:
     """Everything the report shows, read back from the parent run and its children."""
     from mlflow import MlflowClient
 
-    from .runner import KIND_TAG, MODEL_TAG, PER_SAMPLE, TRAIN_RUN_TAG
+    from svbrdf_train.clock import CLOCK_TAG
+
+    from .runner import BASELINE_TAG, KIND_TAG, MODEL_TAG, PER_SAMPLE, TRAIN_RUN_TAG
 
     client = MlflowClient()
     try:
@@ -292,11 +455,27 @@ def build_report(parent_id: str) -> Report:
                 k: np.asarray(v, dtype=np.float64) for k, v in json.loads(Path(local).read_text()).items()
             }
             train_run = child.data.tags.get(TRAIN_RUN_TAG, child.info.run_id)
-            figures = {k: v for k, v in child.data.metrics.items() if not k.startswith(("val/", "train/"))}
-            figures["train/steps"] = child.data.metrics.get("train/steps", math.nan)
+            metrics = child.data.metrics
+            figures = {k: v for k, v in metrics.items() if not k.startswith(("val/", "val_real/", "train/"))}
+            baseline = child.data.tags.get(BASELINE_TAG) == "true"
+            if baseline:
+                entry = ModelEntry(label, child.info.run_id, train_run, per_sample, figures, baseline=True)
+                models.append(entry)
+                continue
+            figures["train/steps"] = metrics.get("train/steps", math.nan)
+            if "time/train_steps_wall_s" not in figures and "train/total_wall_seconds" in metrics:
+                figures["time/train_steps_wall_s"] = metrics["train/total_wall_seconds"]
+            tags = child.data.tags if train_run == child.info.run_id else client.get_run(train_run).data.tags
             models.append(
                 ModelEntry(
-                    label, child.info.run_id, train_run, per_sample, figures, _curve(client, train_run)
+                    label,
+                    child.info.run_id,
+                    train_run,
+                    per_sample,
+                    figures,
+                    _curve(client, train_run),
+                    _curve(client, train_run, "val_real/rmse/render"),
+                    clock=tags.get(CLOCK_TAG),
                 )
             )
     if not models:
@@ -311,6 +490,7 @@ def build_report(parent_id: str) -> Report:
         minutes=f"{minutes} min of training per model" if minutes[:1].isdigit() else minutes,
         models=models,
         real_data=params.get("real_data", "-"),
+        baselines=params.get("baselines"),
     )
 
 
@@ -323,8 +503,13 @@ def write_report(report: Report, out: str | Path, *, grid: Path | None = None) -
     files: dict[str, str] = {}
     written: list[Path] = []
     curves = {e.label: e.curve for e in report.models if e.curve[0]}
-    if curves:
-        written.append(learning_curves(curves, out / "learning_curves.png"))
+    real_curves = {e.label: e.curve_real for e in report.models if e.curve_real[0]}
+    if curves or real_curves:
+        written.append(
+            learning_curves(
+                curves, out / "learning_curves.png", real=real_curves, xlabel="training time, budget clock (s)"
+            )
+        )
         files["learning_curves"] = "learning_curves.png"
     points = {}
     for e in report.models:
@@ -342,21 +527,25 @@ def write_report(report: Report, out: str | Path, *, grid: Path | None = None) -
         written.append(target)
         files["comparison"] = "comparison.png"
     records = report.records()
-    costs = report.costs() if len(report.models) > 1 else []
+    costs = report.costs() if len(report.trained) > 1 else []
+    against = report.against_reference()
     (out / "results.json").write_text(
         json.dumps(
             {
                 "parent_run": report.parent_id,
                 "preset": report.preset,
                 "test_set": report.test_set,
+                "headline": report.headline(),
+                "budget_clock": report.clock_note(),
                 "models": records,
+                "against_mean": against,
                 "costs": costs,
             },
             indent=2,
         )  # fmt: skip
     )
     written.append(out / "results.json")
-    for name, rows in (("results.csv", records), ("costs.csv", costs)):
+    for name, rows in (("results.csv", records), ("costs.csv", costs), ("against_mean.csv", against)):
         if rows:
             keys = list(dict.fromkeys(k for r in rows for k in r))
             with open(out / name, "w", newline="") as f:

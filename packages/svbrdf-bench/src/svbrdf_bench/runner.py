@@ -6,6 +6,9 @@ MLflow layout of one invocation::
       child run  per model: the model's training run itself (svbrdf-train fit --parent-run), or,
                  for a reused run (--from-runs), a new run tagged svbrdf.train_run=<that run>;
                  holds test/* metrics, time/* metrics and eval/per_sample.json
+      child run  per baseline (``mean``, ``photo``; none with --no-baselines): a generator with
+                 no trained parameters built from the registry, tagged svbrdf.baseline=true and
+                 evaluated exactly like the models (same test images, same figures, params 0)
 
 :mod:`svbrdf_bench.report` builds every table and plot from those runs alone, so
 ``svbrdf-bench report PARENT`` rebuilds them later.
@@ -30,11 +33,24 @@ from .errors import BenchError
 from .presets import Preset
 from .testset import TestSet
 
-__all__ = ["BenchOptions", "run_bench", "MODEL_TAG", "KIND_TAG", "TRAIN_RUN_TAG", "PER_SAMPLE"]
+__all__ = [
+    "BenchOptions",
+    "run_bench",
+    "MODEL_TAG",
+    "KIND_TAG",
+    "TRAIN_RUN_TAG",
+    "BASELINE_TAG",
+    "BASELINES",
+    "PER_SAMPLE",
+]
 
 MODEL_TAG = "svbrdf.model"
 KIND_TAG = "svbrdf.kind"
 TRAIN_RUN_TAG = "svbrdf.train_run"
+#: Tag of the child runs of baselines (generators with no trained parameters): "true".
+BASELINE_TAG = "svbrdf.baseline"
+#: The baselines every benchmark evaluates unless told not to (svbrdf_models.baselines).
+BASELINES = ("mean", "photo")
 PER_SAMPLE = "eval/per_sample.json"
 #: Test samples shown in the visual comparison grid.
 GRID_SAMPLES = 3
@@ -62,6 +78,8 @@ class BenchOptions:
     experiment: str = "svbrdf-bench"
     size: str | None = None
     """Recipe size instead of the preset's (``smoke`` for a dry run)."""
+    baselines: list[str] = field(default_factory=lambda: list(BASELINES))
+    """Registered generators evaluated untrained beside the models (``[]``: none)."""
     say: Callable[[str], None] = print
 
 
@@ -223,6 +241,35 @@ def _log_child(run_id: str, figures: dict[str, float], per_sample: dict[str, np.
     client.log_artifact(run_id, str(target), str(Path(PER_SAMPLE).parent))
 
 
+def _check_baselines(baselines: Sequence[str], labels: Sequence[str]) -> None:
+    import svbrdf_models as sm
+
+    known = sm.list_models("generator")
+    for name in baselines:
+        if name not in known:
+            raise BenchError(f"unknown baseline {name!r}; registered generators: {', '.join(known)}")
+        if name in labels:
+            raise BenchError(
+                f"model {name!r} has the name of a baseline; rename the recipe or use --no-baselines"
+            )
+
+
+def _baseline_child(client, experiment_id: str, parent_id: str, name: str) -> tuple[str, object]:
+    """A child run for baseline ``name`` and its generator (built from the registry, untrained)."""
+    import svbrdf_models as sm
+    from mlflow.entities import Param
+
+    config = sm.resolve_config("generator", name)
+    child = client.create_run(
+        experiment_id,
+        run_name=f"{name} (baseline)",
+        tags={"mlflow.parentRunId": parent_id, MODEL_TAG: name, BASELINE_TAG: "true"},
+    )
+    params = [Param(f"model.{k}", str(v)) for k, v in sm.config_to_dict(config).items()]
+    client.log_batch(child.info.run_id, params=[Param("model.name", name), *params])
+    return child.info.run_id, sm.create_generator(name).eval()
+
+
 # -- the whole run ------------------------------------------------------------------------------
 
 
@@ -257,6 +304,7 @@ def run_bench(options: BenchOptions) -> str:
     to_train = [m for m in options.models if Path(m).stem not in reused_labels]
     if not to_train and not reuse:
         raise BenchError("no models to compare: give --models and/or --from-runs")
+    _check_baselines(options.baselines, [Path(m).stem for m in to_train] + list(reused_labels))
     if test is None:
         test = make_test_set(int(_client().get_run(reuse[0][1]).data.params.get("train.resolution", 256)))
     photos = None
@@ -296,13 +344,15 @@ def run_bench(options: BenchOptions) -> str:
             "real_data": f"{len(photos)} photos of {options.real_data} ({options.real_encoding})"
             if photos
             else "-",
+            "baselines": ",".join(options.baselines) or "-",
         },
     )
     parent_id = parent.run_id
     options.say(
         f"benchmark {', '.join(labels)} ({p.name}: "
         + ("each recipe's full schedule" if minutes is None else f"{minutes:g} min of training per model")
-        + f"); test set: {test.description}; {lpips_note}\n  MLflow parent run: {parent_id}"
+        + f"); baselines: {', '.join(options.baselines) or 'none'}; test set: {test.description}; "
+        + f"{lpips_note}\n  MLflow parent run: {parent_id}"
     )
     status = "FAILED"
     try:
@@ -322,30 +372,15 @@ def run_bench(options: BenchOptions) -> str:
                 )
                 jobs.append((label, child.info.run_id, None, source, None))
             shown_by_model = {}
-            for label, run_id, wall, source, local in jobs:
-                options.say(f"evaluating {label} on {len(test)} test images")
-                state = _checkpoint(source or run_id, work, local)
-                from svbrdf_train.trainer import load_generator
 
-                generator, recipe = load_generator(state, device)
+            def evaluate_one(label: str, generator) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+                """Test images, latency, parameters and real photos: the same for models and baselines."""
+                options.say(f"evaluating {label} on {len(test)} test images")
                 per_sample, shown = _evaluate(generator, test, device, lpips)
-                train_run = client.get_run(source or run_id)
-                m = train_run.data.metrics
-                if wall is None and train_run.info.end_time and train_run.info.start_time:
-                    wall = (train_run.info.end_time - train_run.info.start_time) / 1000
-                rate = m.get("train/steady_samples_per_s")
                 figures = {
-                    "time/train_wall_s": wall or float("nan"),
-                    "time/train_s": m.get("train/total_seconds", float("nan")),
-                    "time/train_samples_per_s": rate if rate is not None else float("nan"),
-                    "time/train_ms_per_step": 1000 * recipe.train.batch / rate if rate else float("nan"),
                     "time/latency_ms": _latency_ms(generator, device, p.latency_repeats),
                     "model/params": float(sum(q.numel() for q in generator.parameters())),
-                    "memory/peak_rss_mb": m.get("train/peak_rss_mb", float("nan")),
-                    "train/steps": float(state["step"]),
                 }
-                if "train/peak_cuda_mb" in m:
-                    figures["memory/peak_cuda_mb"] = m["train/peak_cuda_mb"]
                 if photos is not None:
                     options.say(f"fitting the flash to {len(photos)} real photos with {label}'s maps")
                     real = _self_consistency(generator, photos, test.resolution, device)
@@ -354,9 +389,41 @@ def run_bench(options: BenchOptions) -> str:
                 for key, values in per_sample.items():
                     if not key.startswith("real/"):
                         figures[f"test/{key}"] = float(values.mean())
+                shown_by_model[label] = shown
+                return figures, per_sample
+
+            for label, run_id, wall, source, local in jobs:
+                state = _checkpoint(source or run_id, work, local)
+                from svbrdf_train.trainer import load_generator
+
+                generator, recipe = load_generator(state, device)
+                figures, per_sample = evaluate_one(label, generator)
+                train_run = client.get_run(source or run_id)
+                m = train_run.data.metrics
+                if wall is None and train_run.info.end_time and train_run.info.start_time:
+                    wall = (train_run.info.end_time - train_run.info.start_time) / 1000
+                rate = m.get("train/steady_samples_per_s")
+                figures |= {
+                    "time/train_wall_s": wall or float("nan"),
+                    "time/train_s": m.get("train/total_seconds", float("nan")),
+                    "time/train_samples_per_s": rate if rate is not None else float("nan"),
+                    "time/train_ms_per_step": 1000 * recipe.train.batch / rate if rate else float("nan"),
+                    "memory/peak_rss_mb": m.get("train/peak_rss_mb", float("nan")),
+                    "train/steps": float(state["step"]),
+                }
+                if "train/total_wall_seconds" in m:
+                    figures["time/train_steps_wall_s"] = m["train/total_wall_seconds"]
+                if "train/peak_cuda_mb" in m:
+                    figures["memory/peak_cuda_mb"] = m["train/peak_cuda_mb"]
                 client.set_tag(run_id, MODEL_TAG, label)
                 _log_child(run_id, figures, per_sample, work)
-                shown_by_model[label] = shown
+                if source is not None:
+                    client.set_terminated(run_id)
+            for name in options.baselines:
+                run_id, generator = _baseline_child(client, parent.experiment_id, parent_id, name)
+                figures, per_sample = evaluate_one(name, generator.to(device))
+                _log_child(run_id, figures, per_sample, work)
+                client.set_terminated(run_id)
             report = build_report(parent_id)
             grid = _comparison_grid(shown_by_model, work / "comparison.png") if shown_by_model else None
             files = write_report(report, options.out, grid=grid)

@@ -16,6 +16,7 @@ Examples:
   svbrdf-bench run --models no-adv --from-runs ours          # reuse the last finished run of ours
   svbrdf-bench run --models ours,no-attn --test-data ../shared/data/des18-dev
   svbrdf-bench run --models ours,no-attn --real-data ../shared/data/real-dev --real-pattern 'luo*'
+  svbrdf-bench run --models ours --no-baselines              # without the mean/photo baselines
 
 \b
 Presets (every model gets the same training-time budget):
@@ -24,11 +25,22 @@ Presets (every model gets the same training-time budget):
     + """
 
 \b
-Output: the tables in the terminal (rows = models; RMSE and SSIM per map and on renderings
-under 6 fixed light/view pairs, each with a 95% bootstrap interval; time and memory; what each
-model's extra accuracy costs against each other one), and in --out: report.md, results.csv,
-results.json, costs.csv, learning_curves.png, pareto.png, comparison.png. MLflow: one parent
-run, one child per model; `svbrdf-bench report PARENT_RUN_ID` rebuilds the report later.
+Baselines: `mean` (constant maps from the photo's median) and `photo` (the photo, its flash
+fall-off divided out, as diffuse) need no training and are evaluated on the same test images;
+the report says, map by map, whether each trained model beats `mean` (paired bootstrap).
+
+\b
+Test data: Des18 tiles and shards larger than the models are resized to the models'
+resolution (area filter), never centre-cropped: models see the field of view they trained at.
+
+\b
+Output: the tables in the terminal (a headline per model on whether it beats `mean`; rows =
+models then baselines; RMSE and SSIM per map and on renderings under 6 fixed light/view pairs,
+each with a 95% bootstrap interval; the difference to `mean`; time and memory; what each
+trained model's extra accuracy costs against each other one), and in --out: report.md,
+results.csv, results.json, costs.csv, against_mean.csv, learning_curves.png, pareto.png,
+comparison.png. MLflow: one parent run, one child per model and per baseline;
+`svbrdf-bench report PARENT_RUN_ID` rebuilds the report later.
 """
 )
 
@@ -54,7 +66,8 @@ def _split(value: str | None) -> list[str]:
 @click.option(
     "--test-data",
     type=click.Path(path_type=Path),
-    help="A Des18 folder or .h5 shards [default: procedural test materials from a fixed seed].",
+    help="A Des18 folder or .h5 shards, resized to the models' resolution [default: procedural test "
+    "materials from a fixed seed].",
 )
 @click.option(
     "--real-data",
@@ -91,6 +104,11 @@ def _split(value: str | None) -> list[str]:
     "--size", type=click.Choice(["paper", "cpu", "smoke"]), help="Recipe size instead of the preset's."
 )
 @click.option("--experiment", default="svbrdf-bench", show_default=True, help="MLflow experiment.")
+@click.option(
+    "--no-baselines",
+    is_flag=True,
+    help="Leave out the untrained baselines `mean` and `photo` (and the comparison with `mean`).",
+)
 def run(
     models,
     preset,
@@ -106,15 +124,17 @@ def run(
     device,
     size,
     experiment,
+    no_baselines,
 ):
     """Train (or reuse) each model under one budget, test all on the same images, compare.
 
     Answers "which model, at what cost?": accuracy per map and on renderings with bootstrap
-    intervals, next to training time, throughput, inference latency, size and memory.
+    intervals, next to training time, throughput, inference latency, size and memory, and
+    whether each model beats constant maps derived from the photo (the `mean` baseline).
     """
     from ..errors import BenchError
     from ..presets import get_preset
-    from ..runner import BenchOptions, run_bench
+    from ..runner import BASELINES, BenchOptions, run_bench
 
     chosen = _split(models)
     reused = _split(from_runs)
@@ -136,6 +156,7 @@ def run(
             device=device,
             experiment=experiment,
             size=size,
+            baselines=[] if no_baselines else list(BASELINES),
             say=lambda s: click.echo(s, err=not s.startswith("svbrdf-bench:")),
         )
     )
