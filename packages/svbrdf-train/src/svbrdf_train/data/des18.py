@@ -209,9 +209,10 @@ class Des18Folder(Dataset):
                 f"use a crop of at most {tile} pixels, or whole tiles (crop=None; --full on the command line)"
             )
         top, left, k = self.placement(index, tile)
-        # Mirroring and turning the photo along with the maps is exact only because the flash and
-        # the camera sit on the axis of the patch: the scene itself is then symmetric under all
-        # eight transforms, so the photo of the transformed maps is the transformed photo.
+        # Mirroring and turning the photo along with the maps gives the photo of the transformed
+        # maps under the transformed flash. Des18's flashes sit 0.1-0.3 half-widths off the axis
+        # (fit_flash), so the light moves with the transform: still a photo the data set could
+        # hold, since its flash positions are spread around the centre.
         maps = dihedral(sample.svbrdf, k).crop(top, left, crop)
         photo = dihedral_image(sample.input, k)[..., top : top + crop, left : left + crop]
         return {
