@@ -46,6 +46,10 @@ def test_verdicts_against_mean_are_the_paired_bootstrap_signs():
     assert all(verdicts["mixed", c] == "within noise" for c in ("roughness", "specular", "render"))
     for r in report.against_reference():
         assert r["low"] <= r["rmse_difference"] <= r["high"]
+    # The share of mean's RMSE, which is how a target like "15% better than mean" reads.
+    good_normal = next(r for r in report.against_reference() if r["model"] == "good" and r["column"] == "normal")
+    ref = next(e for e in report.models if e.label == "mean")
+    assert abs(good_normal["relative"] + 0.03 / ref.per_sample["rmse/normal"].mean()) < 1e-9
 
 
 def test_headline_says_in_words_who_does_not_beat_mean():

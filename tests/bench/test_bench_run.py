@@ -131,7 +131,8 @@ def test_against_mean_table_and_headline(bench):
         assert r["versus"] == "mean" and low <= d <= high
         expected = "within noise" if low <= 0 <= high else "beats" if high < 0 else "worse"
         assert r["verdict"] == expected
-        assert f"{d:+.4f} [{low:+.4f}, {high:+.4f}] {expected}" in result.stdout
+        rel = float(r["relative"])
+        assert f"{d:+.4f} ({100 * rel:+.0f}%) [{low:+.4f}, {high:+.4f}] {expected}" in result.stdout
     # The headline: right under the first line, one sentence per trained model.
     lines = result.stdout.splitlines()
     headline = lines[1:3]

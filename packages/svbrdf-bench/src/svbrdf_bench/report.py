@@ -120,8 +120,10 @@ class Report:
                     raise BenchError(f"{e.label} and {ref.label} were tested on different test sets")
                 d = paired_difference(a, b)
                 verdict = "within noise" if d.within_noise else "beats" if d.mean < 0 else "worse"
+                base = float(np.mean(b))
                 out.append({"model": e.label, "versus": ref.label, "column": c, "rmse_difference": d.mean,
-                            "low": d.low, "high": d.high, "verdict": verdict})  # fmt: skip
+                            "low": d.low, "high": d.high, "verdict": verdict,
+                            "relative": d.mean / base if base > 0 else math.nan})  # fmt: skip
         return out
 
     def not_beating(self) -> dict[str, list[dict]]:
@@ -239,14 +241,16 @@ class Report:
     def _against_table(self, markdown: bool) -> list[str]:
         rows_by_model: dict[str, dict[str, str]] = {}
         for r in self.against_reference():
-            cell = f"{r['rmse_difference']:+.4f} [{r['low']:+.4f}, {r['high']:+.4f}] {r['verdict']}"
+            rel = "" if math.isnan(r["relative"]) else f" ({100 * r['relative']:+.0f}%)"
+            cell = f"{r['rmse_difference']:+.4f}{rel} [{r['low']:+.4f}, {r['high']:+.4f}] {r['verdict']}"
             rows_by_model.setdefault(r["model"], {})[r["column"]] = cell
         if not rows_by_model:
             return []
         rows = [[m, *(cells.get(c, "-") for c in COLUMNS)] for m, cells in rows_by_model.items()]
         title = (
             f"Against the {REFERENCE} baseline (RMSE of the model minus RMSE of `{REFERENCE}` on the same "
-            "images, 95% paired bootstrap interval; beats: the whole interval below 0)"
+            f"images, in % of `{REFERENCE}`'s RMSE, 95% paired bootstrap interval; beats: the whole "
+            "interval below 0)"
         )
         return _table(title, ["model", *COLUMNS], rows, markdown)
 
