@@ -106,3 +106,19 @@ def test_missing_and_wrong_paths_are_refused(tmp_path):
     (tmp_path / "notes.txt").write_text("x")
     with pytest.raises(BenchError, match="not a Des18 folder"):
         make_test_set(tmp_path / "notes.txt", 32, 1)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(BenchError, match="no Des18 strips"):
+        make_test_set(tmp_path / "empty", 32, 1)
+
+
+def test_a_folder_of_photos_without_maps_is_refused_before_any_training(tmp_path):
+    """Photos (one tile, no ground truth) are the wrong kind of folder: refused when the test set is
+    made, which the benchmark does before it trains anything."""
+    from svbrdf_render import write_image
+
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    write_image(folder / "photo.png", torch.rand(3, 48, 48))
+    with pytest.raises(BenchError, match="cannot be read as materials with ground truth") as e:
+        make_test_set(folder, 32, 1)
+    assert str(folder) in str(e.value) and "photo.png" in str(e.value)

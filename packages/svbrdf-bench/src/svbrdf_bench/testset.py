@@ -75,11 +75,22 @@ def test_set(path: str | Path | None, resolution: int, count: int) -> TestSet:
         what = f"{len(data)} samples of {p} (resized to {resolution} px where larger)"
     elif p.is_dir():
         from svbrdf_train.data import Des18Folder
+        from svbrdf_train.errors import DataError
 
-        data = Des18Folder(p, "test", crop=None)
+        try:
+            data = Des18Folder(p, "test", crop=None)
+        except DataError as e:  # an empty folder, or one of other files
+            raise BenchError(f"--test-data {e}") from None
         what = f"{len(data)} Des18 samples of {data.folder} (whole tiles resized to {resolution} px)"
     else:
         raise BenchError(f"--test-data {p}: not a Des18 folder nor .h5 shards")
     if len(data) == 0:
         raise BenchError(f"--test-data {p}: holds no samples")
-    return TestSet(data, resolution, what)
+    test = TestSet(data, resolution, what)
+    try:  # a folder of photos without maps, or a damaged first file, is found before any training
+        test[0]
+    except BenchError:
+        raise
+    except Exception as e:  # MapFileError, DataError, h5py's errors: each names the file
+        raise BenchError(f"--test-data {p}: cannot be read as materials with ground truth: {e}") from None
+    return test
