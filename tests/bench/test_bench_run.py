@@ -277,6 +277,37 @@ def test_from_runs_reuses_a_finished_fit_as_a_child(bench, tmp_path):
     assert client.get_run(reused[0].data.tags["svbrdf.train_run"]).data.tags["recipe"] == "radn"
 
 
+def test_two_reused_fits_of_one_recipe_get_a_row_each(bench, tmp_path):
+    """Two fits of ``ours`` given by run id stay two rows (the second named after its run), and the
+    header says the reused fits keep their own training budgets instead of quoting the preset's."""
+    from svbrdf_train.cli import cli as train_cli
+
+    client = _client()
+    fit = CliRunner().invoke(
+        train_cli,
+        ["fit", "-q", "--recipe", "ours", "--size", "smoke", "--out", str(tmp_path / "fit"),
+         "--experiment", "tests-bench", "--run-name", "ours-second"],
+        catch_exceptions=False,
+    )  # fmt: skip
+    assert fit.exit_code == 0, fit.output
+    second = json.loads((tmp_path / "fit" / "last.json").read_text())["run_id"]
+    first = next(c for c in _children(bench[2]) if c.data.tags["svbrdf.model"] == "ours").info.run_id
+    ids = [first, second]
+    result = _invoke("run", "--from-runs", ",".join(ids), *TINY, "-o", tmp_path / "r")
+    assert result.exit_code == 0, result.output
+    rows = [line.split()[0] for line in _section(result.stdout, "RMSE")[3:]]
+    assert rows[0] == "ours" and rows[1] not in ("ours", "mean", "photo") and rows[2:] == ["mean", "photo"]
+    assert rows[1] == "ours-second"
+    assert "reused fits, each with its own training budget" in result.stdout.splitlines()[0]
+    assert "min of training per model" not in result.stdout.splitlines()[0]
+    # The benchmark's children of reused fits carry the recipe tag too, and are finished: a recipe
+    # name must still resolve to a fit with a checkpoint, never to such a child.
+    from svbrdf_bench.runner import TRAIN_RUN_TAG, _resolve_reuse
+
+    ((label, picked),) = _resolve_reuse(["ours"])
+    assert label == "ours" and TRAIN_RUN_TAG not in client.get_run(picked).data.tags
+
+
 @pytest.mark.parametrize(
     ("args", "needles"),
     [

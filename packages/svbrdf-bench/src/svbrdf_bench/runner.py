@@ -101,17 +101,25 @@ def _resolve_reuse(items: Sequence[str]) -> list[tuple[str, str]]:
             run = client.get_run(item)
         except Exception:  # not a run id: a recipe name
             run = None
+        if run is not None and TRAIN_RUN_TAG in run.data.tags:  # a benchmark's child of a reused fit
+            run = client.get_run(run.data.tags[TRAIN_RUN_TAG])
         if run is not None:
             label = run.data.tags.get("recipe") or item
+            if any(label == seen for seen, _ in out):  # two fits of one recipe: tell them apart
+                label = run.info.run_name or f"{label}-{run.info.run_id[:8]}"
             out.append((label, run.info.run_id))
             continue
         experiments = [e.experiment_id for e in client.search_experiments()]
-        found = client.search_runs(
-            experiments,
-            filter_string=f"tags.recipe = '{item}' and attributes.status = 'FINISHED'",
-            order_by=["attributes.end_time DESC"],
-            max_results=1,
-        )
+        found = [
+            r  # the fits themselves, not the benchmark children that only point at one
+            for r in client.search_runs(
+                experiments,
+                filter_string=f"tags.recipe = '{item}' and attributes.status = 'FINISHED'",
+                order_by=["attributes.end_time DESC"],
+                max_results=50,
+            )
+            if TRAIN_RUN_TAG not in r.data.tags
+        ]
         if not found:
             raise BenchError(
                 f"--from-runs {item}: neither a run id nor the recipe of a finished run "
@@ -337,7 +345,13 @@ def run_bench(options: BenchOptions) -> str:
         params={
             "preset": p.name,
             "recipe_size": size,
-            "train_minutes_per_model": "recipe schedule" if minutes is None else str(minutes),
+            "train_minutes_per_model": (
+                "reused fits, each with its own training budget (see the time table)"
+                if not to_train
+                else "recipe schedule"
+                if minutes is None
+                else str(minutes)
+            ),
             "test_set": test.description,
             "test_count": str(len(test)),
             "overrides": " ".join(options.overrides) or "-",
@@ -350,7 +364,13 @@ def run_bench(options: BenchOptions) -> str:
     parent_id = parent.run_id
     options.say(
         f"benchmark {', '.join(labels)} ({p.name}: "
-        + ("each recipe's full schedule" if minutes is None else f"{minutes:g} min of training per model")
+        + (
+            "reused fits, each with its own training budget"
+            if not to_train
+            else "each recipe's full schedule"
+            if minutes is None
+            else f"{minutes:g} min of training per model"
+        )
         + f"); baselines: {', '.join(options.baselines) or 'none'}; test set: {test.description}; "
         + f"{lpips_note}\n  MLflow parent run: {parent_id}"
     )
