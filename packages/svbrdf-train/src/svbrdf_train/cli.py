@@ -6,19 +6,11 @@ assembles them and turns user errors into a one-line message with exit code 2.
 
 from __future__ import annotations
 
-import os
 import sys
 
-# Before torch loads OpenMP: threads that wait for work sleep instead of spinning. Spinning
-# threads burn the cores other programs (or a second fit) need, and count as CPU time of
-# training; on a busy 2-core machine a compiled `cpu`-size step took 2.0 s of CPU time with
-# spinning against 0.26 s without (benchmarks/train_speed.py --clock cpu). Set the variable
-# yourself to choose otherwise.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+import click
 
-import click  # noqa: E402
-
-from svbrdf_render import SVBRDFError  # noqa: E402
+from svbrdf_render import SVBRDFError
 
 
 class OneLineErrors(click.Group):
