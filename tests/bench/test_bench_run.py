@@ -277,6 +277,18 @@ def test_from_runs_reuses_a_finished_fit_as_a_child(bench, tmp_path):
     assert client.get_run(reused[0].data.tags["svbrdf.train_run"]).data.tags["recipe"] == "radn"
 
 
+def test_the_preset_s_overrides_reach_every_fit(bench):
+    """The quick preset gives the fits 10x the cpu size's samples, so that its time budget, not the
+    end of the recipe's epochs, stops the faster models; the parent run records the overrides."""
+    from svbrdf_bench.presets import PRESETS
+
+    _, _, parent = bench
+    assert PRESETS["quick"].overrides == ("data.count=20000",)
+    fits = [c for c in _children(parent) if "svbrdf.baseline" not in c.data.tags]
+    assert fits and all(c.data.params["data.count"] == "20000" for c in fits)
+    assert "data.count=20000" in _client().get_run(parent).data.params["overrides"]
+
+
 def test_two_reused_fits_of_one_recipe_get_a_row_each(bench, tmp_path):
     """Two fits of ``ours`` given by run id stay two rows (the second named after its run), and the
     header says the reused fits keep their own training budgets instead of quoting the preset's."""

@@ -83,7 +83,8 @@ def learning_curves_figure(
                 **({"color": colours[name]} if name in colours else {}))  # fmt: skip
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
-    ax.set_title(f"{ylabel} against {xlabel}" + (" (dashed: real materials)" if dashed else ""))
+    # Two lines when the note is there: one line is wider than the figure.
+    ax.set_title(f"{ylabel} against {xlabel}" + ("\n(dashed: real materials)" if dashed else ""))
     ax.grid(True, alpha=0.35)
     ax.legend(fontsize="small")
     return fig

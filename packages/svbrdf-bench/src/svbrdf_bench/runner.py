@@ -156,7 +156,7 @@ def _train(model: str, options: BenchOptions, parent: str, work: Path) -> tuple[
     ]  # fmt: skip
     if minutes is not None:
         cmd += ["--max-minutes", str(minutes)]
-    for item in options.overrides:
+    for item in (*p.overrides, *options.overrides):
         cmd += ["--set", item]
     start = time.perf_counter()
     done = subprocess.run(cmd, stdout=subprocess.PIPE, text=True)
@@ -305,7 +305,9 @@ def run_bench(options: BenchOptions) -> str:
     test = None
     if options.models:
         test = make_test_set(
-            load_recipe(options.models[0], size, parse_overrides(options.overrides)).train.resolution
+            load_recipe(
+                options.models[0], size, parse_overrides([*p.overrides, *options.overrides])
+            ).train.resolution
         )
     reuse = _resolve_reuse(options.from_runs)
     reused_labels = {label for label, _ in reuse}
@@ -354,7 +356,7 @@ def run_bench(options: BenchOptions) -> str:
             ),
             "test_set": test.description,
             "test_count": str(len(test)),
-            "overrides": " ".join(options.overrides) or "-",
+            "overrides": " ".join([*p.overrides, *options.overrides]) or "-",
             "real_data": f"{len(photos)} photos of {options.real_data} ({options.real_encoding})"
             if photos
             else "-",
