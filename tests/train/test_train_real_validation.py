@@ -90,15 +90,15 @@ def test_real_validation_resizes_whole_tiles(tmp_path):
     assert torch.allclose(sample["input"], expected, atol=1e-6)
     normal = sample["maps"][:3]  # packed maps hold the unit vectors themselves
     assert torch.allclose(normal.norm(dim=0), torch.ones(32, 32), atol=1e-3)
-    assert "1 Des18 materials" in what
+    assert what.startswith("1 Des18 samples of") and "resized whole to 32 px" in what
 
 
 @pytest.mark.parametrize(
     ("make", "needle"),
     [
         (lambda p: p / "nowhere", "no such file or folder"),
-        (lambda p: (p / "empty").mkdir() or p / "empty", "the folder is empty"),
-        (lambda p: _photos(p / "photos"), "cannot be read as real materials"),
+        (lambda p: (p / "empty").mkdir() or p / "empty", "no Des18 strips"),
+        (lambda p: _photos(p / "photos"), "cannot be read as materials with ground truth"),
         (lambda p: _file(p / "a.txt"), "not a Des18 folder nor .h5 shards"),
     ],
     ids=["missing", "empty", "photos-without-maps", "a-file"],

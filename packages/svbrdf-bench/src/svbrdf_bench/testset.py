@@ -64,33 +64,13 @@ def test_set(path: str | Path | None, resolution: int, count: int) -> TestSet:
 
         data = ProceduralMaterials(count, resolution, seed=TEST_SEED)
         return TestSet(data, resolution, f"{count} procedural materials (seed {TEST_SEED})")
-    p = Path(path).expanduser()
-    if not p.exists():
-        raise BenchError(f"--test-data {p}: no such file or folder; give a Des18 folder or .h5 shards")
-    shards = [p] if p.suffix == ".h5" else sorted(p.glob("*.h5")) if p.is_dir() else []
-    if shards:
-        from svbrdf_train.data.shards import ShardDataset
+    from svbrdf_train.errors import DataError
+    from svbrdf_train.fitdata import open_materials
 
-        data = ShardDataset(shards)
-        what = f"{len(data)} samples of {p} (resized to {resolution} px where larger)"
-    elif p.is_dir():
-        from svbrdf_train.data import Des18Folder
-        from svbrdf_train.errors import DataError
-
-        try:
-            data = Des18Folder(p, "test", crop=None)
-        except DataError as e:  # an empty folder, or one of other files
-            raise BenchError(f"--test-data {e}") from None
-        what = f"{len(data)} Des18 samples of {data.folder} (whole tiles resized to {resolution} px)"
-    else:
-        raise BenchError(f"--test-data {p}: not a Des18 folder nor .h5 shards")
-    if len(data) == 0:
-        raise BenchError(f"--test-data {p}: holds no samples")
-    test = TestSet(data, resolution, what)
-    try:  # a folder of photos without maps, or a damaged first file, is found before any training
-        test[0]
-    except BenchError:
-        raise
-    except Exception as e:  # MapFileError, DataError, h5py's errors: each names the file
-        raise BenchError(f"--test-data {p}: cannot be read as materials with ground truth: {e}") from None
+    try:
+        data, what = open_materials(path, "--test-data")
+    except DataError as e:
+        raise BenchError(str(e)) from None
+    test = TestSet(data, resolution, f"{what} (whole images resized to {resolution} px)")
+    test[0]  # a sample that is not square, or smaller than the models, is refused before training
     return test

@@ -30,7 +30,7 @@ from .data import Des18Folder, ProceduralMaterials
 from .errors import DataError
 from .recipe import Recipe
 
-__all__ = ["build_datasets", "data_paths", "real_validation_set", "Resized"]
+__all__ = ["build_datasets", "data_paths", "open_materials", "real_validation_set", "Resized"]
 
 
 def data_paths(path: str | tuple[str, ...] | list[str] | None) -> list[Path]:
@@ -119,19 +119,18 @@ class Resized(Dataset):
         return resize_sample(sample, self.resolution)
 
 
-def real_validation_set(path: str | None, resolution: int) -> tuple[Dataset, str] | None:
-    """``(dataset, description)`` of ``data.real_validation``, or None when it is not set.
+def open_materials(path: str | Path, role: str) -> tuple[Dataset, str]:
+    """Materials with ground truth at their own size: a Des18 folder or ``.h5`` shards, and a
+    description. The first sample is decoded, so a folder of the wrong kind is found now.
 
     Raises:
-        DataError: a path that is missing, empty, or neither a Des18 folder nor shards
-            (one line naming it).
+        DataError: a path that is missing, empty, or neither a Des18 folder nor shards, or
+            whose first sample cannot be read; one line starting with ``role`` and the path.
     """
-    if path is None:
-        return None
     p = Path(path).expanduser()
-    where = f"data.real_validation {p}"
+    where = f"{role} {p}"
     if not p.exists():
-        raise DataError(f"{where}: no such file or folder; give a Des18 folder or .h5 shards of real materials")
+        raise DataError(f"{where}: no such file or folder; give a Des18 folder or .h5 shards")
     shards = [p] if p.suffix == ".h5" and p.is_file() else sorted(p.glob("*.h5")) if p.is_dir() else []
     if shards:
         from .data.shards import ShardDataset
@@ -139,19 +138,26 @@ def real_validation_set(path: str | None, resolution: int) -> tuple[Dataset, str
         data: Dataset = ShardDataset(shards)
         what = f"{len(data)} samples of {p}"
     elif p.is_dir():
-        if not any(p.iterdir()):
-            raise DataError(f"{where}: the folder is empty; give a Des18 folder or .h5 shards of real materials")
         try:
             data = Des18Folder(p, "test", crop=None)
-        except DataError as e:
-            raise DataError(f"{where}: not a Des18 folder nor shards ({e})") from None
-        what = f"{len(data)} Des18 materials of {data.folder}"
+        except DataError as e:  # an empty folder, or one of other files; the message names it
+            raise DataError(f"{role} {e}") from None
+        what = f"{len(data)} Des18 samples of {data.folder}"
     else:
-        raise DataError(f"{where}: not a Des18 folder nor .h5 shards; give a folder of Des18 strips or shards")
+        raise DataError(f"{where}: not a Des18 folder nor .h5 shards")
     if len(data) == 0:
         raise DataError(f"{where}: holds no samples")
-    try:  # a folder of photos or other PNGs is found here, not at the first validation
+    try:
         data[0]
     except Exception as e:  # MapFileError, DataError, h5py's errors: all name the file
-        raise DataError(f"{where}: cannot be read as real materials with ground truth: {e}") from None
-    return Resized(data, resolution), what
+        raise DataError(f"{where}: cannot be read as materials with ground truth: {e}") from None
+    return data, what
+
+
+def real_validation_set(path: str | None, resolution: int) -> tuple[Dataset, str] | None:
+    """``(dataset, description)`` of ``data.real_validation`` resized whole to ``resolution``, or
+    None when it is not set (errors: :func:`open_materials`)."""
+    if path is None:
+        return None
+    data, what = open_materials(path, "data.real_validation")
+    return Resized(data, resolution), f"{what} (resized whole to {resolution} px)"
