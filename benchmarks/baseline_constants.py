@@ -122,10 +122,14 @@ def main(argv: list[str] | None = None) -> int:
         for ss in (0.0, 0.03, 0.06, 0.1, 0.15)
     ]
     best = min(((render("mean", cfg), cfg) for cfg in grid), key=lambda item: item[0])
-    print(f"- `mean`, diffuse scale {mean_scale}: best render RMSE {best[0]:.4f} at roughness "
-          f"{best[1]['roughness']}, specular {best[1]['specular']} (grid 0.2-0.6 x 0-0.15)")
-    k = min((render("photo", {"diffuse_scale": float(v), "roughness": roughness}), float(v))
-            for v in np.round(np.linspace(0.1, 1.5, 15), 2))
+    print(
+        f"- `mean`, diffuse scale {mean_scale}: best render RMSE {best[0]:.4f} at roughness "
+        f"{best[1]['roughness']}, specular {best[1]['specular']} (grid 0.2-0.6 x 0-0.15)"
+    )
+    k = min(
+        (render("photo", {"diffuse_scale": float(v), "roughness": roughness}), float(v))
+        for v in np.round(np.linspace(0.1, 1.5, 15), 2)
+    )
     print(f"- `photo`: best render RMSE {k[0]:.4f} at diffuse scale {k[1]} (grid 0.1-1.5 by 0.1)")
     return 0
 

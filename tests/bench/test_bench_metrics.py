@@ -89,7 +89,9 @@ def test_ssim_is_wangs_variant_on_the_stored_maps_and_the_display_renderings():
     assert out["ssim/normal"][k] == pytest.approx(want, abs=1e-9)
     # not scikit-image's default (7x7 uniform window, sample covariance), which gives another figure
     assert abs(out["ssim/normal"][k] - structural_similarity(p, t, data_range=1.0, channel_axis=0)) > 1e-3
-    want = structural_similarity(pred.roughness[k, 0].double().numpy(), target.roughness[k, 0].double().numpy(), **WANG)
+    want = structural_similarity(
+        pred.roughness[k, 0].double().numpy(), target.roughness[k, 0].double().numpy(), **WANG
+    )
     assert out["ssim/roughness"][k] == pytest.approx(want, abs=1e-9)
     scene = evaluation_scene()
     pr = display_rendering(pred, scene)[k].double().numpy()

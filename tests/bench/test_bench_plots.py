@@ -42,7 +42,10 @@ def test_learning_curves_draw_the_real_validation_dashed_in_the_model_colour(tmp
     _is_png(learning_curves(curves, tmp_path / "both.png", real=real))
     # Without `real`, as before; real points alone are enough to draw.
     assert [x.get_label() for x in learning_curves_figure(curves).axes[0].get_lines()] == ["unet", "des18"]
-    assert learning_curves_figure({}, real={"unet": real["unet"]}).axes[0].get_lines()[0].get_label() == "unet (real)"
+    assert (
+        learning_curves_figure({}, real={"unet": real["unet"]}).axes[0].get_lines()[0].get_label()
+        == "unet (real)"
+    )
     with pytest.raises(BenchError, match="3 times but 1 values"):
         learning_curves_figure(curves, real={"unet": ([1, 2, 3], [0.1])})
 

@@ -15,7 +15,9 @@ def _entry(label: str, rmse: dict[str, np.ndarray], *, baseline=False, clock=Non
     figures = {"time/latency_ms": 1.0, "model/params": 0.0 if baseline else 1e5}
     if not baseline:
         figures |= {"time/train_s": 60.0, "time/train_steps_wall_s": 75.0, "time/train_ms_per_step": 10.0}
-    return ModelEntry(label, f"run-{label}", f"run-{label}", per_sample, figures, baseline=baseline, clock=clock)
+    return ModelEntry(
+        label, f"run-{label}", f"run-{label}", per_sample, figures, baseline=baseline, clock=clock
+    )
 
 
 def _report(test_set="21 Des18 samples of des18-dev (whole tiles resized to 128 px)", baselines="mean,photo"):
@@ -47,7 +49,9 @@ def test_verdicts_against_mean_are_the_paired_bootstrap_signs():
     for r in report.against_reference():
         assert r["low"] <= r["rmse_difference"] <= r["high"]
     # The share of mean's RMSE, which is how a target like "15% better than mean" reads.
-    good_normal = next(r for r in report.against_reference() if r["model"] == "good" and r["column"] == "normal")
+    good_normal = next(
+        r for r in report.against_reference() if r["model"] == "good" and r["column"] == "normal"
+    )
     ref = next(e for e in report.models if e.label == "mean")
     assert abs(good_normal["relative"] + 0.03 / ref.per_sample["rmse/normal"].mean()) < 1e-9
 
@@ -82,7 +86,10 @@ def test_costs_pair_trained_models_only_and_say_when_they_do_not_beat_mean():
     assert {(c["model"], c["versus"]) for c in costs} == {("good", "mixed")}
     lines = report._cost_lines(False)
     assert lines[0] == "What accuracy costs (trained models)"
-    assert any(line.startswith("mixed does not beat the constant-map baseline `mean` on renderings") for line in lines)
+    assert any(
+        line.startswith("mixed does not beat the constant-map baseline `mean` on renderings")
+        for line in lines
+    )
 
 
 def test_clock_note_reads_the_tag_and_says_wall_clock_when_absent():

@@ -12,7 +12,13 @@ import pytest
 import torch
 
 import svbrdf_models as sm
-from svbrdf_models.baselines import MEAN_DIFFUSE_SCALE, PHOTO_DIFFUSE_SCALE, ROUGHNESS, SPECULAR, flash_falloff
+from svbrdf_models.baselines import (
+    MEAN_DIFFUSE_SCALE,
+    PHOTO_DIFFUSE_SCALE,
+    ROUGHNESS,
+    SPECULAR,
+    flash_falloff,
+)
 from svbrdf_render import DES18_DISTANCE, SVBRDF, Scene, render
 
 BASELINES = ("mean", "photo")
@@ -34,8 +40,12 @@ def test_mean_of_a_uniform_photo_is_the_documented_constants():
     photo = value.view(1, 3, 1, 1).expand(2, 3, 16, 24).clone()
     maps = sm.create_generator("mean")(photo)
     assert maps.shape == (2, 16, 24)
-    torch.testing.assert_close(maps.diffuse, (MEAN_DIFFUSE_SCALE * value).view(1, 3, 1, 1).expand(2, 3, 16, 24))
-    torch.testing.assert_close(maps.normal, torch.tensor([0.0, 0.0, 1.0]).view(1, 3, 1, 1).expand(2, 3, 16, 24))
+    torch.testing.assert_close(
+        maps.diffuse, (MEAN_DIFFUSE_SCALE * value).view(1, 3, 1, 1).expand(2, 3, 16, 24)
+    )
+    torch.testing.assert_close(
+        maps.normal, torch.tensor([0.0, 0.0, 1.0]).view(1, 3, 1, 1).expand(2, 3, 16, 24)
+    )
     assert torch.all(maps.roughness == ROUGHNESS) and torch.all(maps.specular == SPECULAR)
     # Configured constants are used as given.
     maps = sm.create_generator("mean", {"diffuse_scale": 2.0, "roughness": 0.8, "specular": 0.5})(photo)

@@ -9,8 +9,8 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from svbrdf_render import write_des18
 from conftest import random_svbrdf
+from svbrdf_render import write_des18
 from svbrdf_train.checkpoint import load_checkpoint
 from svbrdf_train.cli import cli
 from svbrdf_train.clock import CLOCK_TAG, TrainClock

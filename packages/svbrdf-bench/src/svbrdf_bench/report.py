@@ -511,7 +511,10 @@ def write_report(report: Report, out: str | Path, *, grid: Path | None = None) -
     if curves or real_curves:
         written.append(
             learning_curves(
-                curves, out / "learning_curves.png", real=real_curves, xlabel="training time, budget clock (s)"
+                curves,
+                out / "learning_curves.png",
+                real=real_curves,
+                xlabel="training time, budget clock (s)",
             )
         )
         files["learning_curves"] = "learning_curves.png"

@@ -264,8 +264,9 @@ def _check_baselines(baselines: Sequence[str], labels: Sequence[str]) -> None:
 
 def _baseline_child(client, experiment_id: str, parent_id: str, name: str) -> tuple[str, object]:
     """A child run for baseline ``name`` and its generator (built from the registry, untrained)."""
-    import svbrdf_models as sm
     from mlflow.entities import Param
+
+    import svbrdf_models as sm
 
     config = sm.resolve_config("generator", name)
     child = client.create_run(

@@ -114,7 +114,8 @@ class Resized(Dataset):
         if min(sample["input"].shape[-2:]) < self.resolution:
             raise DataError(
                 f"{sample.get('name', index)}: {tuple(sample['input'].shape[-2:])} pixels, smaller than "
-                f"the training resolution {self.resolution}; real validation needs samples at least that large"
+                f"the training resolution {self.resolution}; real validation needs samples at least "
+                "that large"
             )
         return resize_sample(sample, self.resolution)
 
