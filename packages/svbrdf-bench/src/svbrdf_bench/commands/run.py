@@ -19,7 +19,9 @@ Examples:
   svbrdf-bench run --models ours --no-baselines              # without the mean/photo baselines
 
 \b
-Presets (every model gets the same training-time budget):
+Presets (every model gets the same training-time budget, counted on the fit's train.clock:
+  process CPU time over its threads on a CPU, which other programs tilt far less than wall time;
+  GPU time on a GPU):
 """
     + "\n".join(f"  {p.name:<9} {p.expected}" for p in PRESETS.values())
     + """
