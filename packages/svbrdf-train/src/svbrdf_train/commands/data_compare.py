@@ -9,8 +9,6 @@ from pathlib import Path
 import click
 import torch
 
-from ..errors import DataError
-
 __all__ = ["COMMANDS", "compare"]
 
 _EPILOG = """\b
@@ -46,36 +44,16 @@ average, the values must move to turn one distribution into the other; 0 when th
 """
 
 
-def _collate(items: list[dict]) -> dict:
-    return {
-        "input": torch.stack([s["input"] for s in items]),
-        "maps": torch.stack([s["maps"] for s in items]),
-        "name": [s["name"] for s in items],
-    }
-
-
 def _read_real(folder: Path, resolution: int, limit: int | None) -> dict:
-    from svbrdf_render import MapFileError
+    from torch.utils.data import default_collate
 
-    from ..data.des18 import Des18Folder
+    from ..fitdata import Resized, open_materials
 
-    data = Des18Folder(folder, "test", crop=resolution, fov="resize")
+    data, _ = open_materials(folder, "data compare")  # a folder of the wrong kind fails here
+    data = Resized(data, resolution)
     count = len(data) if limit is None else min(limit, len(data))
-
-    def read(i: int) -> dict:
-        try:
-            return data[i]
-        except MapFileError as e:
-            raise DataError(
-                f"{folder}: not a folder of Des18 strips with ground truth "
-                f"({Path(e.path).name} {e.problem}); compare needs 5-tile strips "
-                "(input | normal | diffuse | roughness | specular), not photos alone"
-            ) from None
-
-    items = [read(0)]  # a folder of the wrong kind fails before any progress is shown
-    with click.progressbar(range(1, count), label="reading real", file=sys.stderr, width=30) as bar:
-        items += [read(i) for i in bar]
-    return _collate(items)
+    with click.progressbar(range(count), label="reading real", file=sys.stderr, width=30) as bar:
+        return default_collate([data[i] for i in bar])
 
 
 def _procedural(count: int, resolution: int, seed: int) -> tuple[dict, list[str]]:

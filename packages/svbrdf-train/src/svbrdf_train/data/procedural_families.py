@@ -50,6 +50,7 @@ from .procedural_noise import (
     worley,
     wrap,
 )
+from .stats import LUMINANCE
 
 __all__ = ["Fields", "Family", "FAMILY_TABLE", "stack_choices", "grey", "pixel_grid", "family_fields"]
 
@@ -513,8 +514,6 @@ METALS = {
 
 #: Metals whose specular albedo is clearly coloured; drawn twice as often as the others.
 COLOURED_METALS = ("gold", "copper", "brass")
-#: Rec. 709 luminance weights of linear RGB.
-_LUMINANCE = (0.2126, 0.7152, 0.0722)
 
 
 def draw_metal_specular(d: Draw) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
@@ -533,7 +532,7 @@ def draw_metal_specular(d: Draw) -> tuple[tuple[float, float, float], tuple[floa
         return tuple(k * c for c in f0), f0
     colour = f0 if tone == "dark" else d.colour((0.0, 1.0), (0.2, 0.6), (0.6, 1.0))
     level = d.log_uniform(0.09, 0.3)
-    lum = sum(w * c for w, c in zip(_LUMINANCE, colour, strict=True))
+    lum = sum(w * c for w, c in zip(LUMINANCE, colour, strict=True))
     return tuple(min(c * level / lum, 1.0) for c in colour), colour
 
 

@@ -36,6 +36,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from svbrdf_render import SVBRDF
+
 __all__ = [
     "LUMINANCE",
     "Statistic",
@@ -90,20 +92,9 @@ def saturation(rgb: Tensor) -> Tensor:
     return torch.where(hi > 1e-6, (hi - lo) / hi.clamp_min(1e-6), torch.zeros_like(hi))
 
 
-def _normal(maps: Tensor) -> Tensor:
-    return _check(maps, 10, "maps")[:, 0:3]
-
-
-def _diffuse(maps: Tensor) -> Tensor:
-    return _check(maps, 10, "maps")[:, 3:6]
-
-
-def _roughness(maps: Tensor) -> Tensor:
-    return _check(maps, 10, "maps")[:, 6]
-
-
-def _specular(maps: Tensor) -> Tensor:
-    return _check(maps, 10, "maps")[:, 7:10]
+def _maps(maps: Tensor) -> SVBRDF:
+    """The packed layout of the samples (``SVBRDF.pack``), as maps."""
+    return SVBRDF.unpack(_check(maps, 10, "maps"), validate=False)
 
 
 def _per_material(t: Tensor) -> Tensor:
@@ -121,33 +112,33 @@ def _quantile(t: Tensor, q: float) -> Tensor:
 
 def diffuse_luminance(maps: Tensor) -> Tensor:
     """Mean luminance of the diffuse albedo, per material (linear, 0-1)."""
-    return _per_material(luminance(_diffuse(maps)))
+    return _per_material(luminance(_maps(maps).diffuse))
 
 
 def diffuse_saturation(maps: Tensor) -> Tensor:
     """Mean HSV saturation of the diffuse albedo, per material (0 grey, 1 pure colour)."""
-    return _per_material(saturation(_diffuse(maps)))
+    return _per_material(saturation(_maps(maps).diffuse))
 
 
 def roughness_mean(maps: Tensor) -> Tensor:
     """Mean roughness per material (0-1, alpha = roughness^2)."""
-    return _per_material(_roughness(maps))
+    return _per_material(_maps(maps).roughness)
 
 
 def specular_level(maps: Tensor) -> Tensor:
     """Mean luminance of the specular albedo per material (linear F0: ~0.04 dielectrics, >0.5 metals)."""
-    return _per_material(luminance(_specular(maps)))
+    return _per_material(luminance(_maps(maps).specular))
 
 
 def specular_saturation(maps: Tensor) -> Tensor:
     """Mean HSV saturation of the specular albedo per material: 0 grey, higher is more coloured
     (gold ~0.66, copper ~0.44)."""
-    return _per_material(saturation(_specular(maps)))
+    return _per_material(saturation(_maps(maps).specular))
 
 
 def slopes(maps: Tensor) -> Tensor:
     """Per pixel ``tan`` of the angle between the normal and ``+z``: ``(B, H, W)``."""
-    n = _normal(maps)
+    n = _maps(maps).normal
     xy = torch.sqrt(n[:, 0] ** 2 + n[:, 1] ** 2)
     return xy / n[:, 2].clamp_min(1e-3)
 
@@ -197,7 +188,7 @@ def pixel_histogram(values: Tensor, bins: int = 64, low: float = 0.0, high: floa
 
 def roughness_histogram(maps: Tensor, bins: int = 64) -> PixelHistogram:
     """The distribution of roughness pixel values, per material (:class:`PixelHistogram`)."""
-    return pixel_histogram(_roughness(maps), bins)
+    return pixel_histogram(_maps(maps).roughness[:, 0], bins)
 
 
 # -- photos ------------------------------------------------------------------------------------
