@@ -23,7 +23,7 @@ def test_every_builtin_loads_at_every_size(name, size):
     assert (r.discriminator is None) == (r.loss.adv == 0)
     if size == "paper":
         assert (r.train.resolution, r.train.batch, r.train.epochs) == (256, 8, 20)
-        assert r.optim.lr == 2e-5 and r.optim.g_steps_per_d == 5 and r.optim.decay_every_epochs == 2
+        assert r.optim.lr == 2e-5 and r.optim.g_steps_per_d == 5 and r.optim.decay_every_samples == 400_000
     else:
         assert r.train.resolution < 256 and r.generator.config.get("preset") in ("small", "tiny")
     assert yaml.safe_load(yaml.safe_dump(r.to_dict())) == r.to_dict()

@@ -40,13 +40,13 @@ def _tensors(state, prefix=""):
 
 
 def _assert_same_training_state(a, b):
-    for key in ("generator", "discriminator", "optimizers", "schedulers", "rng", "step"):
+    for key in ("generator", "discriminator", "optimizers", "rng", "step"):
         ta, tb = dict(_tensors(a[key])), dict(_tensors(b[key]))
         assert ta.keys() == tb.keys()
         different = [k for k in ta if not torch.equal(ta[k], tb[k])]
         assert not different, f"{key}: {different[:5]}"
     assert a["step"] == b["step"]
-    assert a["schedulers"] == b["schedulers"]
+    assert a["schedule"] == b["schedule"]
 
 
 def _start(args, cwd):

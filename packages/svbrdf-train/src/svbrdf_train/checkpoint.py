@@ -11,7 +11,7 @@ step, epoch        generator steps done, and the epoch they are in
 generator          the generator's ``state_dict`` (unwrapped from DistributedDataParallel)
 discriminator      the discriminator's, or None without an adversarial loss
 optimizers         ``{"g": ..., "d": ...}`` Adam states
-schedulers         ``{"g": ..., "d": ...}`` learning-rate schedules
+schedule           samples seen and the learning-rate factor (for people: resuming recomputes it)
 rng                per process: the torch CPU (and CUDA) RNG states; and the scene sampler's
 run_id             the MLflow run to continue
 train_seconds      training time so far (the time budget spans resumes)

@@ -93,14 +93,36 @@ class OptimSection:
     d_lr: float = param(2e-5, "Adam learning rate of the discriminator")
     betas: tuple[float, float] = param((0.5, 0.999), "Adam betas")
     g_steps_per_d: int = param(5, "generator steps per discriminator step (paper: 5)")
-    decay_every_epochs: int = param(2, "step decay period in epochs (paper: 2)")
+    decay_every_samples: int | None = param(
+        400_000,
+        "step decay period in samples seen, whatever the data set size (paper: 2 epochs of 200k "
+        "= 400000); None: no decay",
+    )
+    decay_every_epochs: int | None = param(
+        None,
+        "the period in epochs instead (set decay_every_samples to null): the same as the paper only "
+        "on its 200k samples; on a small data set an epoch is a few steps",
+    )
     decay: float = param(0.5, "learning-rate factor at each decay step (paper: halved)")
+    warmup_samples: int = param(0, "linear warm-up of both rates over this many samples (0: none)")
 
     def __post_init__(self):
-        if not (self.lr > 0 and self.d_lr > 0 and self.g_steps_per_d >= 1 and self.decay_every_epochs >= 1):
-            raise ValueError("lr and d_lr must be positive; g_steps_per_d and decay_every_epochs at least 1")
+        if not (self.lr > 0 and self.d_lr > 0 and self.g_steps_per_d >= 1):
+            raise ValueError("lr and d_lr must be positive; g_steps_per_d at least 1")
+        for name in ("decay_every_samples", "decay_every_epochs"):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise ValueError(f"{name} must be at least 1 (or null: no decay), got {value}")
+        if self.decay_every_samples is not None and self.decay_every_epochs is not None:
+            raise ValueError(
+                f"decay_every_samples={self.decay_every_samples} and decay_every_epochs="
+                f"{self.decay_every_epochs} are both set; keep one (--set optim.decay_every_samples=null "
+                "to count in epochs)"
+            )
         if not 0 < self.decay <= 1:
             raise ValueError(f"decay must be in (0, 1], got {self.decay}")
+        if self.warmup_samples < 0:
+            raise ValueError(f"warmup_samples must be non-negative, got {self.warmup_samples}")
 
 
 @dataclass(frozen=True)
@@ -433,6 +455,10 @@ def load_recipe(
 
 def recipe_from_dict(data: Mapping[str, Any], *, where: str = "recipe") -> Recipe:
     """The :class:`Recipe` that ``Recipe.to_dict()`` wrote (e.g. into a checkpoint)."""
+    optim = data.get("optim")
+    if isinstance(optim, Mapping) and "decay_every_samples" not in optim:
+        # written before schedules were counted in samples: its period was in epochs
+        data = {**data, "optim": {**optim, "decay_every_samples": None}}
     try:
         sections = {
             name: (None if data.get(name) is None else build_config(cls, data[name], what=f"{where}: {name}"))

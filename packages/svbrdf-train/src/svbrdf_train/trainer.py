@@ -9,7 +9,8 @@ A step (``step`` counts generator steps)::
 
 The discriminator sees log renderings (``log(R + eps)``, as the rendering loss compares them)
 of all N configurations, or the maps themselves for ``multi``. Learning rates follow the
-paper's step decay (``decay`` every ``decay_every_epochs``). Training time is counted
+paper's step decay counted in samples seen (:mod:`svbrdf_train.schedule`); the fit warns when
+that would stop learning early in its budget. Training time is counted
 without validation and checkpoint writing, so ``max_minutes`` budgets compare models fairly.
 
 Stopping: at the step budget (``epochs``, ``max_steps``) or the time budget; on a non-finite
@@ -52,6 +53,7 @@ from .losses import LossWeights, discriminator_loss, generator_loss
 from .metrics import METRIC_NAMES, display_rendering, map_rmse, preview_flash, render_rmse
 from .progress import Progress, format_duration
 from .recipe import Recipe, recipe_differences, recipe_from_dict
+from .schedule import LrSchedule
 from .tracking import Tracker, flatten_params, run_tags
 
 __all__ = ["FitOptions", "FitResult", "fit", "RESUMABLE_CHANGES", "load_generator"]
@@ -294,11 +296,7 @@ class _Fit:
             )
         total = t.epochs * self.steps_per_epoch
         self.total_steps = min(total, t.max_steps) if t.max_steps is not None else total
-        decay_steps = o.decay_every_epochs * self.steps_per_epoch
-        self.g_sched = torch.optim.lr_scheduler.StepLR(self.g_opt, decay_steps, gamma=o.decay)
-        self.d_sched = (
-            torch.optim.lr_scheduler.StepLR(self.d_opt, decay_steps, gamma=o.decay) if self.d_opt else None
-        )
+        self.schedule = LrSchedule(o, per_step, self.steps_per_epoch * per_step)
         self.scene_gen = torch.Generator().manual_seed(t.seed + 7919)
         self.weights = LossWeights(adv=recipe.loss.adv, render=recipe.loss.render, svbrdf=recipe.loss.svbrdf)
         self.step = 0
@@ -335,9 +333,7 @@ class _Fit:
         if self.D is not None:
             self.D.load_state_dict(state["discriminator"])
             self.d_opt.load_state_dict(state["optimizers"]["d"])
-            self.d_sched.load_state_dict(state["schedulers"]["d"])
         self.g_opt.load_state_dict(state["optimizers"]["g"])
-        self.g_sched.load_state_dict(state["schedulers"]["g"])
         self.step = int(state["step"])
         self.train_seconds = float(state.get("train_seconds", 0.0))
         self.wall_seconds = float(state.get("wall_seconds", self.train_seconds))
@@ -355,10 +351,7 @@ class _Fit:
                 "g": self.g_opt.state_dict(),
                 "d": self.d_opt.state_dict() if self.d_opt else None,
             },
-            "schedulers": {
-                "g": self.g_sched.state_dict(),
-                "d": self.d_sched.state_dict() if self.d_sched else None,
-            },
+            "schedule": {"samples": self.schedule.samples(self.step), "lr_factor": self.schedule.factor(self.step)},
             "rng": rngs,
             "run_id": self.run_id,
             "train_seconds": self.train_seconds,
@@ -422,6 +415,15 @@ class _Fit:
 
     # -- one step ---------------------------------------------------------------------------
 
+    def _set_rates(self) -> None:
+        """Both optimisers' rates for this step, from the schedule (a function of the step)."""
+        f = self.schedule.factor(self.step)
+        o = self.recipe.optim
+        for opt, base in ((self.g_opt, o.lr), (self.d_opt, o.d_lr)):
+            if opt is not None:
+                for group in opt.param_groups:
+                    group["lr"] = base * f
+
     def train_step(self, batch: dict) -> tuple[dict[str, float], str | None]:
         """One generator step (and a discriminator step when due).
 
@@ -429,6 +431,7 @@ class _Fit:
         nothing is stepped with it, on any process).
         """
         loss = self.recipe.loss
+        self._set_rates()
         photo = batch["input"].to(self.device, non_blocking=True)
         target = SVBRDF.unpack(batch["maps"].to(self.device, non_blocking=True), validate=False)
         self.G.train()
@@ -491,9 +494,6 @@ class _Fit:
             return out, "generator gradient"
         out["grad_norm"] = float(g_norm)
         self.g_opt.step()
-        self.g_sched.step()
-        if self.d_sched is not None:
-            self.d_sched.step()
         self.step += 1
         out.update({("loss" if k == "total" else k): float(v.detach()) for k, v in terms.items()})
         return out, None
@@ -649,6 +649,8 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
             if start_step == 0:
                 tracker.log_artifact(config_file, "config")
         progress.message(_plan(recipe, run, dist, tracker, start_step))
+    # with a time budget, the steps it allows are known after a few steps (below)
+    warned = t.max_minutes is None and _warn_schedule(run, tracker, progress, run.total_steps, "the step budget")
 
     status, message = "FINISHED", ""
     last_metrics: dict[str, float] = {}
@@ -671,6 +673,15 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
                 window_samples += n
                 if run.step - start_step == WARMUP_STEPS:
                     steady = (run.train_seconds, samples)
+                if not warned and steady is not None and run.step - start_step == 2 * WARMUP_STEPS:
+                    # the time budget in steps, at the pace of the steps since warm-up
+                    pace = (run.train_seconds - steady[0]) / WARMUP_STEPS
+                    if t.max_minutes is not None and pace > 0:
+                        left = (t.max_minutes * 60 - run.train_seconds) / pace
+                        budget = min(run.total_steps, run.step + int(left))
+                        warned = _warn_schedule(
+                            run, tracker, progress, budget, f"{t.max_minutes:g} min at {pace * 1000:.0f} ms/step"
+                        )
                 if bad is not None:
                     status = "FAILED"
                     message = _nan_message(run, bad, saved_at)
@@ -816,6 +827,18 @@ def _plan(recipe: Recipe, run: _Fit, dist: distributed.Dist, tracker: Tracker, s
         + (f"\n  real validation: {run.real_val[1]}" if run.real_val is not None else "")
         + f"\n  checkpoints: {run.ckpt_path}\n  tracking: {tracker.describe()}"
     )
+
+
+def _warn_schedule(run: _Fit, tracker: Tracker, progress: Progress, budget: int, what: str) -> bool:
+    """Say once, on the main process and in the run's tags, that the schedule kills the rate
+    early in ``budget`` steps. True when it warned."""
+    text = run.schedule.warning(budget, what)
+    if text is None:
+        return False
+    if run.dist.main:
+        progress.message(text)
+        tracker.set_tags({"svbrdf.warning": text[:5000]})
+    return True
 
 
 def _nan_message(run: _Fit, term: str, saved_at: int) -> str:
