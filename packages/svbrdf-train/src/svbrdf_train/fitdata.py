@@ -10,7 +10,14 @@ shards         every sample of the files but the last              the last ``va
 des18          the folder's ``trainBlended/`` (or the strips),     ``testBlended/`` when there is one,
                random crops and the 8 symmetries                   else the last ``validation`` strips;
                                                                    whole tiles resized
+mix            ``count`` samples an epoch, each drawn from entry   every entry's own validation set
+               ``i`` of ``data.mix`` with probability w_i / sum w   (its ``validation``), put together
 =============  ==================================================  =====================================
+
+A mix (:class:`Mixture`) draws, per epoch, which entry each of its ``count`` positions comes
+from, and walks through each entry's samples in shuffled passes; a real strip met again in
+the same epoch gets another crop and symmetry (its pass number goes into the draw). All of it
+follows from ``data.seed`` and the epoch, so a resumed fit sees the very same samples.
 
 Des18 tiles are brought to ``train.resolution`` without changing the share of the surface a
 model sees (:mod:`svbrdf_train.data.fov`): training tiles are scaled by ``resolution / 256``
@@ -22,15 +29,19 @@ shards), resized whole to the training resolution: :func:`real_validation_set`.
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from pathlib import Path
 
-from torch.utils.data import Dataset, Subset
+import numpy as np
+import torch
+from torch.utils.data import ConcatDataset, Dataset, Subset
 
 from .data import Des18Folder, ProceduralMaterials
 from .errors import DataError
-from .recipe import Recipe
+from .recipe import DataSection, Recipe
 
-__all__ = ["build_datasets", "data_paths", "open_materials", "real_validation_set", "Resized"]
+__all__ = ["build_datasets", "data_paths", "open_materials", "real_validation_set", "Mixture", "Resized"]
 
 
 def data_paths(path: str | tuple[str, ...] | list[str] | None) -> list[Path]:
@@ -58,12 +69,47 @@ def _split_off(data: Dataset, validation: int, what: str) -> tuple[Dataset, Data
 
 
 def build_datasets(recipe: Recipe) -> tuple[Dataset, Dataset]:
-    """``(train, validation)`` for the recipe, both at ``train.resolution``."""
+    """``(train, validation)`` for the recipe, both at ``train.resolution``.
+
+    Raises:
+        DataError: a missing or empty source, shards of another resolution, too few samples
+            to hold out ``validation``; for a mix, starting with the entry (``data.mix[1] (des18)``).
+    """
     d, res = recipe.data, recipe.train.resolution
+    if d.source != "mix":
+        return _source_datasets(d, res)
+    trains, vals, weights = [], [], []
+    for i, entry in enumerate(d.mix or ()):
+        part = dataclasses.replace(
+            d,
+            source=entry["source"],
+            path=entry.get("path") or d.path,
+            count=entry.get("count") or d.count,
+            validation=d.validation if entry.get("validation") is None else entry["validation"],
+            mix=None,
+        )
+        try:
+            train, val = _source_datasets(part, res)
+        except DataError as e:
+            raise DataError(f"data.mix[{i}] ({entry['source']}): {e}") from None
+        if len(train) == 0:
+            raise DataError(f"data.mix[{i}] ({entry['source']}): no samples left to train on")
+        trains.append(train)
+        weights.append(float(entry["weight"]))
+        if len(val):
+            vals.append(val)
+    return Mixture(trains, weights, d.count, seed=d.seed), ConcatDataset(vals) if vals else Subset(trains[0], [])
+
+
+def _source_datasets(d: DataSection, res: int) -> tuple[Dataset, Dataset]:
     if d.source == "procedural":
         return (
             ProceduralMaterials(d.count, res, seed=d.seed),
             ProceduralMaterials(d.validation, res, seed=d.seed + 1),
+        )
+    if not d.path:
+        raise DataError(
+            f"data.source {d.source} needs a path: give --data PATH, or --set data.path=PATH"
         )
     paths = data_paths(d.path)
     if d.source == "shards":
@@ -96,6 +142,65 @@ def build_datasets(recipe: Recipe) -> tuple[Dataset, Dataset]:
             "set data.validation lower, or add a testBlended/ folder"
         )
     return Subset(train, range(n - d.validation)), Subset(val, range(n - d.validation, n))
+
+
+def _base(data: Dataset) -> Dataset:
+    while isinstance(data, Subset):
+        data = data.dataset
+    return data
+
+
+class Mixture(Dataset):
+    """``count`` samples an epoch from several data sets, sample ``k`` from ``sources[i]`` with
+    probability ``weights[i] / sum(weights)``.
+
+    :meth:`set_epoch` draws the epoch's assignment from ``(seed, epoch)``: which source each
+    position reads, and which of its samples, walking through each source in shuffled passes.
+    A source with ``set_epoch`` (Des18's random crops) is given a different one for each pass,
+    so a strip met twice in an epoch is cropped and turned differently.
+    """
+
+    def __init__(self, sources: list[Dataset], weights: list[float], count: int, *, seed: int = 0):
+        if len(sources) != len(weights) or not sources:
+            raise ValueError("Mixture: one weight per source, and at least one source")
+        if any(not (w > 0 and math.isfinite(w)) for w in weights):
+            raise ValueError(f"Mixture: weights must be positive numbers, got {weights}")
+        if any(len(s) == 0 for s in sources):
+            raise ValueError("Mixture: every source needs samples")
+        self.sources, self.count, self.seed = list(sources), int(count), int(seed)
+        self.probabilities = torch.tensor(weights, dtype=torch.float64) / sum(weights)
+        self.set_epoch(0)
+
+    def __len__(self) -> int:
+        return self.count
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+        words = np.random.SeedSequence([self.seed, 0x6D6978, self.epoch]).generate_state(2, dtype=np.uint32)
+        g = torch.Generator().manual_seed(int(words[0]) << 32 | int(words[1]))
+        self.which = torch.multinomial(self.probabilities, self.count, replacement=True, generator=g)
+        self.index = torch.zeros(self.count, dtype=torch.long)
+        self.passes = torch.zeros(self.count, dtype=torch.long)
+        for k, source in enumerate(self.sources):
+            where = (self.which == k).nonzero().flatten()
+            n = len(source)
+            rounds = -(-len(where) // n)
+            order = [torch.randperm(n, generator=g) for _ in range(rounds)]
+            if order:
+                self.index[where] = torch.cat(order)[: len(where)]
+                self.passes[where] = torch.arange(len(where)) // n
+
+    def source_of(self, index: int) -> int:
+        """Which source position ``index`` reads this epoch."""
+        return int(self.which[index])
+
+    def __getitem__(self, index: int) -> dict:
+        k = int(self.which[index])
+        source = self.sources[k]
+        base = _base(source)
+        if hasattr(base, "set_epoch"):
+            base.set_epoch(self.epoch * (self.count + 1) + int(self.passes[index]))
+        return source[int(self.index[index])]
 
 
 class Resized(Dataset):

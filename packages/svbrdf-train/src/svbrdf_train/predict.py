@@ -10,7 +10,6 @@
 
 from __future__ import annotations
 
-import tempfile
 from pathlib import Path
 
 import torch
@@ -18,14 +17,12 @@ from torch import Tensor
 
 from svbrdf_render import SVBRDF
 
-from .checkpoint import CHECKPOINT_NAME, load_checkpoint
+from .checkpoint import load_checkpoint
 from .data.photos import square_photo
 from .errors import CheckpointError
+from .init import RUN_CHECKPOINT, download_run_checkpoint
 
 __all__ = ["Predictor", "RUN_CHECKPOINT"]
-
-#: Where a fit logs its checkpoint in its MLflow run.
-RUN_CHECKPOINT = f"checkpoints/{CHECKPOINT_NAME}"
 
 
 class Predictor:
@@ -50,19 +47,7 @@ class Predictor:
     @classmethod
     def from_run(cls, run_id: str, device: str | torch.device = "cpu") -> Predictor:
         """Download the run's checkpoint from the MLflow store (``MLFLOW_TRACKING_URI`` or the default)."""
-        from mlflow import MlflowClient
-
-        client = MlflowClient()
-        with tempfile.TemporaryDirectory() as tmp:
-            try:
-                local = client.download_artifacts(run_id, RUN_CHECKPOINT, tmp)
-            except Exception as e:  # MlflowException for a missing run or artifact, OSError, HTTP errors
-                raise CheckpointError(
-                    f"MLflow run {run_id}: no {RUN_CHECKPOINT} to load from {client.tracking_uri} "
-                    f"({type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}); check the run id "
-                    "and MLFLOW_TRACKING_URI, or pass --checkpoint FILE"
-                ) from None
-            return cls(load_checkpoint(local), device, source=f"run {run_id}")
+        return cls(download_run_checkpoint(run_id), device, source=f"run {run_id}")
 
     @torch.no_grad()
     def predict(self, photo: Tensor) -> SVBRDF:

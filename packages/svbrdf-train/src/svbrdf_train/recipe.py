@@ -38,6 +38,7 @@ __all__ = [
     "LossSection",
     "OptimSection",
     "DataSection",
+    "MIX_KEYS",
     "TrainSection",
     "Recipe",
     "list_recipes",
@@ -125,15 +126,27 @@ class OptimSection:
             raise ValueError(f"warmup_samples must be non-negative, got {self.warmup_samples}")
 
 
+#: Keys of one ``data.mix`` entry, and the sources an entry may name.
+MIX_KEYS = ("source", "weight", "path", "count", "validation")
+MIX_SOURCES = ("procedural", "shards", "des18")
+
+
 @dataclass(frozen=True)
 class DataSection:
     source: str = param(
         "procedural",
-        "procedural (generated), shards (HDF5 files) or des18 (a folder of strips)",
-        choices=("procedural", "shards", "des18"),
+        "procedural (generated), shards (HDF5 files), des18 (a folder of strips) or mix (the "
+        "sources of data.mix, drawn at random with their weights)",
+        choices=("procedural", "shards", "des18", "mix"),
     )
-    path: str | tuple[str, ...] | None = param(None, "shard file(s) or Des18 folder; unused for procedural")
-    count: int = param(200_000, "procedural samples per epoch (the paper trains on ~200k)")
+    path: str | tuple[str, ...] | None = param(
+        None, "shard file(s) or Des18 folder (--data); unused for procedural; for mix, the path of entries without one"
+    )
+    count: int = param(
+        200_000,
+        "procedural samples per epoch (the paper trains on ~200k); for mix, samples per epoch "
+        "drawn from all sources",
+    )
     seed: int = param(0, "procedural data seed; validation uses seed + 1, so the two never overlap")
     validation: int = param(64, "held-out samples for periodic validation")
     workers: int = param(0, "DataLoader worker processes")
@@ -142,12 +155,40 @@ class DataSection:
         "a Des18 folder or .h5 shards of real materials to validate on as well, brought to the "
         "training resolution by resizing (logged as val_real/...); None: none",
     )
+    mix: tuple[dict, ...] | None = param(
+        None,
+        "with source mix: entries {source, weight[, path, count, validation]}; each training "
+        "sample comes from entry i with probability weight_i / sum(weights); validation sets "
+        "are each entry's own, put together",
+    )
 
     def __post_init__(self):
-        if self.source != "procedural" and not self.path:
-            raise ValueError(f"source {self.source!r} needs a path (--set data.path=...)")
         if self.count < 1 or self.validation < 0 or self.workers < 0:
             raise ValueError("count must be positive; validation and workers non-negative")
+        if self.source == "mix":
+            if not self.mix:
+                raise ValueError("source 'mix' needs data.mix: a list of {source, weight} entries")
+            for i, entry in enumerate(self.mix):
+                _check_mix_entry(i, entry)
+        elif self.mix:
+            raise ValueError(f"data.mix is set but data.source is {self.source!r}; set data.source=mix")
+
+
+def _check_mix_entry(i: int, entry: Mapping[str, Any]) -> None:
+    where = f"mix[{i}]"
+    unknown = set(entry) - set(MIX_KEYS)
+    if unknown:
+        key = sorted(unknown)[0]
+        raise ValueError(f"{where}: unknown key {key!r}{_suggest(key, MIX_KEYS)}; keys: {', '.join(MIX_KEYS)}")
+    if entry.get("source") not in MIX_SOURCES:
+        raise ValueError(f"{where}.source must be one of {', '.join(MIX_SOURCES)}, got {entry.get('source')!r}")
+    weight = entry.get("weight")
+    if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not weight > 0 or weight == float("inf"):
+        raise ValueError(f"{where}.weight must be a positive number (a relative frequency), got {weight!r}")
+    for key in ("count", "validation"):
+        value = entry.get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
+            raise ValueError(f"{where}.{key} must be a non-negative integer, got {value!r}")
 
 
 @dataclass(frozen=True)

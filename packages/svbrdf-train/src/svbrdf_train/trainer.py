@@ -49,6 +49,7 @@ from . import distributed
 from .checkpoint import CHECKPOINT_NAME, load_checkpoint, rng_state, save_checkpoint, set_rng_state
 from .clock import CLOCK_TAG, TrainClock
 from .errors import CheckpointError, TrainingError
+from .init import InitWeights
 from .losses import LossWeights, discriminator_loss, generator_loss
 from .metrics import METRIC_NAMES, display_rendering, map_rmse, preview_flash, render_rmse
 from .progress import Progress, format_duration
@@ -90,6 +91,8 @@ class FitOptions:
         progress: show the progress line.
         track: log to MLflow (rank 0); False records nothing but the local files.
         parent_run: make the MLflow run a child of this run (a benchmark's parent run).
+        init: start from these weights (a checkpoint file, a fit's folder or an MLflow run id;
+            :mod:`svbrdf_train.init`) in a new fit and a new run.
     """
 
     out: Path
@@ -101,6 +104,7 @@ class FitOptions:
     progress: bool = True
     track: bool = True
     parent_run: str | None = None
+    init: str | None = None
 
 
 @dataclass
@@ -255,7 +259,14 @@ class _Interrupt:
 
 
 class _Fit:
-    def __init__(self, recipe: Recipe, options: FitOptions, dist: distributed.Dist, state: dict | None):
+    def __init__(
+        self,
+        recipe: Recipe,
+        options: FitOptions,
+        dist: distributed.Dist,
+        state: dict | None,
+        init: InitWeights | None = None,
+    ):
         self.recipe, self.options, self.dist = recipe, options, dist
         self.device = dist.device
         t, o = recipe.train, recipe.optim
@@ -276,6 +287,9 @@ class _Fit:
             self.D = create_discriminator(recipe.discriminator.name, recipe.discriminator.config).to(
                 self.device
             )
+        self.init: dict[str, str] | None = None  # where the starting weights came from
+        if init is not None and state is None:
+            self._take(init)
         self.g_opt = torch.optim.Adam(self.G.parameters(), lr=o.lr, betas=tuple(o.betas))
         self.d_opt = (
             torch.optim.Adam(self.D.parameters(), lr=o.d_lr, betas=tuple(o.betas))
@@ -322,6 +336,19 @@ class _Fit:
 
     # -- state ------------------------------------------------------------------------------
 
+    def _take(self, init: InitWeights) -> None:
+        """The generator's weights of ``init``, and the discriminator's when it is the same one."""
+        from .init import same_discriminator
+
+        self.G.load_state_dict(init.generator)
+        both = self.D is not None and same_discriminator(init, self.recipe)
+        if both:
+            self.D.load_state_dict(init.discriminator)
+        self.init = {
+            **init.tags(),
+            "svbrdf.init_discriminator": "taken" if both else ("new" if self.D is not None else "none"),
+        }
+
     def _restore(self, state: dict) -> None:
         if state.get("world_size", 1) != self.dist.world:
             raise CheckpointError(
@@ -338,6 +365,7 @@ class _Fit:
         self.train_seconds = float(state.get("train_seconds", 0.0))
         self.wall_seconds = float(state.get("wall_seconds", self.train_seconds))
         self.run_id = state.get("run_id")
+        self.init = state.get("init")
         set_rng_state(state["rng"][self.dist.rank], self.scene_gen)
 
     def _state(self, rngs: list) -> dict:
@@ -354,6 +382,7 @@ class _Fit:
             "schedule": {"samples": self.schedule.samples(self.step), "lr_factor": self.schedule.factor(self.step)},
             "rng": rngs,
             "run_id": self.run_id,
+            "init": self.init,
             "train_seconds": self.train_seconds,
             "wall_seconds": self.wall_seconds,
             "world_size": self.dist.world,
@@ -573,6 +602,10 @@ class _Fit:
 def _check_out(options: FitOptions) -> dict | None:
     """The checkpoint to resume from (``--resume``), after refusing to overwrite one silently."""
     ckpt = Path(options.out) / CHECKPOINT_NAME
+    if options.resume and options.init:
+        raise CheckpointError(
+            "--init starts a new fit from trained weights and --resume continues one; give one of them"
+        )
     if options.resume:
         if not ckpt.is_file():
             raise CheckpointError(
@@ -624,8 +657,15 @@ def fit(recipe: Recipe | None, options: FitOptions) -> FitResult:
 def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> FitResult:
     state = _check_out(options)
     recipe = _resolve_resume(recipe, state)
+    init = None
+    if options.init and state is None:
+        from .init import check_generator, load_init
+
+        init = load_init(options.init)
+        check_generator(init, recipe)
     t = recipe.train
-    run = _Fit(recipe, options, dist, state)
+    run = _Fit(recipe, options, dist, state, init)
+    del init
     del state
     out = run.out
     start_step = run.step
@@ -773,6 +813,7 @@ def _tracker(recipe: Recipe, options: FitOptions, run: _Fit, dist: distributed.D
         world_size=dist.world,
     )
     tags[CLOCK_TAG] = run.clock.name
+    tags.update(run.init or {})
     if run.run_id is not None:
         return MlflowTracker(
             experiment=options.experiment, run_id=run.run_id, tags={"svbrdf.resumed_at": str(run.step)}
@@ -825,6 +866,12 @@ def _plan(recipe: Recipe, run: _Fit, dist: distributed.Dist, tracker: Tracker, s
         f"G {_count_params(_unwrap(run.G)) / 1e6:.2f}M params"
         + (f", D {_count_params(_unwrap(run.D)) / 1e6:.2f}M" if run.D is not None else ", no D")
         + (f"\n  real validation: {run.real_val[1]}" if run.real_val is not None else "")
+        + (
+            f"\n  weights from: {run.init['svbrdf.init']} (step {run.init['svbrdf.init_step']}; "
+            f"discriminator: {run.init['svbrdf.init_discriminator']})"
+            if run.init
+            else ""
+        )
         + f"\n  checkpoints: {run.ckpt_path}\n  tracking: {tracker.describe()}"
     )
 

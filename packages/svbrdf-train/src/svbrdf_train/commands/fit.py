@@ -17,6 +17,8 @@ Examples:
   svbrdf-train fit --recipe no-adv --size cpu --set optim.lr=1e-4 --set train.batch=4
   svbrdf-train fit --recipe ours --size cpu --set data.real_validation=des18-dev/   # + val_real/
   svbrdf-train fit --out runs/ours-cpu --resume        # continue after Ctrl-C or a crash
+  svbrdf-train fit --recipe ours-finetune --size cpu --init runs/ours-cpu --data des18/  # fine-tune
+  svbrdf-train fit --recipe ours-mix --size cpu --data des18/   # procedural and real, half and half
   torchrun --nproc_per_node=2 -m svbrdf_train fit --recipe ours --size cpu   # data parallel
 
 \b
@@ -72,7 +74,8 @@ def _data_overrides(items: tuple[str, ...]) -> dict:
     multiple=True,
     metavar="procedural|PATH",
     help="Training data: 'procedural' (generated, the default), .h5 shards (repeat for several) "
-    "or a Des18 folder. Overrides the recipe's data section.",
+    "or a Des18 folder. Overrides the recipe's data source; for a mix recipe (ours-mix), the "
+    "path of its real entries.",
 )
 @click.option(
     "--max-minutes",
@@ -106,6 +109,12 @@ def _data_overrides(items: tuple[str, ...]) -> dict:
 @click.option(
     "--parent-run", metavar="RUN_ID", help="Make the MLflow run a child of this one (benchmarks do)."
 )
+@click.option(
+    "--init",
+    metavar="CHECKPOINT|RUN_ID",
+    help="Start from trained weights (a checkpoint, a fit's --out folder or an MLflow run id) in a "
+    "new fit and run: the generator's, and the discriminator's if it is the same. To fine-tune.",
+)
 @click.option("--no-track", is_flag=True, help="Do not log to MLflow (local files only).")
 @click.option("-q", "--quiet", is_flag=True, help="No progress line.")
 def fit(
@@ -122,6 +131,7 @@ def fit(
     experiment,
     run_name,
     parent_run,
+    init,
     no_track,
     quiet,
 ):
@@ -138,7 +148,12 @@ def fit(
     from ..trainer import fit as run_fit
 
     overrides = parse_overrides(sets)
-    overrides.update(_data_overrides(data))
+    data_overrides = _data_overrides(data)
+    if recipe_name is not None and data_overrides.get("data.source") not in (None, "procedural"):
+        # a mix keeps its entries: --data gives the path of those that name none
+        if load_recipe(recipe_name, size, overrides).data.source == "mix":
+            del data_overrides["data.source"]
+    overrides.update(data_overrides)
     if max_minutes is not None:
         overrides["train.max_minutes"] = max_minutes
     if max_steps is not None:
@@ -165,6 +180,7 @@ def fit(
         experiment=experiment,
         run_name=run_name,
         parent_run=parent_run,
+        init=init,
         progress=not quiet,
         track=not no_track,
     )

@@ -1,0 +1,128 @@
+"""``fit --init``: start a new fit from the weights of another (fine-tuning).
+
+The source is a checkpoint file, the ``--out`` folder of a fit (its ``last.pt``), or an MLflow
+run id (the checkpoint that run logged). The new fit takes the generator's weights, and the
+discriminator's when both recipes have the same one; its optimisers, schedule, step count and
+time budget start from zero, and its MLflow run is a new one that records where the weights
+came from (tags ``svbrdf.init``, ``svbrdf.init_run``, ``svbrdf.init_step``).
+"""
+
+from __future__ import annotations
+
+import re
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from svbrdf_models import config_to_dict, resolve_config
+
+from .checkpoint import CHECKPOINT_NAME, load_checkpoint
+from .errors import CheckpointError, RecipeError
+from .recipe import NetworkSection, Recipe, recipe_from_dict
+
+__all__ = ["InitWeights", "load_init", "RUN_CHECKPOINT", "download_run_checkpoint"]
+
+#: Where a fit logs its checkpoint in its MLflow run.
+RUN_CHECKPOINT = f"checkpoints/{CHECKPOINT_NAME}"
+_RUN_ID = re.compile(r"^[0-9a-f]{32}$")
+
+
+@dataclass
+class InitWeights:
+    """Weights to start from, and where they came from."""
+
+    source: str
+    generator: dict[str, Any]
+    discriminator: dict[str, Any] | None
+    recipe: Recipe
+    run_id: str | None
+    step: int
+
+    def tags(self) -> dict[str, str]:
+        out = {"svbrdf.init": self.source, "svbrdf.init_step": str(self.step)}
+        if self.run_id:
+            out["svbrdf.init_run"] = self.run_id
+        return out
+
+
+def download_run_checkpoint(run_id: str) -> dict[str, Any]:
+    """The checkpoint an MLflow run logged (``MLFLOW_TRACKING_URI`` or the default store)."""
+    from mlflow import MlflowClient
+
+    client = MlflowClient()
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            local = client.download_artifacts(run_id, RUN_CHECKPOINT, tmp)
+        except Exception as e:  # MlflowException for a missing run or artifact, OSError, HTTP errors
+            first = str(e).splitlines()[0] if str(e) else ""
+            raise CheckpointError(
+                f"MLflow run {run_id}: no {RUN_CHECKPOINT} to load from {client.tracking_uri} "
+                f"({type(e).__name__}: {first}); check the run id and MLFLOW_TRACKING_URI, "
+                "or give the checkpoint file"
+            ) from None
+        return load_checkpoint(local)
+
+
+def load_init(arg: str) -> InitWeights:
+    """The weights ``--init ARG`` names: a checkpoint file, a fit's folder, or an MLflow run id.
+
+    Raises:
+        CheckpointError: nothing of the kind there, or a checkpoint without a generator.
+    """
+    path = Path(arg).expanduser()
+    run_id = None
+    if path.is_dir() and (path / CHECKPOINT_NAME).is_file():
+        path = path / CHECKPOINT_NAME
+    if path.is_file():
+        state = load_checkpoint(path)
+        source = str(path)
+    elif _RUN_ID.match(arg):
+        state = download_run_checkpoint(arg)
+        source, run_id = f"run {arg}", arg
+    else:
+        raise CheckpointError(
+            f"--init {arg}: not a checkpoint file, a fit's folder holding {CHECKPOINT_NAME}, "
+            "nor an MLflow run id (32 hex digits)"
+        )
+    if state.get("generator") is None or not state.get("recipe"):
+        raise CheckpointError(f"--init {source}: the checkpoint holds no generator weights or no recipe")
+    recipe = recipe_from_dict(state["recipe"], where=f"--init {source}")
+    return InitWeights(
+        source=source,
+        generator=state["generator"],
+        discriminator=state.get("discriminator"),
+        recipe=recipe,
+        run_id=run_id or state.get("run_id"),
+        step=int(state.get("step", 0)),
+    )
+
+
+def _describe(kind: str, section: NetworkSection) -> tuple[str, dict[str, Any]]:
+    return section.name, config_to_dict(resolve_config(kind, section.name, section.config))
+
+
+def check_generator(init: InitWeights, recipe: Recipe) -> None:
+    """Refuse weights of another generator (name or resolved config) than the recipe's."""
+    have = _describe("generator", init.recipe.generator)
+    want = _describe("generator", recipe.generator)
+    if have != want:
+        diff = sorted(k for k in set(have[1]) | set(want[1]) if have[1].get(k) != want[1].get(k))
+        what = (
+            f"{have[0]} against {want[0]}"
+            if have[0] != want[0]
+            else ", ".join(f"{k} {have[1].get(k)!r} against {want[1].get(k)!r}" for k in diff[:4])
+        )
+        raise RecipeError(
+            f"--init {init.source}: its generator does not match recipe {recipe.name!r} ({what}); "
+            "give weights of the same generator, or a recipe with that generator "
+            "(--set generator.config.preset=...)"
+        )
+
+
+def same_discriminator(init: InitWeights, recipe: Recipe) -> bool:
+    """Whether the discriminator weights can be taken as well."""
+    a, b = init.recipe.discriminator, recipe.discriminator
+    if a is None or b is None or init.discriminator is None:
+        return False
+    return _describe("discriminator", a) == _describe("discriminator", b)
