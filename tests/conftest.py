@@ -48,6 +48,18 @@ def random_svbrdf(
     )
 
 
+def des18_strips(folder: Path, count: int = 3, size: int = 64) -> Path:
+    """A folder of ``count`` Des18 strips of ``size``-pixel random materials and photos."""
+    from svbrdf_render import write_des18
+
+    folder.mkdir(parents=True, exist_ok=True)
+    for i in range(count):
+        maps = random_svbrdf(1, size, seed=i, roughness=(0.3, 0.9))
+        photo = torch.rand(1, 3, size, size, generator=torch.Generator().manual_seed(100 + i))
+        write_des18(folder / f"{i:07d};MatAXMatB;0X1.png", photo, maps)
+    return folder
+
+
 @pytest.fixture
 def material() -> SVBRDF:
     return random_svbrdf()

@@ -9,8 +9,7 @@ import pytest
 import torch
 from click.testing import CliRunner
 
-from conftest import random_svbrdf
-from svbrdf_render import write_des18
+from conftest import des18_strips as _strips
 from svbrdf_train.checkpoint import load_checkpoint
 from svbrdf_train.cli import cli
 from svbrdf_train.clock import CLOCK_TAG, TrainClock
@@ -20,15 +19,6 @@ from svbrdf_train.recipe import load_recipe
 from svbrdf_train.trainer import FitOptions, fit
 
 MAPS = ("normal", "diffuse", "roughness", "specular", "render")
-
-
-def _strips(folder, count=3, size=64):
-    folder.mkdir(parents=True, exist_ok=True)
-    for i in range(count):
-        maps = random_svbrdf(1, size, seed=i, roughness=(0.3, 0.9))
-        photo = torch.rand(1, 3, size, size, generator=torch.Generator().manual_seed(100 + i))
-        write_des18(folder / f"{i:07d};MatAXMatB;0X1.png", photo, maps)
-    return folder
 
 
 def _client():

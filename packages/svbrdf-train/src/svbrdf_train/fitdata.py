@@ -98,7 +98,8 @@ def build_datasets(recipe: Recipe) -> tuple[Dataset, Dataset]:
         weights.append(float(entry["weight"]))
         if len(val):
             vals.append(val)
-    return Mixture(trains, weights, d.count, seed=d.seed), ConcatDataset(vals) if vals else Subset(trains[0], [])
+    val_set = ConcatDataset(vals) if vals else Subset(trains[0], [])
+    return Mixture(trains, weights, d.count, seed=d.seed), val_set
 
 
 def _source_datasets(d: DataSection, res: int) -> tuple[Dataset, Dataset]:
@@ -108,9 +109,7 @@ def _source_datasets(d: DataSection, res: int) -> tuple[Dataset, Dataset]:
             ProceduralMaterials(d.validation, res, seed=d.seed + 1),
         )
     if not d.path:
-        raise DataError(
-            f"data.source {d.source} needs a path: give --data PATH, or --set data.path=PATH"
-        )
+        raise DataError(f"data.source {d.source} needs a path: give --data PATH, or --set data.path=PATH")
     paths = data_paths(d.path)
     if d.source == "shards":
         from .data.shards import ShardDataset

@@ -140,7 +140,9 @@ class DataSection:
         choices=("procedural", "shards", "des18", "mix"),
     )
     path: str | tuple[str, ...] | None = param(
-        None, "shard file(s) or Des18 folder (--data); unused for procedural; for mix, the path of entries without one"
+        None,
+        "shard file(s) or Des18 folder (--data); unused for procedural; for mix, the path of the "
+        "entries that give none",
     )
     count: int = param(
         200_000,
@@ -179,11 +181,16 @@ def _check_mix_entry(i: int, entry: Mapping[str, Any]) -> None:
     unknown = set(entry) - set(MIX_KEYS)
     if unknown:
         key = sorted(unknown)[0]
-        raise ValueError(f"{where}: unknown key {key!r}{_suggest(key, MIX_KEYS)}; keys: {', '.join(MIX_KEYS)}")
+        raise ValueError(
+            f"{where}: unknown key {key!r}{_suggest(key, MIX_KEYS)}; keys: {', '.join(MIX_KEYS)}"
+        )
     if entry.get("source") not in MIX_SOURCES:
-        raise ValueError(f"{where}.source must be one of {', '.join(MIX_SOURCES)}, got {entry.get('source')!r}")
+        raise ValueError(
+            f"{where}.source must be one of {', '.join(MIX_SOURCES)}, got {entry.get('source')!r}"
+        )
     weight = entry.get("weight")
-    if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not weight > 0 or weight == float("inf"):
+    number = isinstance(weight, (int, float)) and not isinstance(weight, bool)
+    if not number or not 0 < weight < float("inf"):
         raise ValueError(f"{where}.weight must be a positive number (a relative frequency), got {weight!r}")
     for key in ("count", "validation"):
         value = entry.get(key)

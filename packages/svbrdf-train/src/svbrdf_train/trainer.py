@@ -379,7 +379,10 @@ class _Fit:
                 "g": self.g_opt.state_dict(),
                 "d": self.d_opt.state_dict() if self.d_opt else None,
             },
-            "schedule": {"samples": self.schedule.samples(self.step), "lr_factor": self.schedule.factor(self.step)},
+            "schedule": {
+                "samples": self.schedule.samples(self.step),
+                "lr_factor": self.schedule.factor(self.step),
+            },
             "rng": rngs,
             "run_id": self.run_id,
             "init": self.init,
@@ -690,7 +693,9 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
                 tracker.log_artifact(config_file, "config")
         progress.message(_plan(recipe, run, dist, tracker, start_step))
     # with a time budget, the steps it allows are known after a few steps (below)
-    warned = t.max_minutes is None and _warn_schedule(run, tracker, progress, run.total_steps, "the step budget")
+    warned = t.max_minutes is None and _warn_schedule(
+        run, tracker, progress, run.total_steps, "the step budget"
+    )
 
     status, message = "FINISHED", ""
     last_metrics: dict[str, float] = {}
@@ -720,7 +725,11 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
                         left = (t.max_minutes * 60 - run.train_seconds) / pace
                         budget = min(run.total_steps, run.step + int(left))
                         warned = _warn_schedule(
-                            run, tracker, progress, budget, f"{t.max_minutes:g} min at {pace * 1000:.0f} ms/step"
+                            run,
+                            tracker,
+                            progress,
+                            budget,
+                            f"{t.max_minutes:g} min at {pace * 1000:.0f} ms/step",
                         )
                 if bad is not None:
                     status = "FAILED"

@@ -147,6 +147,10 @@ def fit(
     from ..trainer import FitOptions
     from ..trainer import fit as run_fit
 
+    if init and resume:
+        raise RecipeError(
+            "--init starts a new fit from trained weights and --resume continues one; give one of them"
+        )
     overrides = parse_overrides(sets)
     data_overrides = _data_overrides(data)
     if recipe_name is not None and data_overrides.get("data.source") not in (None, "procedural"):
