@@ -100,8 +100,12 @@ def test_wrong_types_and_values_name_the_field(tmp_path):
         load_recipe("ours", overrides={"loss.gan": "wgan"})
     with pytest.raises(RecipeError, match=r"generator: .*unknown preset 'huge'"):
         load_recipe("ours", overrides={"generator.config.preset": "huge"})
-    with pytest.raises(RecipeError, match="needs a path"):
-        load_recipe("ours", overrides={"data.source": "shards"})
+    # A real source without a path loads (ours-real gets it from --data) and is refused at fit time.
+    from svbrdf_train.errors import DataError
+    from svbrdf_train.fitdata import build_datasets
+
+    with pytest.raises(DataError, match="needs a path: give --data"):
+        build_datasets(load_recipe("ours", overrides={"data.source": "shards"}))
 
 
 def test_adversarial_weight_needs_a_discriminator():
