@@ -2,32 +2,35 @@
 """Which training data teaches real materials: procedural only, real only, a mix, or procedural
 then fine-tuned on real, under one CPU-time budget, judged on real strips none of them saw.
 
-The strips of a Des18 folder (with ground truth) are split in two folds by their sorted position:
-even positions train, odd ones judge (``--swap``: the other way round). Then four fits of the
-same model (``ours`` at the ``--size``, default ``cpu``) each get ``--minutes`` of training on
-the fit's clock (process CPU time over its threads):
+The strips of a Des18 folder (with ground truth) are split in two folds by their sorted
+position. Fold 0 trains on the even positions and is judged on the odd ones; fold 1 the other
+way round, so every strip is judged once, by models that never trained on it. The same model
+(``ours`` at ``--size``, default ``cpu``) is trained four ways, each for ``--minutes`` on the
+fit's clock (process CPU time over its threads):
 
 ====  ====================  ===============================================================
-(a)   ``ours``              procedural materials only (``data.count`` 20000)
-(b)   ``ours-real``         the training fold only (every strip trains: ``validation`` 0)
-(c)   ``ours-mix``          procedural and the training fold, half and half
-(d)   ``ours-finetune``     (a) stopped at ``--pretrain`` of the budget, then ``--init`` from it
-                            on the training fold for the rest of the budget
+(a)   ``ours``              procedural materials only (``data.count`` 20000); one fit serves
+                            both folds, since it never sees a real strip
+(b)   ``ours-real``         the fold's training strips only (all of them: ``validation`` 0)
+(c)   ``ours-mix``          procedural and the fold's training strips, half and half
+(d)   ``ours-finetune``     (a) stopped at ``--pretrain`` of the budget, then ``--init`` from
+                            it on the fold's training strips for the rest of the budget
 ====  ====================  ===============================================================
 
-(a) is one fit: it writes its checkpoint when the pre-training share is reached, (d) starts
-from a copy, and (a) resumes to the whole budget (a resumed fit is bitwise the one that never
-stopped). Every fit watches the judging fold as ``val_real/`` (never used to choose weights:
-the last checkpoint is judged). Then ``svbrdf-bench run --from-runs`` scores the four and the
-``mean`` and ``photo`` baselines on the judging fold: RMSE per map and on renderings with
-bootstrap intervals, and each model against ``mean``.
+(a) writes its checkpoint when the pre-training share is reached; (d) starts from a copy and
+(a) resumes to the whole budget (a resumed fit is bitwise the one that never stopped). Every fit
+watches a judging fold as ``val_real/`` (fold 0's for (a)); the last checkpoint is judged, never
+one chosen on it. Judging: ``svbrdf-bench run --from-runs`` per fold (the full report, with the
+``mean`` and ``photo`` baselines, in ``OUT/report-fold0`` and ``OUT/report-fold1``), then all
+strips together: per-image RMSE of each map and of the renderings, pooled over the two folds,
+with 95% bootstrap intervals and the paired difference against ``mean`` (``OUT/pooled.md``).
 
 Usage::
 
-    .venv/bin/python benchmarks/real_mix.py ../shared/data/des18-dev -o real-mix   # 4 x 30 min
-    .venv/bin/python benchmarks/real_mix.py DIR --jobs 2 --threads 1                # two at a time
-    .venv/bin/python benchmarks/real_mix.py DIR --size smoke --minutes 0.1          # a dry run, seconds
-    .venv/bin/python benchmarks/real_mix.py DIR --print                             # the commands only
+    .venv/bin/python benchmarks/real_mix.py ../shared/data/des18-dev -o real-mix --jobs 2 --threads 1
+    .venv/bin/python benchmarks/real_mix.py DIR --size smoke --minutes 0.1     # the pipeline, in a minute
+    .venv/bin/python benchmarks/real_mix.py DIR --print                        # the commands only
+    .venv/bin/python benchmarks/real_mix.py DIR -o real-mix --judge-only       # judge the fits in OUT/fits
 
 Runs go to MLflow (``MLFLOW_TRACKING_URI``, else ``./mlflow.db``), experiment ``real-mix``.
 """
@@ -35,6 +38,7 @@ Runs go to MLflow (``MLFLOW_TRACKING_URI``, else ``./mlflow.db``), experiment ``
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shutil
 import subprocess
@@ -48,13 +52,20 @@ COMMON = (
     *("--set", "train.epochs=100000"),
     *("--set", "train.validate_every=500", "--set", "train.checkpoint_every=500"),
 )
+VARIANTS = ("a", "b", "c", "d")
+LABELS = {
+    "a": "(a) procedural",
+    "b": "(b) real only",
+    "c": "(c) mix",
+    "d": "(d) procedural, then real",
+}
+COLUMNS = ("normal", "diffuse", "roughness", "specular", "render")
 
 
 @dataclass
 class Job:
     name: str
     args: list[str]
-    after: str | None = None
     then: list[Job] = field(default_factory=list)  # started when this one ends
 
 
@@ -62,22 +73,25 @@ def strips(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() == ".png" and not p.name.startswith("."))
 
 
-def make_folds(data: Path, out: Path, swap: bool) -> tuple[Path, Path, int, int]:
+def make_folds(data: Path, out: Path) -> list[tuple[Path, Path]]:
+    """``[(train, judge)]`` of folds 0 and 1: folders of links to the strips."""
     files = strips(data)
     if len(files) < 4:
         sys.exit(f"real_mix: error: {data}: {len(files)} Des18 strips; two folds need at least 4")
-    even, odd = files[0::2], files[1::2]
-    train, judge = (odd, even) if swap else (even, odd)
-    folders = []
-    for name, part in (("train", train), ("judge", judge)):
-        folder = out / "folds" / name
-        if folder.exists():
-            shutil.rmtree(folder)
-        folder.mkdir(parents=True)
-        for f in part:
-            (folder / f.name).symlink_to(f.resolve())
-        folders.append(folder)
-    return folders[0], folders[1], len(train), len(judge)
+    halves = (files[0::2], files[1::2])
+    folds = []
+    for k in (0, 1):
+        pair = []
+        for role, part in (("train", halves[k]), ("judge", halves[1 - k])):
+            folder = out / "folds" / f"fold{k}" / role
+            if folder.exists():
+                shutil.rmtree(folder)
+            folder.mkdir(parents=True)
+            for f in part:
+                (folder / f.name).symlink_to(f.resolve())
+            pair.append(folder)
+        folds.append((pair[0], pair[1]))
+    return folds
 
 
 def fit_args(
@@ -90,80 +104,155 @@ def fit_args(
     ]  # fmt: skip
 
 
-def plan(args, train: Path, judge: Path) -> tuple[list[Job], Callable[[], None]]:
+def fit_folder(out: Path, variant: str, fold: int) -> Path:
+    return out / "fits" / ("a" if variant == "a" else f"fold{fold}/{variant}")
+
+
+def plan(args, folds: list[tuple[Path, Path]]) -> tuple[list[Job], Callable[[], None]]:
     out, size, m = args.out, args.size, args.minutes
     pre = m * args.pretrain
-    real = ("--data", str(train), "--set", "data.validation=0")
+    pre_ckpt = out / "fits" / "a-pretrained"
     mix = "[{source: procedural, weight: 0.5}, {source: des18, weight: 0.5, validation: 0}]"
-    pre_ckpt = out / "fits" / "d-pretrained"
 
     def copy():
         pre_ckpt.mkdir(parents=True, exist_ok=True)
         for name in ("last.pt", "last.json"):
-            shutil.copy2(out / "fits" / "a" / name, pre_ckpt / name)
+            shutil.copy2(fit_folder(out, "a", 0) / name, pre_ckpt / name)
 
-    resume_a = Job(
-        "a (resumed)",
-        [sys.executable, "-m", "svbrdf_train", "fit", "--resume", "--out", str(out / "fits" / "a"),
-         "--max-minutes", f"{m:g}", "-q"],
-    )  # fmt: skip
-    finetune = Job(
-        "d",
-        fit_args("ours-finetune", size, "d-finetune", out / "fits" / "d", m - pre, judge, *real,
-                 "--init", str(pre_ckpt)),
-    )  # fmt: skip
-    return [
+    later = [
         Job(
-            "a (pre-training)",
-            fit_args(
-                "ours", size, "a-procedural", out / "fits" / "a", pre, judge, "--set", "data.count=20000"
-            ),
-            then=[resume_a, finetune],
-        ),
-        Job("b", fit_args("ours-real", size, "b-real", out / "fits" / "b", m, judge, *real)),
-        Job(
-            "c",
-            fit_args("ours-mix", size, "c-mix", out / "fits" / "c", m, judge, "--data", str(train),
-                     "--set", "data.count=20000", "--set", f"data.mix={mix}"),
-        ),  # fmt: skip
-    ], copy
+            "a (resumed)",
+            [sys.executable, "-m", "svbrdf_train", "fit", "--resume", "--out", str(fit_folder(out, "a", 0)),
+             "--max-minutes", f"{m:g}", "-q"],
+        )
+    ]  # fmt: skip
+    first = []
+    for k, (train, judge) in enumerate(folds):
+        real = ("--data", str(train), "--set", "data.validation=0")
+        first.append(Job(f"b{k}", fit_args("ours-real", size, f"b-real-fold{k}", fit_folder(out, "b", k), m,
+                                           judge, *real)))
+        first.append(Job(f"c{k}", fit_args("ours-mix", size, f"c-mix-fold{k}", fit_folder(out, "c", k), m,
+                                           judge, "--data", str(train), "--set", "data.count=20000",
+                                           "--set", f"data.mix={mix}")))
+        later.append(Job(f"d{k}", fit_args("ours-finetune", size, f"d-finetune-fold{k}",
+                                            fit_folder(out, "d", k), m - pre, judge, *real,
+                                            "--init", str(pre_ckpt))))  # fmt: skip
+    a = Job(
+        "a (pre-training)",
+        fit_args("ours", size, "a-procedural", fit_folder(out, "a", 0), pre, folds[0][1],
+                 "--set", "data.count=20000"),
+        then=later,
+    )  # fmt: skip
+    return [a, *first], copy
 
 
-def run_jobs(jobs: list[Job], copy, parallel: int, env: dict) -> None:
+def run_jobs(jobs: list[Job], copy: Callable[[], None], parallel: int, env: dict) -> None:
     queue = list(jobs)
-    running: list[tuple[Job, subprocess.Popen, float]] = []
-    logs = {}
+    running: list[tuple[Job, subprocess.Popen, float, object]] = []
     while queue or running:
         while queue and len(running) < parallel:
             job = queue.pop(0)
-            log = open(Path(job.args[job.args.index("--out") + 1]).with_suffix(".log"), "a")  # noqa: SIM115
-            logs[job.name] = log
+            folder = Path(job.args[job.args.index("--out") + 1])
+            folder.parent.mkdir(parents=True, exist_ok=True)
+            log = open(folder.with_suffix(".log"), "a")  # noqa: SIM115 (closed when the job ends)
             print(f"[{time.strftime('%H:%M:%S')}] start {job.name}: {' '.join(job.args[1:])}", flush=True)
-            running.append((job, subprocess.Popen(job.args, env=env, stdout=log, stderr=log), time.time()))
+            proc = subprocess.Popen(job.args, env=env, stdout=log, stderr=log)
+            running.append((job, proc, time.time(), log))
         time.sleep(2)
         for item in list(running):
-            job, proc, start = item
+            job, proc, start, log = item
             if proc.poll() is None:
                 continue
             running.remove(item)
-            logs[job.name].close()
+            log.close()
             took = (time.time() - start) / 60
             print(f"[{time.strftime('%H:%M:%S')}] {job.name} ended (exit {proc.returncode}, {took:.1f} min)")
             if proc.returncode != 0:
-                sys.exit(f"real_mix: error: fit {job.name} failed; its log: {logs[job.name].name}")
+                sys.exit(f"real_mix: error: fit {job.name} failed; its log: {log.name}")
             if job.then:
                 copy()
                 queue = job.then + queue
 
 
-def run_ids(out: Path) -> list[str]:
-    import json
+def run_id(folder: Path) -> str:
+    return json.loads((folder / "last.json").read_text())["run_id"]
 
-    ids = []
-    for name in ("a", "b", "c", "d"):
-        summary = json.loads((out / "fits" / name / "last.json").read_text())
-        ids.append(summary["run_id"])
-    return ids
+
+# -- judging ------------------------------------------------------------------------------------
+
+
+def per_image(out: Path, folds: list[tuple[Path, Path]]) -> dict[str, dict[str, list[float]]]:
+    """Per-image RMSE of every variant and of ``mean`` on its judging folds, both folds in a row."""
+    import torch
+
+    import svbrdf_models as sm
+    from svbrdf_bench.metrics import evaluate
+    from svbrdf_bench.testset import test_set
+    from svbrdf_render import SVBRDF
+    from svbrdf_train.predict import Predictor
+
+    scores: dict[str, dict[str, list[float]]] = {}
+    for k, (_, judge) in enumerate(folds):
+        models = {v: Predictor.from_checkpoint(fit_folder(out, v, k) / "last.pt") for v in VARIANTS}
+        resolution = models["a"].resolution
+        data = test_set(judge, resolution, 0)
+        photos = torch.stack([data[i]["input"] for i in range(len(data))])
+        truth = SVBRDF.unpack(torch.stack([data[i]["maps"] for i in range(len(data))]))
+        generators = {v: p.predict_batch for v, p in models.items()}
+        mean = sm.create_generator("mean", {}).eval()
+        generators["mean"] = lambda x, g=mean: g(x)
+        for name, predict in generators.items():
+            with torch.no_grad():
+                figures = evaluate(predict(photos), truth)
+            for c in COLUMNS:
+                scores.setdefault(name, {}).setdefault(c, []).extend(figures[f"rmse/{c}"].tolist())
+    return scores
+
+
+def pooled_table(scores: dict[str, dict[str, list[float]]], n_images: int) -> str:
+    from svbrdf_bench.metrics import bootstrap_ci, paired_difference
+
+    head = "| model | " + " | ".join(COLUMNS) + " |\n| --- |" + " ---: |" * len(COLUMNS)
+    rows = [head]
+    for name in (*VARIANTS, "mean"):
+        cells = []
+        for c in COLUMNS:
+            m, lo, hi = bootstrap_ci(scores[name][c])
+            cells.append(f"{m:.4f} [{lo:.4f}, {hi:.4f}]")
+        rows.append(f"| {LABELS.get(name, '`mean` (baseline)')} | " + " | ".join(cells) + " |")
+    rows += ["", "Against `mean` (paired, % of `mean`'s RMSE; beats / worse: the interval excludes 0):", ""]
+    rows += [head]
+    for name in VARIANTS:
+        cells = []
+        for c in COLUMNS:
+            d = paired_difference(scores[name][c], scores["mean"][c])
+            base = sum(scores["mean"][c]) / len(scores["mean"][c])
+            verdict = "within noise" if d.within_noise else ("beats" if d.high < 0 else "worse")
+            low, high = 100 * d.low / base, 100 * d.high / base
+            cells.append(f"{100 * d.mean / base:+.0f}% [{low:+.0f}, {high:+.0f}] {verdict}")
+        rows.append(f"| {LABELS[name]} | " + " | ".join(cells) + " |")
+    title = f"RMSE over the {n_images} strips of both judging folds (95% bootstrap intervals):"
+    return title + "\n\n" + "\n".join(rows)
+
+
+def judge(args, folds: list[tuple[Path, Path]], env: dict) -> int:
+    for k, (_, judge_folder) in enumerate(folds):
+        ids = [run_id(fit_folder(args.out, v, k)) for v in VARIANTS]
+        bench = [
+            sys.executable, "-m", "svbrdf_bench", "run", "--from-runs", ",".join(ids),
+            "--test-data", str(judge_folder), "--experiment", "real-mix",
+            "-o", str(args.out / f"report-fold{k}"),
+        ]  # fmt: skip
+        print(f"[{time.strftime('%H:%M:%S')}] judging fold {k}: {' '.join(bench[1:])}", flush=True)
+        done = subprocess.run(bench, env=env)
+        if done.returncode != 0:
+            return done.returncode
+    scores = per_image(args.out, folds)
+    n = len(scores["mean"]["render"])
+    text = pooled_table(scores, n)
+    (args.out / "pooled.md").write_text(text + "\n")
+    print("\n" + text)
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -171,13 +260,13 @@ def main(argv: list[str] | None = None) -> int:
         description=__doc__.split("\n\n")[0], formatter_class=argparse.RawTextHelpFormatter
     )
     p.add_argument("data", type=Path, help="a Des18 folder of strips with ground truth (e.g. des18-dev)")
-    p.add_argument("-o", "--out", type=Path, default=Path("real-mix"), help="folds, fits and the report")
+    p.add_argument("-o", "--out", type=Path, default=Path("real-mix"), help="folds, fits and reports")
     p.add_argument("--minutes", type=float, default=30.0, help="training budget per variant (default 30)")
     p.add_argument("--pretrain", type=float, default=2 / 3, help="share of (d)'s budget on procedural data")
     p.add_argument("--size", default="cpu", choices=("cpu", "smoke", "paper"))
     p.add_argument("--jobs", type=int, default=1, help="fits at a time (each gets --threads threads)")
     p.add_argument("--threads", type=int, default=None, help="torch threads per fit (default: torch's)")
-    p.add_argument("--swap", action="store_true", help="train on the odd strips, judge on the even ones")
+    p.add_argument("--judge-only", action="store_true", help="judge the fits already in OUT/fits")
     p.add_argument("--print", dest="show", action="store_true", help="print the commands, run nothing")
     args = p.parse_args(argv)
     if not args.data.is_dir():
@@ -187,29 +276,25 @@ def main(argv: list[str] | None = None) -> int:
         print("real_mix: error: --pretrain must be in (0, 1), --minutes and --jobs positive", file=sys.stderr)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
-    train, judge, n_train, n_judge = make_folds(args.data, args.out, args.swap)
-    print(f"folds: {n_train} strips train ({train}), {n_judge} judge ({judge})")
-    jobs, copy = plan(args, train, judge)
-    if args.show:
-        for job in jobs:
-            for j in (job, *job.then):
-                print(f"{j.name}: {' '.join(j.args[1:])}")
-        return 0
+    folds = make_folds(args.data, args.out)
+    for k, (train, judge_folder) in enumerate(folds):
+        n_train, n_judge = len(strips(train)), len(strips(judge_folder))
+        print(f"fold {k}: {n_train} strips train, {n_judge} judge ({judge_folder})")
     env = dict(os.environ)
     if args.threads:
         env["OMP_NUM_THREADS"] = str(args.threads)
-    (args.out / "fits").mkdir(exist_ok=True)
-    # Fits starting together on a new SQLite store race to create its tables: create them first.
-    store = "import mlflow; mlflow.MlflowClient().search_experiments()"
-    subprocess.run([sys.executable, "-c", store], env=env, check=True, capture_output=True)
-    run_jobs(jobs, copy, args.jobs, env)
-    ids = run_ids(args.out)
-    bench = [
-        sys.executable, "-m", "svbrdf_bench", "run", "--from-runs", ",".join(ids), "--test-data", str(judge),
-        "--experiment", "real-mix", "-o", str(args.out / "report"),
-    ]  # fmt: skip
-    print(f"[{time.strftime('%H:%M:%S')}] judging: {' '.join(bench[1:])}", flush=True)
-    return subprocess.run(bench, env=env).returncode
+    if not args.judge_only:
+        jobs, copy = plan(args, folds)
+        if args.show:
+            for job in jobs:
+                for j in (job, *job.then):
+                    print(f"{j.name}: {' '.join(j.args[1:])}")
+            return 0
+        # Fits starting together on a new SQLite store race to create its tables: create them first.
+        store = "import mlflow; mlflow.MlflowClient().search_experiments()"
+        subprocess.run([sys.executable, "-c", store], env=env, check=True, capture_output=True)
+        run_jobs(jobs, copy, args.jobs, env)
+    return judge(args, folds, env)
 
 
 if __name__ == "__main__":
