@@ -384,3 +384,28 @@ def test_real_photos_add_the_self_consistency_figure(bench):
     )
     medians = {c.data.tags["svbrdf.model"]: c.data.metrics["real/rerender_rmse_median"] for c in children}
     assert {r["model"]: float(r["real_rerender_rmse_median"]) for r in rows} == pytest.approx(medians)
+
+
+def test_a_fine_tuned_fit_counts_the_time_behind_its_starting_weights(bench, tmp_path):
+    """A fit started with ``--init`` is drawn from where its parent's training stopped, and the
+    report says where its weights came from."""
+    from svbrdf_bench.report import build_report
+    from svbrdf_train.cli import cli as train_cli
+
+    # the benchmark trained ours itself: its child run is the fit
+    parent_fit = next(c for c in _children(bench[2]) if c.data.tags["svbrdf.model"] == "ours").info.run_id
+    before = _client().get_run(parent_fit).data.metrics["train/total_seconds"]
+    fit = CliRunner().invoke(
+        train_cli,
+        ["fit", "-q", "--recipe", "ours", "--size", "smoke", "--out", str(tmp_path / "fit"),
+         "--experiment", "tests-bench", "--run-name", "ours-tuned", "--init", parent_fit],
+        catch_exceptions=False,
+    )  # fmt: skip
+    assert fit.exit_code == 0, fit.output
+    tuned = json.loads((tmp_path / "fit" / "last.json").read_text())["run_id"]
+    result = _invoke("run", "--from-runs", tuned, *TINY, "--no-baselines", "-o", tmp_path / "r")
+    assert result.exit_code == 0, result.output
+    assert f"was fine-tuned from run {parent_fit} (fit --init)" in result.stdout
+    (entry,) = build_report(json.loads((tmp_path / "r" / "results.json").read_text())["parent_run"]).trained
+    own = _client().get_metric_history(tuned, "val/train_seconds")
+    assert entry.curve[0] and min(entry.curve[0]) == pytest.approx(before + min(m.value for m in own), abs=0.2)

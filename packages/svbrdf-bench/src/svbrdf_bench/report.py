@@ -70,6 +70,9 @@ class ModelEntry:
     baseline: bool = False
     #: The clock the fit's training time was budgeted on (tag svbrdf.clock); None: not recorded.
     clock: str | None = None
+    #: Where a fine-tuned fit's starting weights came from (``fit --init``), and the training
+    #: time behind them (its curves are shifted by it); None: trained from scratch.
+    init: tuple[str, float] | None = None
 
     @property
     def name(self) -> str:
@@ -180,6 +183,16 @@ class Report:
         return "training time budgeted and reported on " + "; ".join(
             f"{label}: the {w}" for label, w in words.items()
         )
+
+    def init_notes(self) -> list[str]:
+        """One line per fine-tuned model: where it started and the training time before."""
+        return [
+            f"{e.label} was fine-tuned from {e.init[0]} (fit --init), which had trained {e.init[1]:.0f} s "
+            "on the same clock: its learning curve starts there, and its whole training time is that "
+            "plus the time table's"
+            for e in self.trained
+            if e.init is not None
+        ]
 
     def interval(self, model: ModelEntry, metric: str, column: str) -> tuple[float, float, float] | None:
         from .metrics import bootstrap_ci
@@ -346,6 +359,7 @@ class Report:
             *self.headline(),
             f"test set: {self.test_set}; {self.lpips_note}",
             self.clock_note(),
+            *self.init_notes(),
             "",
             *self._tables(False),
         ]
@@ -358,6 +372,7 @@ class Report:
             *(line for h in self.headline() for line in (f"**{h}**", "")),
             f"- preset: {self.preset} ({self.minutes})",
             f"- {self.clock_note()}",
+            *(f"- {line}" for line in self.init_notes()),
             f"- test set: {self.test_set}",
             f"- {self.lpips_note}",
             f"- MLflow parent run: `{self.parent_id}`; rebuild with `svbrdf-bench report {self.parent_id}`",
@@ -422,12 +437,15 @@ def _table(title: str, head: list[str], rows: list[list[str]], markdown: bool) -
 # -- from MLflow --------------------------------------------------------------------------------
 
 
-def _curve(client, run_id: str, key: str = "val/rmse/render") -> tuple[list[float], list[float]]:
-    """``(training seconds, metric)`` at the validation steps of a fit (``key``: which figure)."""
+def _curve(
+    client, run_id: str, key: str = "val/rmse/render", offset: float = 0.0
+) -> tuple[list[float], list[float]]:
+    """``(training seconds, metric)`` at the validation steps of a fit (``key``: which figure);
+    ``offset``: training time before the fit (a fine-tuned fit's starting weights)."""
     rmse = {m.step: m.value for m in client.get_metric_history(run_id, key)}
     seconds = {m.step: m.value for m in client.get_metric_history(run_id, "val/train_seconds")}
     steps = sorted(set(rmse) & set(seconds))
-    return [seconds[s] for s in steps], [rmse[s] for s in steps]
+    return [offset + seconds[s] for s in steps], [rmse[s] for s in steps]
 
 
 def build_report(parent_id: str) -> Report:
@@ -470,6 +488,8 @@ def build_report(parent_id: str) -> Report:
             if "time/train_steps_wall_s" not in figures and "train/total_wall_seconds" in metrics:
                 figures["time/train_steps_wall_s"] = metrics["train/total_wall_seconds"]
             tags = child.data.tags if train_run == child.info.run_id else client.get_run(train_run).data.tags
+            before = float(tags.get("svbrdf.init_train_seconds", 0.0))
+            init = (tags["svbrdf.init"], before) if "svbrdf.init" in tags else None
             models.append(
                 ModelEntry(
                     label,
@@ -477,9 +497,10 @@ def build_report(parent_id: str) -> Report:
                     train_run,
                     per_sample,
                     figures,
-                    _curve(client, train_run),
-                    _curve(client, train_run, "val_real/rmse/render"),
+                    _curve(client, train_run, offset=before),
+                    _curve(client, train_run, "val_real/rmse/render", offset=before),
                     clock=tags.get(CLOCK_TAG),
+                    init=init,
                 )
             )
     if not models:

@@ -4,7 +4,9 @@ The source is a checkpoint file, the ``--out`` folder of a fit (its ``last.pt``)
 run id (the checkpoint that run logged). The new fit takes the generator's weights, and the
 discriminator's when both recipes have the same one; its optimisers, schedule, step count and
 time budget start from zero, and its MLflow run is a new one that records where the weights
-came from (tags ``svbrdf.init``, ``svbrdf.init_run``, ``svbrdf.init_step``).
+came from (tags ``svbrdf.init``, ``svbrdf.init_run``, ``svbrdf.init_step`` and
+``svbrdf.init_train_seconds``, the training time behind those weights, which ``svbrdf-bench``
+adds to the fit's own on its learning curves).
 """
 
 from __future__ import annotations
@@ -38,9 +40,14 @@ class InitWeights:
     recipe: Recipe
     run_id: str | None
     step: int
+    train_seconds: float = 0.0
 
     def tags(self) -> dict[str, str]:
-        out = {"svbrdf.init": self.source, "svbrdf.init_step": str(self.step)}
+        out = {
+            "svbrdf.init": self.source,
+            "svbrdf.init_step": str(self.step),
+            "svbrdf.init_train_seconds": f"{self.train_seconds:.1f}",
+        }
         if self.run_id:
             out["svbrdf.init_run"] = self.run_id
         return out
@@ -95,6 +102,7 @@ def load_init(arg: str) -> InitWeights:
         recipe=recipe,
         run_id=run_id or state.get("run_id"),
         step=int(state.get("step", 0)),
+        train_seconds=float(state.get("train_seconds", 0.0)),
     )
 
 
