@@ -231,6 +231,21 @@ def pooled_table(scores: dict[str, dict[str, list[float]]], n_images: int) -> st
             low, high = 100 * d.low / base, 100 * d.high / base
             cells.append(f"{100 * d.mean / base:+.0f}% [{low:+.0f}, {high:+.0f}] {verdict}")
         rows.append(f"| {LABELS[name]} | " + " | ".join(cells) + " |")
+    render = {v: sum(scores[v]["render"]) for v in VARIANTS}
+    best = min(VARIANTS, key=render.get)
+    rows += ["", f"{LABELS[best]}, the best on renderings, against the others (paired, % of theirs):", ""]
+    rows += [head]
+    for name in VARIANTS:
+        if name == best:
+            continue
+        cells = []
+        for c in COLUMNS:
+            d = paired_difference(scores[best][c], scores[name][c])
+            base = sum(scores[name][c]) / len(scores[name][c])
+            verdict = "within noise" if d.within_noise else ("better" if d.high < 0 else "worse")
+            low, high = 100 * d.low / base, 100 * d.high / base
+            cells.append(f"{100 * d.mean / base:+.0f}% [{low:+.0f}, {high:+.0f}] {verdict}")
+        rows.append(f"| against {LABELS[name]} | " + " | ".join(cells) + " |")
     title = f"RMSE over the {n_images} strips of both judging folds (95% bootstrap intervals):"
     return title + "\n\n" + "\n".join(rows)
 
