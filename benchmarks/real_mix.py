@@ -305,9 +305,6 @@ def main(argv: list[str] | None = None) -> int:
                 for j in (job, *job.then):
                     print(f"{j.name}: {' '.join(j.args[1:])}")
             return 0
-        # Fits starting together on a new SQLite store race to create its tables: create them first.
-        store = "import mlflow; mlflow.MlflowClient().search_experiments()"
-        subprocess.run([sys.executable, "-c", store], env=env, check=True, capture_output=True)
         run_jobs(jobs, copy, args.jobs, env)
     return judge(args, folds, env)
 

@@ -182,3 +182,30 @@ def test_fit_with_an_unreachable_server_is_a_one_line_error(tmp_path):
     assert result.returncode == 2
     assert result.stderr.startswith("svbrdf-train: error: ") and result.stderr.count("\n") == 1
     assert url in result.stderr
+
+
+@pytest.mark.slow
+def test_fits_started_together_on_a_new_sqlite_store_all_keep_their_runs(tmp_path):
+    """Three fits on a store that does not exist yet: MLflow creates its tables on first use,
+    without a lock, and the losers of that race used to die before training."""
+    import subprocess
+    import sys
+
+    store = f"sqlite:///{tmp_path / 'new' / 'mlflow.db'}"
+    env = {**os.environ, "MLFLOW_TRACKING_URI": store}
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-m", "svbrdf_train", "fit", "--recipe", "no-adv", "--size", "smoke", "-q",
+             "--out", str(tmp_path / f"fit{k}"), "--experiment", "together"],
+            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        for k in range(3)
+    ]
+    results = [p.communicate(timeout=300) for p in procs]
+    for p, (_, err) in zip(procs, results, strict=True):
+        assert p.returncode == 0, err
+    from mlflow import MlflowClient
+
+    client = MlflowClient(store)
+    runs = client.search_runs([client.get_experiment_by_name("together").experiment_id])
+    assert len(runs) == 3 and all(r.info.status == "FINISHED" for r in runs)

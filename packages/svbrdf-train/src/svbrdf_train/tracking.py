@@ -12,6 +12,7 @@ on the folder a later command runs in. A server keeps its own artifact root.
 
 from __future__ import annotations
 
+import contextlib
 import importlib.metadata
 import os
 import platform
@@ -67,6 +68,43 @@ def _local_store_folder(uri: str) -> Path | None:
     if parsed.scheme in ("", "file"):
         return Path(unquote(parsed.path) or uri).resolve()
     return None
+
+
+@contextlib.contextmanager
+def _store_lock(uri: str):
+    """An exclusive lock on ``<store>.lock`` beside a SQLite store, for its first use by a process.
+
+    MLflow creates and migrates a SQLite store's tables on first open, without a lock: two fits
+    started together on a new store race, and the loser dies (``table experiment_tags already
+    exists``) or leaves the store unopenable. Other stores need no lock (a server serialises).
+    """
+    parsed = urlparse(uri)
+    if parsed.scheme != "sqlite":
+        yield
+        return
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: no lock (the race needs two first uses at the same instant)
+        yield
+        return
+    db = Path(unquote(parsed.path)[1:]).resolve()
+    db.parent.mkdir(parents=True, exist_ok=True)
+    with open(db.with_name(db.name + ".lock"), "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def open_client(uri: str):
+    """An MlflowClient on ``uri`` whose store is created (tables and all) by one process at a time."""
+    from mlflow import MlflowClient
+
+    with _store_lock(uri):
+        client = MlflowClient(uri)
+        client.search_experiments(max_results=1)  # opens the store: creates or migrates its tables
+    return client
 
 
 def flatten_params(config: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
@@ -146,11 +184,17 @@ class MlflowTracker(Tracker):
         run_id: str | None = None,
     ):
         import mlflow
-        from mlflow import MlflowClient
         from mlflow.entities import Param
 
         self.uri = mlflow.get_tracking_uri()
-        self.client = MlflowClient(self.uri)
+        try:
+            self.client = open_client(self.uri)
+        except Exception as e:  # database, connection and permission errors alike
+            first = str(e).strip().splitlines()[0][:200] if str(e).strip() else ""
+            raise TrackingError(
+                f"cannot open the MLflow store {self.uri} ({type(e).__name__}: {first}); start the "
+                "server or fix MLFLOW_TRACKING_URI, or pass --no-track to train without MLflow"
+            ) from None
         if run_id is not None:
             try:
                 run = self.client.get_run(run_id)
