@@ -97,6 +97,15 @@ def _store_lock(uri: str):
             fcntl.flock(f, fcntl.LOCK_UN)
 
 
+def _store_error(what: str, uri: str, error: Exception) -> TrackingError:
+    """One line: what could not be done with the store, its first error line, what to do."""
+    first = str(error).strip().splitlines()[0][:200] if str(error).strip() else ""
+    return TrackingError(
+        f"cannot {what} {uri} ({type(error).__name__}: {first}); start the server or fix "
+        "MLFLOW_TRACKING_URI, or pass --no-track to train without MLflow"
+    )
+
+
 def open_client(uri: str):
     """An MlflowClient on ``uri`` whose store is created (tables and all) by one process at a time."""
     from mlflow import MlflowClient
@@ -190,11 +199,7 @@ class MlflowTracker(Tracker):
         try:
             self.client = open_client(self.uri)
         except Exception as e:  # database, connection and permission errors alike
-            first = str(e).strip().splitlines()[0][:200] if str(e).strip() else ""
-            raise TrackingError(
-                f"cannot open the MLflow store {self.uri} ({type(e).__name__}: {first}); start the "
-                "server or fix MLFLOW_TRACKING_URI, or pass --no-track to train without MLflow"
-            ) from None
+            raise _store_error("open the MLflow store", self.uri, e) from None
         if run_id is not None:
             try:
                 run = self.client.get_run(run_id)
@@ -213,11 +218,7 @@ class MlflowTracker(Tracker):
             self.experiment_id = self._experiment(experiment)
             run = self.client.create_run(self.experiment_id, run_name=run_name, tags=dict(tags or {}))
         except Exception as e:  # MlflowException, connection and database errors alike
-            first = str(e).strip().splitlines()[0][:200] if str(e).strip() else ""
-            raise TrackingError(
-                f"cannot start a run in the MLflow store {self.uri} ({type(e).__name__}: {first}); start the "
-                "server or fix MLFLOW_TRACKING_URI, or pass --no-track to train without MLflow"
-            ) from None
+            raise _store_error("start a run in the MLflow store", self.uri, e) from None
         self.run_id = run.info.run_id
         items = list((params or {}).items())
         for start in range(0, len(items), 100):  # MLflow takes at most 100 params per batch
