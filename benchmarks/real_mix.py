@@ -59,6 +59,8 @@ LABELS = {
     "c": "(c) mix",
     "d": "(d) procedural, then real",
 }
+#: The recipe of each variant: its row label in the benchmark's report.
+RECIPES = {"a": "ours", "b": "ours-real", "c": "ours-mix", "d": "ours-finetune"}
 COLUMNS = ("normal", "diffuse", "roughness", "specular", "render")
 
 
@@ -129,17 +131,17 @@ def plan(args, folds: list[tuple[Path, Path]]) -> tuple[list[Job], Callable[[], 
     first = []
     for k, (train, judge) in enumerate(folds):
         real = ("--data", str(train), "--set", "data.validation=0")
-        first.append(Job(f"b{k}", fit_args("ours-real", size, f"b-real-fold{k}", fit_folder(out, "b", k), m,
+        first.append(Job(f"b{k}", fit_args(RECIPES["b"], size, f"b-real-fold{k}", fit_folder(out, "b", k), m,
                                            judge, *real)))
-        first.append(Job(f"c{k}", fit_args("ours-mix", size, f"c-mix-fold{k}", fit_folder(out, "c", k), m,
+        first.append(Job(f"c{k}", fit_args(RECIPES["c"], size, f"c-mix-fold{k}", fit_folder(out, "c", k), m,
                                            judge, "--data", str(train), "--set", "data.count=20000",
                                            "--set", f"data.mix={mix}")))
-        later.append(Job(f"d{k}", fit_args("ours-finetune", size, f"d-finetune-fold{k}",
+        later.append(Job(f"d{k}", fit_args(RECIPES["d"], size, f"d-finetune-fold{k}",
                                             fit_folder(out, "d", k), m - pre, judge, *real,
                                             "--init", str(pre_ckpt))))  # fmt: skip
     a = Job(
         "a (pre-training)",
-        fit_args("ours", size, "a-procedural", fit_folder(out, "a", 0), pre, folds[0][1],
+        fit_args(RECIPES["a"], size, "a-procedural", fit_folder(out, "a", 0), pre, folds[0][1],
                  "--set", "data.count=20000"),
         then=later,
     )  # fmt: skip
@@ -181,31 +183,18 @@ def run_id(folder: Path) -> str:
 # -- judging ------------------------------------------------------------------------------------
 
 
-def per_image(out: Path, folds: list[tuple[Path, Path]]) -> dict[str, dict[str, list[float]]]:
-    """Per-image RMSE of every variant and of ``mean`` on its judging folds, both folds in a row."""
-    import torch
-
-    import svbrdf_models as sm
-    from svbrdf_bench.metrics import evaluate
-    from svbrdf_bench.testset import test_set
-    from svbrdf_render import SVBRDF
-    from svbrdf_train.predict import Predictor
+def per_image(parents: list[str]) -> dict[str, dict[str, list[float]]]:
+    """Per-image RMSE of every variant and of ``mean``, both folds in a row, as the fold's
+    benchmark (MLflow parent run) scored them."""
+    from svbrdf_bench.report import build_report
 
     scores: dict[str, dict[str, list[float]]] = {}
-    for k, (_, judge) in enumerate(folds):
-        models = {v: Predictor.from_checkpoint(fit_folder(out, v, k) / "last.pt") for v in VARIANTS}
-        resolution = models["a"].resolution
-        data = test_set(judge, resolution, 0)
-        photos = torch.stack([data[i]["input"] for i in range(len(data))])
-        truth = SVBRDF.unpack(torch.stack([data[i]["maps"] for i in range(len(data))]))
-        generators = {v: p.predict_batch for v, p in models.items()}
-        mean = sm.create_generator("mean", {}).eval()
-        generators["mean"] = lambda x, g=mean: g(x)
-        for name, predict in generators.items():
-            with torch.no_grad():
-                figures = evaluate(predict(photos), truth)
+    for parent in parents:
+        entries = {e.label: e for e in build_report(parent).models}
+        for name in (*VARIANTS, "mean"):
+            per_sample = entries[RECIPES.get(name, name)].per_sample
             for c in COLUMNS:
-                scores.setdefault(name, {}).setdefault(c, []).extend(figures[f"rmse/{c}"].tolist())
+                scores.setdefault(name, {}).setdefault(c, []).extend(per_sample[f"rmse/{c}"].tolist())
     return scores
 
 
@@ -251,6 +240,7 @@ def pooled_table(scores: dict[str, dict[str, list[float]]], n_images: int) -> st
 
 
 def judge(args, folds: list[tuple[Path, Path]], env: dict) -> int:
+    parents = []
     for k, (_, judge_folder) in enumerate(folds):
         ids = [run_id(fit_folder(args.out, v, k)) for v in VARIANTS]
         bench = [
@@ -262,7 +252,8 @@ def judge(args, folds: list[tuple[Path, Path]], env: dict) -> int:
         done = subprocess.run(bench, env=env)
         if done.returncode != 0:
             return done.returncode
-    scores = per_image(args.out, folds)
+        parents.append(json.loads((args.out / f"report-fold{k}" / "results.json").read_text())["parent_run"])
+    scores = per_image(parents)
     n = len(scores["mean"]["render"])
     text = pooled_table(scores, n)
     (args.out / "pooled.md").write_text(text + "\n")

@@ -41,7 +41,15 @@ from .data import Des18Folder, ProceduralMaterials
 from .errors import DataError
 from .recipe import DataSection, Recipe
 
-__all__ = ["build_datasets", "data_paths", "open_materials", "real_validation_set", "Mixture", "Resized"]
+__all__ = [
+    "build_datasets",
+    "data_paths",
+    "open_materials",
+    "real_validation_set",
+    "set_epoch",
+    "Mixture",
+    "Resized",
+]
 
 
 def data_paths(path: str | tuple[str, ...] | list[str] | None) -> list[Path]:
@@ -143,10 +151,12 @@ def _source_datasets(d: DataSection, res: int) -> tuple[Dataset, Dataset]:
     return Subset(train, range(n - d.validation)), Subset(val, range(n - d.validation, n))
 
 
-def _base(data: Dataset) -> Dataset:
+def set_epoch(data: Dataset, epoch: int) -> None:
+    """``set_epoch`` of the data set under any Subsets, if it has one (random crops, mixes)."""
     while isinstance(data, Subset):
         data = data.dataset
-    return data
+    if hasattr(data, "set_epoch"):
+        data.set_epoch(epoch)
 
 
 class Mixture(Dataset):
@@ -189,16 +199,9 @@ class Mixture(Dataset):
                 self.index[where] = torch.cat(order)[: len(where)]
                 self.passes[where] = torch.arange(len(where)) // n
 
-    def source_of(self, index: int) -> int:
-        """Which source position ``index`` reads this epoch."""
-        return int(self.which[index])
-
     def __getitem__(self, index: int) -> dict:
-        k = int(self.which[index])
-        source = self.sources[k]
-        base = _base(source)
-        if hasattr(base, "set_epoch"):
-            base.set_epoch(self.epoch * (self.count + 1) + int(self.passes[index]))
+        source = self.sources[int(self.which[index])]
+        set_epoch(source, self.epoch * (self.count + 1) + int(self.passes[index]))
         return source[int(self.index[index])]
 
 

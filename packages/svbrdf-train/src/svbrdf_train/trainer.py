@@ -33,7 +33,7 @@ from typing import Any
 
 import torch
 from torch import Tensor, nn
-from torch.utils.data import DataLoader, Dataset, DistributedSampler, Sampler, Subset
+from torch.utils.data import DataLoader, Dataset, DistributedSampler, Sampler
 
 from svbrdf_models import config_to_dict, create_discriminator, create_generator, resolve_config
 from svbrdf_render import (
@@ -168,13 +168,6 @@ class _From(Sampler[int]):
 
     def __len__(self) -> int:
         return self.length - self.start
-
-
-def _set_epoch(data: Dataset, epoch: int) -> None:
-    while isinstance(data, Subset):
-        data = data.dataset
-    if hasattr(data, "set_epoch"):
-        data.set_epoch(epoch)
 
 
 def _first_bad(terms: dict[str, Tensor]) -> str | None:
@@ -403,10 +396,12 @@ class _Fit:
 
     def batches(self) -> Iterator[dict]:
         """Batches from the current step to the end of the step budget."""
+        from .fitdata import set_epoch
+
         t = self.recipe.train
         while self.step < self.total_steps:
             epoch, offset = divmod(self.step, self.steps_per_epoch)
-            _set_epoch(self.train_set, epoch)
+            set_epoch(self.train_set, epoch)
             sampler = DistributedSampler(
                 self.train_set,
                 num_replicas=self.dist.world,
@@ -719,18 +714,7 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
                 if run.step - start_step == WARMUP_STEPS:
                     steady = (run.train_seconds, samples)
                 if not warned and steady is not None and run.step - start_step == 2 * WARMUP_STEPS:
-                    # the time budget in steps, at the pace of the steps since warm-up
-                    pace = (run.train_seconds - steady[0]) / WARMUP_STEPS
-                    if t.max_minutes is not None and pace > 0:
-                        left = (t.max_minutes * 60 - run.train_seconds) / pace
-                        budget = min(run.total_steps, run.step + int(left))
-                        warned = _warn_schedule(
-                            run,
-                            tracker,
-                            progress,
-                            budget,
-                            f"{t.max_minutes:g} min at {pace * 1000:.0f} ms/step",
-                        )
+                    warned = _warn_time_budget(run, tracker, progress, steady[0])
                 if bad is not None:
                     status = "FAILED"
                     message = _nan_message(run, bad, saved_at)
@@ -895,6 +879,17 @@ def _warn_schedule(run: _Fit, tracker: Tracker, progress: Progress, budget: int,
         progress.message(text)
         tracker.set_tags({"svbrdf.warning": text[:5000]})
     return True
+
+
+def _warn_time_budget(run: _Fit, tracker: Tracker, progress: Progress, steady_seconds: float) -> bool:
+    """:func:`_warn_schedule` for the steps a time budget allows, at the pace of the
+    :data:`WARMUP_STEPS` steps since warm-up ended at ``steady_seconds``."""
+    minutes = run.recipe.train.max_minutes
+    pace = (run.train_seconds - steady_seconds) / WARMUP_STEPS
+    if minutes is None or pace <= 0:
+        return False
+    budget = min(run.total_steps, run.step + int((minutes * 60 - run.train_seconds) / pace))
+    return _warn_schedule(run, tracker, progress, budget, f"{minutes:g} min at {pace * 1000:.0f} ms/step")
 
 
 def _nan_message(run: _Fit, term: str, saved_at: int) -> str:
