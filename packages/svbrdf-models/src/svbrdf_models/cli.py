@@ -38,6 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="svbrdf-models",
         description="List and describe the registered generators, attention modules and discriminators "
         "(built-ins and plugins, found through entry points).",
+        epilog="Exit status: 0 done; 2 bad arguments (an unknown name, a bad option); 130 interrupted.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 

@@ -14,7 +14,8 @@ from pathlib import Path
 import torch
 
 from .effects import DES18_EFFECTS, EFFECTS
-from .errors import SVBRDFError
+from .errors import SVBRDFError, exit_status
+from .files import EXIT_STATUS
 from .maps import SVBRDF
 from .scene import Camera, PointLight, Scene
 
@@ -130,6 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
         "under a camera and lights. MATERIAL is a Des18 strip PNG (input|normal|diffuse|"
         "roughness|specular), a folder with normal/diffuse/roughness/specular.png, or a "
         "built-in example:tiles, example:brushed-metal, example:leather.",
+        epilog=EXIT_STATUS,
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
@@ -205,7 +207,9 @@ def _cmd_scene(args) -> None:
 
     text = Scene(Camera(), (Flash(math.pi * 2.2 * 2.2),), DES18_EFFECTS).to_yaml()
     if args.output:
-        Path(args.output).write_text(text)
+        from .files import write_text
+
+        write_text(args.output, text)
         print(f"wrote {args.output}")
     else:
         print(text, end="")
@@ -225,10 +229,10 @@ def main(argv: list[str] | None = None) -> int:
         commands[args.command](args)
     except (CliError, SVBRDFError, ImportError) as e:
         print(f"svbrdf-render: error: {e}", file=sys.stderr)
-        return 2
+        return exit_status(e)
     except OSError as e:
         print(f"svbrdf-render: error: {e.filename or ''}: {e.strerror or e}", file=sys.stderr)
-        return 2
+        return exit_status(e)
     except KeyboardInterrupt:
         print("svbrdf-render: interrupted", file=sys.stderr)
         return 130

@@ -17,7 +17,6 @@ count, non-square tiles, translucent alpha) is a :class:`MapFileError` naming th
 
 from __future__ import annotations
 
-import os
 import struct
 from pathlib import Path
 from typing import NamedTuple
@@ -28,6 +27,7 @@ from torch import Tensor
 
 from ._optional import require
 from .errors import MapFileError
+from .files import atomic_output
 from .geometry import safe_normalize
 from .maps import MAP_NAMES, SVBRDF
 
@@ -157,8 +157,9 @@ def read_image(path, *, channels: int | None = 3) -> Tensor:
 def write_image(path, image: Tensor, *, bits: int = 8) -> Path:
     """Write ``(C, H, W)`` or ``(H, W)`` values in ``[0, 1]`` (clamped) as an 8/16-bit PNG.
 
-    The parent folder is created; the file is written to a temporary name first and
-    renamed, so a failure leaves no half-written image.
+    The parent folder is created; the file is written through
+    :func:`~svbrdf_render.files.atomic_output`, so a failure leaves no half-written image
+    and raises an :class:`~svbrdf_render.errors.OutputError` naming ``path``.
     """
     path = Path(path)
     if bits not in (8, 16):
@@ -169,10 +170,7 @@ def write_image(path, image: Tensor, *, bits: int = 8) -> Path:
     if t.dim() != 3 or t.shape[0] not in (1, 3):
         raise ValueError(f"write_image: expected (1|3, H, W) or (H, W), got {tuple(image.shape)}")
     arr = t.nan_to_num(0.0).clamp(0, 1).permute(1, 2, 0).numpy()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    # One temporary name per process, so two writers of the same target never share a file.
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
+    with atomic_output(path) as tmp:
         if bits == 16:
             png = _pypng()
             q = np.round(arr * 65535).astype(np.uint16)
@@ -184,9 +182,6 @@ def write_image(path, image: Tensor, *, bits: int = 8) -> Path:
             Image = _pil()
             q = np.round(arr * 255).astype(np.uint8)
             Image.fromarray(q[..., 0] if q.shape[2] == 1 else q).save(tmp, format="PNG")
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
     return path
 
 

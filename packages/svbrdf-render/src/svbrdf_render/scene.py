@@ -339,7 +339,9 @@ class Scene:
         return cls.from_dict(data, source=source)
 
     def save(self, path) -> None:
-        Path(path).write_text(self.to_yaml())
+        from .files import write_text
+
+        write_text(path, self.to_yaml())
 
     @classmethod
     def load(cls, path) -> Scene:

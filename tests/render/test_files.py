@@ -1,0 +1,94 @@
+"""svbrdf_render.files: atomic writes, one-line write failures, leftovers of killed writers."""
+
+from __future__ import annotations
+
+import errno
+import subprocess
+import sys
+
+import pytest
+
+from svbrdf_render.errors import OutputError, SVBRDFError, exit_status
+from svbrdf_render.files import (
+    atomic_output,
+    check_output_folder,
+    remove_stale_temporaries,
+    temporary_path,
+    write_failure,
+    write_text,
+)
+
+
+def test_a_whole_write_replaces_the_target_and_leaves_no_temporary(tmp_path):
+    target = tmp_path / "sub" / "a.txt"
+    write_text(target, "one")
+    write_text(target, "two")
+    assert target.read_text() == "two"
+    assert sorted(p.name for p in target.parent.iterdir()) == ["a.txt"]
+
+
+@pytest.mark.parametrize(
+    "code, words, status",
+    [
+        (errno.ENOSPC, "no space left", 3),
+        (errno.EFBIG, "file too large", 3),
+        (errno.EROFS, "read-only", 3),
+        (errno.EIO, "input/output", 3),
+        (errno.ENOTDIR, "a file is in the way", 2),
+    ],
+)
+def test_a_failed_write_keeps_the_old_file_and_says_why_in_one_line(tmp_path, code, words, status):
+    target = tmp_path / "a.txt"
+    target.write_text("old")
+    with pytest.raises(SVBRDFError) as e:
+        with atomic_output(target) as tmp:
+            tmp.write_text("half")
+            raise OSError(code, "refused")
+    assert target.read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]
+    message = str(e.value)
+    assert message.startswith(str(target)) and words in message and "\n" not in message
+    assert exit_status(e.value) == status
+
+
+def test_a_wrapped_os_error_is_still_a_write_failure(tmp_path):
+    """torch.save raises RuntimeError('unexpected pos ...') during an OSError(ENOSPC)."""
+    try:
+        try:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        except OSError:
+            raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 704 vs 598")  # noqa: B904
+    except RuntimeError as e:
+        error = write_failure(tmp_path / "last.pt", e)
+    assert isinstance(error, OutputError) and "no space left" in str(error)
+
+
+def test_other_exceptions_pass_through_and_still_clean_up(tmp_path):
+    target = tmp_path / "a.txt"
+    with pytest.raises(KeyError):
+        with atomic_output(target) as tmp:
+            tmp.write_text("half")
+            raise KeyError("a bug, not the disk")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_stale_temporaries_of_dead_processes_go_and_live_ones_stay(tmp_path):
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    dead_pid = int(dead.stdout)  # that process has exited
+    stale = tmp_path / f".last.pt.{dead_pid}.tmp"
+    live = temporary_path(tmp_path / "last.pt")  # this process: still writing
+    other = tmp_path / f".notes.txt.{dead_pid}.tmp"
+    for p in (stale, live, other):
+        p.write_bytes(b"x")
+    removed = remove_stale_temporaries(tmp_path, ("last.pt",))
+    assert removed == [stale]
+    assert live.exists() and other.exists()
+
+
+def test_an_output_folder_is_checked_without_being_made(tmp_path):
+    assert check_output_folder(tmp_path / "new" / "deeper", "-o") == tmp_path / "new" / "deeper"
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(SVBRDFError, match=r"-o .*file/out: cannot write there: .* is a file") as e:
+        check_output_folder(tmp_path / "file" / "out", "-o")
+    assert exit_status(e.value) == 2
