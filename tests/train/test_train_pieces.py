@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import io
 
 import pytest
@@ -9,6 +10,7 @@ import torch
 
 from conftest import random_svbrdf
 from svbrdf_render import render, training_scene
+from svbrdf_render.errors import OutputError
 from svbrdf_train.checkpoint import load_checkpoint, rng_state, save_checkpoint, set_rng_state
 from svbrdf_train.errors import CheckpointError, RecipeError
 from svbrdf_train.progress import Progress, format_duration
@@ -41,11 +43,12 @@ def test_a_write_that_fails_leaves_the_previous_checkpoint_whole(tmp_path, monke
 
     def broken_save(obj, f):
         f.write(b"half a checkpoint")
-        raise OSError("disk full")
+        raise OSError(errno.ENOSPC, "No space left on device")
 
     monkeypatch.setattr(torch, "save", broken_save)
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(OutputError, match="no space left on the device") as e:
         save_checkpoint(path, {"step": 2})
+    assert str(path) in str(e.value) and "\n" not in str(e.value)
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["last.json", "last.pt"]  # no temporary left
 

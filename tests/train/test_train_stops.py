@@ -109,9 +109,13 @@ def test_sigkill_then_resume_reaches_the_same_weights_bitwise(tmp_path):
     assert step <= killed["step"] < 30, "the kill must land mid-way"
     run_id = killed["run_id"]
     assert _client().get_run(run_id).info.status == "RUNNING"  # nobody could mark it
+    # what a kill in the middle of a checkpoint write leaves (the instant cannot be aimed at)
+    leftover = tmp_path / "cut" / f".last.pt.{proc.pid}.tmp"
+    leftover.write_bytes(b"half a checkpoint")
 
     resumed = run_cli(*LONG, "--out", "cut", "--resume", cwd=tmp_path)
     assert resumed.returncode == 0, resumed.stderr
+    assert not list((tmp_path / "cut").rglob("*.tmp")), "the resume left a temporary file"
     assert f"at step {killed['step']}" in resumed.stderr
 
     a = load_checkpoint(tmp_path / "whole" / "last.pt")

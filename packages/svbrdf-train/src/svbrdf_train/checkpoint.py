@@ -19,87 +19,156 @@ world_size         processes of the fit (a resume must use as many)
 =================  ==============================================================================
 
 Writing goes to a temporary file in the same folder, flushed to disk, then renamed over the
-target, so a fit killed at any instant leaves the previous checkpoint or the new one, never a
-mix. A small ``last.json`` beside it says which step and run it holds, for people and scripts.
+target (:func:`svbrdf_render.files.atomic_output`), so a fit killed at any instant leaves the
+previous checkpoint or the new one, never a mix; a full disk leaves the previous one and no
+temporary file. A fit killed by SIGKILL mid-write leaves its ``.last.pt.PID.tmp``:
+:func:`remove_leftovers` clears such files when the next fit in that folder starts. A small
+``last.json`` beside the checkpoint says which step and run it holds, for people and scripts.
+
+Loading refuses NaN or infinite weights (naming the checkpoint), and :func:`load_weights` says
+in one line how weights differ from a network instead of torch's list of every key.
 """
 
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from svbrdf_render.files import atomic_output, remove_stale_temporaries, write_text
+
 from .errors import CheckpointError
 
-__all__ = ["FORMAT", "CHECKPOINT_NAME", "save_checkpoint", "load_checkpoint", "rng_state", "set_rng_state"]
+__all__ = [
+    "FORMAT",
+    "CHECKPOINT_NAME",
+    "save_checkpoint",
+    "load_checkpoint",
+    "load_weights",
+    "check_finite",
+    "remove_leftovers",
+    "rng_state",
+    "set_rng_state",
+]
 
 FORMAT = 1
 CHECKPOINT_NAME = "last.pt"
 
 
-def _fsync_dir(folder: Path) -> None:
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:  # not every platform opens folders
-        return
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _atomic_write(path: Path, write) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    _fsync_dir(path.parent)
-
-
 def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
-    """Write ``state`` to ``path`` atomically, and a ``.json`` summary beside it."""
+    """Write ``state`` to ``path`` atomically, and a ``.json`` summary beside it.
+
+    Raises:
+        OutputError: the disk refused it (full, read-only...); ``path`` is as it was before.
+    """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     state = {"format": FORMAT, **state}
-    _atomic_write(path, lambda f: torch.save(state, f))
+    with atomic_output(path) as tmp, open(tmp, "wb") as f:
+        torch.save(state, f)  # through a Python file, so a failed write keeps its errno
     summary = {k: state.get(k) for k in ("step", "epoch", "run_id", "train_seconds", "world_size")}
     summary["recipe"] = (state.get("recipe") or {}).get("name")
-    _atomic_write(path.with_suffix(".json"), lambda f: f.write(json.dumps(summary, indent=2).encode()))
+    write_text(path.with_suffix(".json"), json.dumps(summary, indent=2))
     return path
 
 
+def remove_leftovers(folder: str | Path) -> list[Path]:
+    """Remove the temporary checkpoint files of fits in ``folder`` that were killed mid-write."""
+    summary = Path(CHECKPOINT_NAME).with_suffix(".json").name
+    return remove_stale_temporaries(folder, (CHECKPOINT_NAME, summary))
+
+
 def load_checkpoint(
-    path: str | Path, map_location: str | torch.device = "cpu", *, mmap: bool = False
+    path: str | Path,
+    map_location: str | torch.device = "cpu",
+    *,
+    mmap: bool = False,
+    source: str | None = None,
 ) -> dict[str, Any]:
     """Read a checkpoint written by :func:`save_checkpoint` (tensors only: no code is unpickled).
 
-    ``mmap=True`` maps the file instead of reading it: cheap when only a few fields are needed.
+    ``mmap=True`` maps the file instead of reading it: cheap when only a few fields are needed
+    (the weights are then not checked). ``source`` names the checkpoint in messages when
+    ``path`` is not what the user gave (a file downloaded from an MLflow run).
+
+    Raises:
+        CheckpointError: missing, unreadable, of another format, or with NaN/infinite weights.
     """
     path = Path(path)
+    source = source or str(path)
     if not path.is_file():
-        raise CheckpointError(f"{path}: no checkpoint there")
+        raise CheckpointError(f"{source}: no checkpoint there")
     try:
         state = torch.load(path, map_location=map_location, weights_only=True, mmap=mmap)
     except Exception as e:  # torch raises many kinds for a damaged or foreign file
-        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
         raise CheckpointError(
-            f"{path}: not a readable svbrdf-train checkpoint ({type(e).__name__}: {first[:200]})"
+            f"{source}: not a readable svbrdf-train checkpoint ({_why_unreadable(e)})"
         ) from None
     if not isinstance(state, dict) or state.get("format") != FORMAT:
         got = state.get("format") if isinstance(state, dict) else type(state).__name__
         raise CheckpointError(
-            f"{path}: not an svbrdf-train checkpoint of format {FORMAT} (got {got!r}); "
+            f"{source}: not an svbrdf-train checkpoint of format {FORMAT} (got {got!r}); "
             "it was written by another tool or version"
         )
+    if not mmap:
+        for key in ("generator", "discriminator"):
+            check_finite(state.get(key), f"{source}: the {key}'s weights")
     return state
+
+
+def _why_unreadable(error: Exception) -> str:
+    """torch's reason in a few words; never its advice to unpickle the file unsafely."""
+    text = str(error)
+    if "weights_only" in text or "Weights only load failed" in text:
+        return (
+            "it holds Python objects besides tensors, which are never unpickled here since they "
+            "could run code: a file from another tool, or one that was tampered with"
+        )
+    first = text.strip().splitlines()[0][:160] if text.strip() else ""
+    return f"{type(error).__name__}: {first}" if first else type(error).__name__
+
+
+def check_finite(weights: dict[str, Any] | None, what: str) -> None:
+    """Refuse a state dict holding NaN or infinite values; ``what`` starts the message."""
+    if not weights:
+        return
+    bad = [
+        name
+        for name, t in weights.items()
+        if isinstance(t, torch.Tensor) and t.is_floating_point() and not bool(torch.isfinite(t).all())
+    ]
+    if bad:
+        raise CheckpointError(
+            f"{what} hold NaN or infinite values ({len(bad)} of {len(weights)} tensors, first "
+            f"{bad[0]!r}); they cannot predict anything: use an earlier checkpoint"
+        )
+
+
+def load_weights(module: torch.nn.Module, weights: dict[str, Any], what: str) -> None:
+    """``module.load_state_dict(weights)``, or one line saying how they differ.
+
+    ``what`` names the weights and the network, e.g. ``"run/last.pt: generator 'ours'"``.
+    """
+    own = module.state_dict()
+    missing = [k for k in own if k not in weights]
+    extra = [k for k in weights if k not in own]
+    reshaped = [
+        k
+        for k in own
+        if k in weights and isinstance(weights[k], torch.Tensor) and weights[k].shape != own[k].shape
+    ]
+    if missing or extra or reshaped:
+        parts = [
+            f"{len(keys)} {word}" + (f" (e.g. {keys[0]!r})" if keys else "")
+            for keys, word in ((missing, "missing"), (extra, "unexpected"), (reshaped, "of another shape"))
+            if keys
+        ]
+        raise CheckpointError(
+            f"{what}: the weights do not fit the network ({', '.join(parts)} of {len(own)} tensors); "
+            "they were trained with another network or config"
+        )
+    module.load_state_dict(weights)
 
 
 def rng_state(scene_generator: torch.Generator | None = None) -> dict[str, Any]:

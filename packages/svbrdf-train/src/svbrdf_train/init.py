@@ -68,7 +68,7 @@ def download_run_checkpoint(run_id: str) -> dict[str, Any]:
                 f"({type(e).__name__}: {first}); check the run id and MLFLOW_TRACKING_URI, "
                 "or give the checkpoint file"
             ) from None
-        return load_checkpoint(local)
+        return load_checkpoint(local, source=f"MLflow run {run_id}")
 
 
 def load_init(arg: str) -> InitWeights:

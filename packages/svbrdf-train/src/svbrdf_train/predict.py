@@ -32,8 +32,8 @@ class Predictor:
         from .trainer import load_generator
 
         try:
-            self.generator, self.recipe = load_generator(checkpoint, device)
-        except (KeyError, RuntimeError, CheckpointError) as e:
+            self.generator, self.recipe = load_generator(checkpoint, device, source)
+        except (KeyError, RuntimeError) as e:
             raise CheckpointError(f"{source}: the generator cannot be rebuilt from it ({e})") from None
         self.device = torch.device(device)
         self.resolution = self.recipe.train.resolution

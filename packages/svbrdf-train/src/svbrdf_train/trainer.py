@@ -24,6 +24,7 @@ never stopped; bitwise on CPU with the same number of threads and processes.
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import time
 from collections.abc import Iterator
@@ -44,9 +45,19 @@ from svbrdf_render import (
     render,
     training_scene,
 )
+from svbrdf_render.errors import OutputError, SVBRDFError
+from svbrdf_render.files import write_text
 
 from . import distributed
-from .checkpoint import CHECKPOINT_NAME, load_checkpoint, rng_state, save_checkpoint, set_rng_state
+from .checkpoint import (
+    CHECKPOINT_NAME,
+    load_checkpoint,
+    load_weights,
+    remove_leftovers,
+    rng_state,
+    save_checkpoint,
+    set_rng_state,
+)
 from .clock import CLOCK_TAG, TrainClock
 from .errors import CheckpointError, TrainingError
 from .init import InitWeights
@@ -208,14 +219,14 @@ def _count_params(module: nn.Module | None) -> int:
 
 
 def load_generator(
-    checkpoint: dict[str, Any], device: str | torch.device = "cpu"
+    checkpoint: dict[str, Any], device: str | torch.device = "cpu", source: str = "checkpoint"
 ) -> tuple[nn.Module, Recipe]:
     """The generator of a checkpoint (eval mode) and the recipe it was trained with."""
-    recipe = recipe_from_dict(checkpoint.get("recipe") or {}, where="checkpoint recipe")
+    recipe = recipe_from_dict(checkpoint.get("recipe") or {}, where=f"{source}: its recipe")
     if recipe.generator is None or checkpoint.get("generator") is None:
-        raise CheckpointError("the checkpoint names no generator (its recipe or weights are missing)")
+        raise CheckpointError(f"{source}: it names no generator (its recipe or weights are missing)")
     g = create_generator(recipe.generator.name, recipe.generator.config)
-    g.load_state_dict(checkpoint["generator"])
+    load_weights(g, checkpoint["generator"], f"{source}: generator {recipe.generator.name!r}")
     return g.to(device).eval(), recipe
 
 
@@ -333,14 +344,18 @@ class _Fit:
         """The generator's weights of ``init``, and the discriminator's when it is the same one."""
         from .init import same_discriminator
 
-        self.G.load_state_dict(init.generator)
         both = self.D is not None and same_discriminator(init, self.recipe)
-        if both:
-            self.D.load_state_dict(init.discriminator)
+        self._load(f"--init {init.source}", init.generator, init.discriminator if both else None)
         self.init = {
             **init.tags(),
             "svbrdf.init_discriminator": "taken" if both else ("new" if self.D is not None else "none"),
         }
+
+    def _load(self, source: str, generator: dict, discriminator: dict | None) -> None:
+        """Weights into the networks, or one line naming ``source`` and how they differ."""
+        load_weights(self.G, generator, f"{source}: generator {self.recipe.generator.name!r}")
+        if discriminator is not None:
+            load_weights(self.D, discriminator, f"{source}: discriminator {self.recipe.discriminator.name!r}")
 
     def _restore(self, state: dict) -> None:
         if state.get("world_size", 1) != self.dist.world:
@@ -349,9 +364,8 @@ class _Fit:
                 f"{self.dist.world}; resume with --nproc_per_node={state.get('world_size')} "
                 "(the data order and batch depend on it)"
             )
-        self.G.load_state_dict(state["generator"])
+        self._load(str(self.ckpt_path), state["generator"], state["discriminator"] if self.D else None)
         if self.D is not None:
-            self.D.load_state_dict(state["discriminator"])
             self.d_opt.load_state_dict(state["optimizers"]["d"])
         self.g_opt.load_state_dict(state["optimizers"]["g"])
         self.step = int(state["step"])
@@ -597,9 +611,14 @@ class _Fit:
 # -- entry point ----------------------------------------------------------------------------
 
 
-def _check_out(options: FitOptions) -> dict | None:
-    """The checkpoint to resume from (``--resume``), after refusing to overwrite one silently."""
+def _check_out(options: FitOptions, dist: distributed.Dist) -> dict | None:
+    """The checkpoint to resume from (``--resume``), after refusing to overwrite one silently.
+
+    Temporary checkpoint files left by a fit killed mid-write are removed first.
+    """
     ckpt = Path(options.out) / CHECKPOINT_NAME
+    if dist.main:
+        remove_leftovers(options.out)
     if options.resume and options.init:
         raise CheckpointError(
             "--init starts a new fit from trained weights and --resume continues one; give one of them"
@@ -653,7 +672,7 @@ def fit(recipe: Recipe | None, options: FitOptions) -> FitResult:
 
 
 def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> FitResult:
-    state = _check_out(options)
+    state = _check_out(options, dist)
     recipe = _resolve_resume(recipe, state)
     init = None
     if options.init and state is None:
@@ -680,7 +699,7 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
         config_file = out / "recipe.yaml"
         import yaml
 
-        config_file.write_text(yaml.safe_dump(recipe.to_dict(), sort_keys=False))
+        write_text(config_file, yaml.safe_dump(recipe.to_dict(), sort_keys=False))
         if options.track:
             tracker = _tracker(recipe, options, run, dist)
             run.run_id = tracker.run_id
@@ -759,9 +778,19 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
         except KeyboardInterrupt:
             status = "KILLED"
             message = f"stopped at once at step {run.step}; the checkpoint of step {saved_at} is kept"
-        except BaseException:
+        except BaseException as e:
             progress.close()
-            tracker.finish("FAILED")
+            with contextlib.suppress(Exception):  # the store may be what failed: keep that error
+                tracker.finish("FAILED")
+            if isinstance(e, SVBRDFError) and e.exit_code == OutputError.exit_code:
+                kept = (
+                    f"the checkpoint of step {saved_at} is kept: --resume continues from it"
+                    if run.ckpt_path.is_file()
+                    else "no checkpoint was written yet"
+                )
+                said = type(e)(f"{e}; {kept}")
+                said.exit_code = e.exit_code
+                raise said from None
             raise
     progress.close()
     samples_per_s = (
