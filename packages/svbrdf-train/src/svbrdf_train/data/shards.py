@@ -27,8 +27,11 @@ file under the target's name.
 from __future__ import annotations
 
 import bisect
+import contextlib
+import gc
 import json
 import os
+import sys
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -42,6 +45,7 @@ from torch import Tensor
 from torch.utils.data import Dataset
 
 from svbrdf_render import safe_normalize
+from svbrdf_render.files import is_write_failure, temporary_path, write_failure
 
 from ..errors import DataError, ShardError
 
@@ -166,14 +170,15 @@ class ShardWriter:
         self.bits = bits
         self.count = 0
         self.compression = dict(COMPRESSION if compression is None else compression)
-        self._tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._file: h5py.File | None = h5py.File(self._tmp, "w")
-        try:
+        self._tmp = temporary_path(self.path)
+        self._file: h5py.File | None = None
+        self._datasets: dict[str, h5py.Dataset] = {}
+        with self._writing():
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            # No chunk cache: a chunk is one whole sample, written (and a failure seen) at once.
+            self._file = h5py.File(self._tmp, "w", rdcc_nbytes=0)
             self._create(dict(attrs or {}))
-        except BaseException:
-            self.abort()
-            raise
+            self._file.flush()
 
     def _create(self, attrs: dict[str, Any]) -> None:
         f = self._file
@@ -193,6 +198,9 @@ class ShardWriter:
         f.create_dataset(
             "name", shape=(0,), maxshape=(None,), chunks=(1024,), dtype=h5py.string_dtype(), track_times=False
         )
+        # Handles kept open: h5py flushes a dataset when its handle is freed, and a write that
+        # fails there is only printed, then crashes the process (seen on a full disk).
+        self._datasets = {name: f[name] for name in (*SHARD_DATASETS, "name")}
         clash = _WRITER_ATTRS & set(attrs)
         if clash:
             raise DataError(f"ShardWriter: attrs may not set {sorted(clash)}; the writer records them")
@@ -257,39 +265,66 @@ class ShardWriter:
             "roughness": _quantise(maps[:, 6:7], self.bits),
             "specular": _quantise(maps[:, 7:10], self.bits),
         }
+        arrays["name"] = np.array([str(s) for s in names], dtype=h5py.string_dtype())
         n = self.count
-        for name, array in arrays.items():
-            ds = self._file[name]
-            ds.resize(n + b, axis=0)
-            ds[n : n + b] = array
-        ds = self._file["name"]
-        ds.resize(n + b, axis=0)
-        ds[n : n + b] = np.array([str(s) for s in names], dtype=h5py.string_dtype())
+        with self._writing():
+            for name, array in arrays.items():
+                ds = self._datasets[name]
+                ds.resize(n + b, axis=0)
+                ds[n : n + b] = array
+            self._file.flush()
         self.count = n + b
 
     def close(self) -> Path:
         """Mark the shard complete and move it to ``path``; returns ``path``."""
         if self._file is None:
             return self.path
-        try:
+        with self._writing():
             self._file.attrs["count"] = self.count
             self._file.attrs["complete"] = True
+            self._datasets = {}
+            self._file.flush()
             self._file.close()
             self._file = None
+            with open(self._tmp, "rb+") as f:
+                os.fsync(f.fileno())
             os.replace(self._tmp, self.path)
-        except BaseException:
-            self.abort()
-            raise
         return self.path
 
+    @contextlib.contextmanager
+    def _writing(self):
+        """Any failure: :meth:`abort`; a write the system refused: one line naming :attr:`path`."""
+        try:
+            yield
+        except BaseException as e:
+            self.abort()
+            if isinstance(e, DataError) or not is_write_failure(e):
+                raise
+            raise write_failure(self.path, e) from None
+
     def abort(self) -> None:
-        """Give up: close and delete the temporary file; ``path`` is left as it was."""
-        if self._file is not None:
-            try:
-                self._file.close()
-            finally:
-                self._file = None
-        self._tmp.unlink(missing_ok=True)
+        """Give up: close and delete the temporary file; ``path`` is left as it was.
+
+        After a failed write (a full disk) HDF5 still holds data it will try to write when the
+        file closes. The temporary file is emptied first, which frees its space, so that the
+        close can finish; what HDF5 prints about the failures it meets is dropped (the caller
+        raises one error naming the shard).
+        """
+        self._datasets = {}
+        hook = sys.unraisablehook
+        sys.unraisablehook = lambda _: None
+        try:
+            with contextlib.suppress(OSError):
+                os.truncate(self._tmp, 0)
+            if self._file is not None:
+                with contextlib.suppress(Exception):
+                    self._file.close()
+            self._file = None
+            gc.collect()  # free h5py objects now, while their complaints are dropped
+        finally:
+            sys.unraisablehook = hook
+        with contextlib.suppress(OSError):
+            self._tmp.unlink(missing_ok=True)
 
 
 def write_shard(
