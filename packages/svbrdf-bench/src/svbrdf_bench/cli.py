@@ -1,7 +1,7 @@
 """``svbrdf-bench``: compare models and show what accuracy costs in time.
 
 Subcommands live in :mod:`svbrdf_bench.commands`; this file assembles them and turns user
-errors into a one-line message with exit code 2.
+errors into a one-line message (exit status 2 for bad input, 3 for a failed write).
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ import sys
 
 import click
 
+from svbrdf_render.files import EXIT_STATUS
 from svbrdf_train.cli import OneLineErrors, run_main
 
 
@@ -19,7 +20,7 @@ class _Group(OneLineErrors):
     prog = "svbrdf-bench"
 
 
-@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]}, epilog=EXIT_STATUS)
 @click.version_option(package_name="svbrdf-bench")
 def cli():
     """Which model, at what cost? Train, evaluate and compare SVBRDF models.

@@ -26,9 +26,11 @@ def _figure(size=(7.0, 4.5)):
 
 
 def _save(fig, path) -> Path:
+    from svbrdf_render.files import atomic_output
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=_DPI, format="png")
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, dpi=_DPI, format="png")
     return path
 
 

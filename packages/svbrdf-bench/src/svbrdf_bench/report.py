@@ -12,6 +12,7 @@ against each other one, saying when the difference lies within noise.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import shutil
@@ -20,6 +21,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from svbrdf_render.files import atomic_output, write_text
 
 from .errors import BenchError
 
@@ -519,6 +522,16 @@ def build_report(parent_id: str) -> Report:
     )
 
 
+def csv_text(rows: list[dict], columns: list[str] | None = None) -> str:
+    """Rows as CSV text (columns: every key met, in order, unless given; None as empty)."""
+    keys = columns or list(dict.fromkeys(k for r in rows for k in r))
+    buffer = io.StringIO(newline="")
+    w = csv.DictWriter(buffer, fieldnames=keys, extrasaction="ignore")
+    w.writeheader()
+    w.writerows({k: "" if r.get(k) is None else r[k] for k in keys} for r in rows)
+    return buffer.getvalue()
+
+
 def write_report(report: Report, out: str | Path, *, grid: Path | None = None) -> list[Path]:
     """``report.md``, ``results.csv``, ``results.json``, ``costs.csv``, the plots and the grid."""
     from .plots import learning_curves, pareto
@@ -551,13 +564,15 @@ def write_report(report: Report, out: str | Path, *, grid: Path | None = None) -
     if grid is not None:
         target = out / "comparison.png"
         if Path(grid) != target:
-            shutil.copyfile(grid, target)
+            with atomic_output(target) as tmp:
+                shutil.copyfile(grid, tmp)
         written.append(target)
         files["comparison"] = "comparison.png"
     records = report.records()
     costs = report.costs() if len(report.trained) > 1 else []
     against = report.against_reference()
-    (out / "results.json").write_text(
+    write_text(
+        out / "results.json",
         json.dumps(
             {
                 "parent_run": report.parent_id,
@@ -575,12 +590,8 @@ def write_report(report: Report, out: str | Path, *, grid: Path | None = None) -
     written.append(out / "results.json")
     for name, rows in (("results.csv", records), ("costs.csv", costs), ("against_mean.csv", against)):
         if rows:
-            keys = list(dict.fromkeys(k for r in rows for k in r))
-            with open(out / name, "w", newline="") as f:
-                w = csv.DictWriter(f, fieldnames=keys)
-                w.writeheader()
-                w.writerows(rows)
+            write_text(out / name, csv_text(rows))
             written.append(out / name)
-    (out / "report.md").write_text(report.markdown(files))
+    write_text(out / "report.md", report.markdown(files))
     written.append(out / "report.md")
     return written

@@ -29,6 +29,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from svbrdf_render.files import check_output_folder
+
 from .errors import BenchError
 from .presets import Preset
 from .testset import TestSet
@@ -290,6 +292,7 @@ def run_bench(options: BenchOptions) -> str:
     from .report import build_report, write_report
 
     _check_models(options.models)
+    check_output_folder(options.out, "-o")  # before hours of training, not after
     p = options.preset
     size = options.size or p.size
     from svbrdf_train.recipe import load_recipe, parse_overrides

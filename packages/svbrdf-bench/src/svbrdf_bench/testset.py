@@ -72,5 +72,14 @@ def test_set(path: str | Path | None, resolution: int, count: int) -> TestSet:
     except DataError as e:
         raise BenchError(str(e)) from None
     test = TestSet(data, resolution, f"{what} (whole images resized to {resolution} px)")
-    test[0]  # a sample that is not square, or smaller than the models, is refused before training
+    # Every sample is read once now, before any training: a damaged chunk of a shard, a strip
+    # that is not square or smaller than the models is refused up front, not after an hour.
+    for i in range(len(test)):
+        try:
+            test[i]
+        except BenchError:
+            raise
+        except Exception as e:  # DataError, MapFileError, h5py's checksum errors: name the input
+            first = str(e).strip().splitlines()[0][:200] if str(e).strip() else type(e).__name__
+            raise BenchError(f"--test-data {path}: sample {i} cannot be read ({first})") from None
     return test

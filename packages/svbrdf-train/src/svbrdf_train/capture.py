@@ -51,6 +51,7 @@ from svbrdf_render import (
     write_image,
     write_map_folder,
 )
+from svbrdf_render.files import atomic_output, write_text
 
 from .data.photos import square_photo
 from .errors import DataError
@@ -401,8 +402,8 @@ def _write_gif(path: Path, frames: Tensor, ms: int = 80) -> Path:
 
     pixels = (linear_to_srgb(frames) * 255).round().byte().permute(0, 2, 3, 1).numpy()
     images = [Image.fromarray(p) for p in pixels]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    images[0].save(path, save_all=True, append_images=images[1:], duration=ms, loop=0)
+    with atomic_output(path) as tmp:
+        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=ms, loop=0)
     return path
 
 
@@ -556,7 +557,5 @@ def write_summary(path, entries: list[dict], **extra) -> dict:
         "median_rmse": statistics.median(values) if values else None,
         "entries": entries,
     }
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(summary, indent=2) + "\n")
+    write_text(path, json.dumps(summary, indent=2) + "\n")  # atomic: never a 0-byte summary
     return summary

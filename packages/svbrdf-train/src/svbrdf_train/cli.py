@@ -11,12 +11,16 @@ import sys
 import click
 
 from svbrdf_render import SVBRDFError
+from svbrdf_render.errors import exit_status
+from svbrdf_render.files import EXIT_STATUS
 
 
 class OneLineErrors(click.Group):
-    """A click group whose commands report SVBRDFError/OSError as one line, exit code 2.
+    """A click group whose commands report SVBRDFError/OSError as one line.
 
-    Subclass it and set ``prog`` (the command name the messages start with); svbrdf-bench does.
+    The exit status is the error's (:func:`svbrdf_render.errors.exit_status`): 2 for bad input,
+    3 for a file the system refused to write. Subclass it and set ``prog`` (the command name
+    the messages start with); svbrdf-bench does.
     """
 
     prog = "svbrdf-train"
@@ -26,11 +30,11 @@ class OneLineErrors(click.Group):
             return super().invoke(ctx)
         except SVBRDFError as e:
             click.echo(f"{self.prog}: error: {e}", err=True)
-            ctx.exit(2)
+            ctx.exit(exit_status(e))
         except OSError as e:
             where = f"{e.filename}: " if getattr(e, "filename", None) else ""
             click.echo(f"{self.prog}: error: {where}{e.strerror or e}", err=True)
-            ctx.exit(2)
+            ctx.exit(exit_status(e))
 
 
 def run_main(group: click.Group, prog: str, argv: list[str] | None = None) -> int:
@@ -42,7 +46,7 @@ def run_main(group: click.Group, prog: str, argv: list[str] | None = None) -> in
     return 0
 
 
-@click.group(cls=OneLineErrors, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=OneLineErrors, context_settings={"help_option_names": ["-h", "--help"]}, epilog=EXIT_STATUS)
 @click.version_option(package_name="svbrdf-train")
 def cli():
     """Training data and training for single-image SVBRDF recovery.
@@ -54,7 +58,7 @@ def cli():
       svbrdf-train fit --recipe ours --size cpu     # train (minutes on a CPU), tracked in MLflow
       svbrdf-train predict photo.jpg --checkpoint runs/ours-cpu/last.pt -o maps/
       svbrdf-train data make --count 1000 --resolution 256 --out train.h5
-      svbrdf-train data import ../shared/data/des18-dev --out test.h5
+      svbrdf-train data import des18-dev/ --out test.h5
     """
 
 

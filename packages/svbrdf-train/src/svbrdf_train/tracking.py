@@ -16,12 +16,16 @@ import contextlib
 import importlib.metadata
 import os
 import platform
+import shutil
 import subprocess
 import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 from urllib.parse import unquote, urlparse
+
+from svbrdf_render.errors import OutputError
+from svbrdf_render.files import atomic_output
 
 from .errors import CheckpointError, TrackingError
 
@@ -97,13 +101,53 @@ def _store_lock(uri: str):
             fcntl.flock(f, fcntl.LOCK_UN)
 
 
+def _root_cause(error: BaseException) -> BaseException:
+    """The exception at the bottom of a chain (MLflow wraps SQLAlchemy, which wraps sqlite3)."""
+    seen = {id(error)}
+    while True:
+        inner = error.__cause__ or error.__context__
+        if inner is None or id(inner) in seen:
+            return error
+        seen.add(id(inner))
+        error = inner
+
+
 def _store_error(what: str, uri: str, error: Exception) -> TrackingError:
-    """One line: what could not be done with the store, its first error line, what to do."""
-    first = str(error).strip().splitlines()[0][:200] if str(error).strip() else ""
-    return TrackingError(
-        f"cannot {what} {uri} ({type(error).__name__}: {first}); start the server or fix "
-        "MLFLOW_TRACKING_URI, or pass --no-track to train without MLflow"
+    """One line: what could not be done with the store, the root cause's first line, what to do."""
+    cause = _root_cause(error)
+    text = str(cause).strip()
+    first = text.splitlines()[0][:200] if text else ""
+    lowered = f"{type(cause).__name__} {text}".lower()
+    refused = True  # the store's disk refused a write: exit status 3, like any failed write
+    if "readonly" in lowered or "read-only" in lowered or "permission" in lowered:
+        hint = "the store cannot be written: point MLFLOW_TRACKING_URI at a writable store"
+    elif ("disk" in lowered and "full" in lowered) or "no space" in lowered:
+        hint = "its disk is full: free some space or point MLFLOW_TRACKING_URI elsewhere"
+    else:
+        refused = False
+        remote = urlparse(uri).scheme in ("http", "https")
+        hint = "start the server or fix MLFLOW_TRACKING_URI" if remote else "fix MLFLOW_TRACKING_URI"
+    error = TrackingError(
+        f"cannot {what} {uri} ({type(cause).__name__}: {first}); {hint}, "
+        "or pass --no-track to train without MLflow"
     )
+    if refused:
+        error.exit_code = OutputError.exit_code
+    return error
+
+
+@contextlib.contextmanager
+def _quiet_store_logs():
+    """MLflow logs a database error with its traceback before raising it; the caller words it."""
+    import logging
+
+    logger = logging.getLogger("mlflow.store.db.utils")
+    level = logger.level
+    logger.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
 
 
 def open_client(uri: str):
@@ -197,7 +241,8 @@ class MlflowTracker(Tracker):
 
         self.uri = mlflow.get_tracking_uri()
         try:
-            self.client = open_client(self.uri)
+            with _quiet_store_logs():
+                self.client = open_client(self.uri)
         except Exception as e:  # database, connection and permission errors alike
             raise _store_error("open the MLflow store", self.uri, e) from None
         if run_id is not None:
@@ -215,8 +260,9 @@ class MlflowTracker(Tracker):
                 self.set_tags(tags)
             return
         try:
-            self.experiment_id = self._experiment(experiment)
-            run = self.client.create_run(self.experiment_id, run_name=run_name, tags=dict(tags or {}))
+            with _quiet_store_logs():
+                self.experiment_id = self._experiment(experiment)
+                run = self.client.create_run(self.experiment_id, run_name=run_name, tags=dict(tags or {}))
         except Exception as e:  # MlflowException, connection and database errors alike
             raise _store_error("start a run in the MLflow store", self.uri, e) from None
         self.run_id = run.info.run_id
@@ -247,19 +293,51 @@ class MlflowTracker(Tracker):
 
         now = int(time.time() * 1000)
         items = [Metric(k, float(v), now, int(step)) for k, v in metrics.items()]
-        for start in range(0, len(items), 1000):
-            self.client.log_batch(self.run_id, metrics=items[start : start + 1000])
+        with self._writing("log metrics to"):
+            for start in range(0, len(items), 1000):
+                self.client.log_batch(self.run_id, metrics=items[start : start + 1000])
 
     def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
-        self.client.log_artifact(self.run_id, os.fspath(path), artifact_path)
+        """Copy a file into the run's artifacts.
+
+        Into a local store the copy is atomic (:func:`svbrdf_render.files.atomic_output`): a full
+        disk keeps the previous artifact of that name (the last good checkpoint) and leaves no
+        partial file. A server's store goes through MLflow's client.
+        """
+        folder = self._artifact_folder()
+        if folder is not None:
+            with atomic_output(folder / (artifact_path or "") / Path(path).name) as tmp:
+                shutil.copyfile(path, tmp)
+            return
+        with self._writing(f"log {Path(path).name} to"):
+            self.client.log_artifact(self.run_id, os.fspath(path), artifact_path)
+
+    def _artifact_folder(self) -> Path | None:
+        """The run's artifact folder when it is on this machine's file system, else None."""
+        if not hasattr(self, "_artifacts"):
+            uri = self.client.get_run(self.run_id).info.artifact_uri
+            parsed = urlparse(uri)
+            self._artifacts = Path(unquote(parsed.path)) if parsed.scheme in ("", "file") else None
+        return self._artifacts
 
     def set_tags(self, tags: Mapping[str, Any]) -> None:
         from mlflow.entities import RunTag
 
-        self.client.log_batch(self.run_id, tags=[RunTag(k, str(v)) for k, v in tags.items()])
+        with self._writing("set tags in"):
+            self.client.log_batch(self.run_id, tags=[RunTag(k, str(v)) for k, v in tags.items()])
 
     def finish(self, status: str) -> None:
-        self.client.set_terminated(self.run_id, status)
+        with self._writing(f"mark the run {status} in"):
+            self.client.set_terminated(self.run_id, status)
+
+    @contextlib.contextmanager
+    def _writing(self, what: str):
+        """Store errors while the run is logged: one line (TrackingError), no MLflow traceback."""
+        try:
+            with _quiet_store_logs():
+                yield
+        except Exception as e:
+            raise _store_error(what, self.uri, e) from None
 
     def describe(self) -> str:
         where = self.uri

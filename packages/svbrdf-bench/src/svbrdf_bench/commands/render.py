@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import json
 import os
 import platform
@@ -95,15 +94,14 @@ class _Progress:
 
 
 def _write(out: Path, header: str, table: str, records: list[dict], meta: dict) -> list[Path]:
-    out.mkdir(parents=True, exist_ok=True)
+    from svbrdf_render.files import write_text
+
+    from ..report import csv_text
+
     md, csv_path, js = out / "render.md", out / "render.csv", out / "render.json"
-    md.write_text(f"{header}\n\n{table}\n\n{LEGEND}\n")
-    with csv_path.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=CSV_COLUMNS, extrasaction="ignore")
-        w.writeheader()
-        for r in records:
-            w.writerow({k: "" if r[k] is None else r[k] for k in CSV_COLUMNS})
-    js.write_text(json.dumps({"meta": meta, "rows": records}, indent=2) + "\n")
+    write_text(md, f"{header}\n\n{table}\n\n{LEGEND}\n")
+    write_text(csv_path, csv_text(records, CSV_COLUMNS))
+    write_text(js, json.dumps({"meta": meta, "rows": records}, indent=2) + "\n")
     return [md, csv_path, js]
 
 

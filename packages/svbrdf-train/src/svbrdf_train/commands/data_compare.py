@@ -174,10 +174,9 @@ def compare(real_folder, count, resolution, seed, real_count, sheet_path, rows, 
             "in the statistic's unit",
             "statistics": [r.to_dict() for r in results],
         }
-        json_path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = json_path.with_name(json_path.name + ".tmp")
-        tmp.write_text(json.dumps(doc, indent=2) + "\n")
-        tmp.replace(json_path)
+        from svbrdf_render.files import write_text
+
+        write_text(json_path, json.dumps(doc, indent=2) + "\n")
         click.echo(f"wrote {json_path}")
     if sheet_path is not None:
         from svbrdf_render import write_image

@@ -24,7 +24,10 @@ Examples:
 \b
 Recipes: svbrdf-train recipes. Runs go to MLflow: MLFLOW_TRACKING_URI, else ./mlflow.db;
 look at them with `mlflow ui --backend-store-uri sqlite:///mlflow.db`.
-Exit codes: 0 finished, 1 stopped by a non-finite loss, 2 bad arguments, 130 interrupted.
+Exit status: 0 finished (or stopped by its time budget); 1 stopped by a non-finite loss or
+gradient (the last good checkpoint is kept); 2 bad arguments or input, refused before training;
+3 a file could not be written (disk full, read-only...: the message names it; the last good
+checkpoint is kept, no temporary file is left); 130 interrupted (a checkpoint was saved).
 """
 
 

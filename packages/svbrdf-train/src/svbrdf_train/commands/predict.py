@@ -44,8 +44,10 @@ smaller than the model's resolution.
 
 \b
 stdout: the folder of each photo captured; stderr: progress, notes, errors, a summary table.
-Exit code: 0 every photo captured; 1 some photos failed, others were captured; 2 every
-photo failed, or bad arguments (no model, unreadable checkpoint, bad option).
+Exit status: 0 every photo captured; 1 some photos failed, others were captured; 2 every
+photo failed, or bad arguments (no model, unreadable checkpoint, bad option, -o not
+writable); 3 a file could not be written (disk full...): the photos after it are not done.
+Every file is written whole or not at all (summary.json too).
 """
 
 
@@ -133,6 +135,8 @@ def predict(
     against the photo is printed per photo and as the median of the batch.
     """
     from svbrdf_render import SVBRDFError
+    from svbrdf_render.errors import OutputError
+    from svbrdf_render.files import check_output_folder
 
     from ..capture import CaptureOptions, capture_one, write_summary
     from ..errors import CheckpointError
@@ -145,6 +149,7 @@ def predict(
     options = CaptureOptions(
         linear, crop, tiles, map_size, int(bits), normal_convention, relit, albedo_encoding=albedo_encoding
     )
+    check_output_folder(out, "-o")  # before the model is loaded and the first photo is done
     model = (
         Predictor.from_checkpoint(checkpoint, device) if checkpoint else Predictor.from_run(run_id, device)
     )
@@ -159,6 +164,7 @@ def predict(
     )
     entries: list[dict] = []
     used: set[str] = set()
+    stopped: SVBRDFError | None = None
     for path in photos:
         name, k = path.stem, 1
         while name in used:
@@ -166,6 +172,11 @@ def predict(
             name = f"{path.stem}-{k}"
         try:
             entry = capture_one(model, path, out / name, options)
+        except OutputError as e:  # the disk, not the photo: the photos after it would fail alike
+            click.echo(f"svbrdf-train: error: {e}", err=True)
+            entries.append({"photo": str(path), "status": "failed", "error": str(e)})
+            stopped = e
+            break
         except (SVBRDFError, OSError, RuntimeError) as e:  # RuntimeError: out of memory, a broken model
             what = str(e) if isinstance(e, (SVBRDFError, OSError)) else f"{type(e).__name__}: {e}"
             text = what if what.startswith(str(path)) else f"{path}: {what}"
@@ -181,6 +192,10 @@ def predict(
         out / "summary.json", entries, model=model.source, step=model.step, resolution=model.resolution
     )
     click.echo(_table(entries, summary), err=True, nl=False)
+    if stopped is not None:
+        left = len(photos) - len(entries)
+        click.echo(f"stopped: a file could not be written; {left} photo(s) after it not done", err=True)
+        sys.exit(stopped.exit_code)
     failed = summary["failed"]
     if failed:
         click.echo(f"{failed} of {len(photos)} photo(s) failed", err=True)
