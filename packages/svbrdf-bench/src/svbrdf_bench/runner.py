@@ -176,7 +176,7 @@ def _checkpoint(run_id: str, work: Path, local: Path | None) -> dict:
 
     if local is None:
         local = Path(_client().download_artifacts(run_id, RUN_CHECKPOINT, str(work)))
-    return load_checkpoint(local)
+    return load_checkpoint(local, source=f"the checkpoint of MLflow run {run_id}")
 
 
 # -- evaluation ---------------------------------------------------------------------------------
