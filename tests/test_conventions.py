@@ -40,3 +40,10 @@ def test_each_package_ships_the_licence(dist):
     assert project["license-files"] == ["LICENSE"]
     assert (REPO / "packages" / dist / "LICENSE").read_text() == (REPO / "LICENSE").read_text()
     assert importlib.metadata.metadata(dist).get_all("License-File") == ["LICENSE"]
+
+
+@pytest.mark.parametrize(("dist", "module"), PACKAGES.items())
+def test_each_package_is_marked_typed(dist, module):
+    """PEP 561: py.typed in the package, and named as package data so that wheels carry it."""
+    assert (REPO / "packages" / dist / "src" / module / "py.typed").is_file()
+    assert "py.typed" in _pyproject(dist)["tool"]["setuptools"]["package-data"][module]
