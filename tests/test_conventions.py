@@ -3,7 +3,11 @@ lines that answer ``--version`` and run as ``python -m``."""
 
 from __future__ import annotations
 
+import importlib
 import importlib.metadata
+import subprocess
+import sys
+import zipfile
 
 import pytest
 import tomllib
@@ -47,3 +51,34 @@ def test_each_package_is_marked_typed(dist, module):
     """PEP 561: py.typed in the package, and named as package data so that wheels carry it."""
     assert (REPO / "packages" / dist / "src" / module / "py.typed").is_file()
     assert "py.typed" in _pyproject(dist)["tool"]["setuptools"]["package-data"][module]
+
+
+@pytest.mark.parametrize(("dist", "module"), PACKAGES.items())
+def test_the_version_has_one_source(dist, module):
+    """``__version__`` is the only place the version is written: pyproject.toml reads it."""
+    config = _pyproject(dist)
+    assert "version" not in config["project"] and config["project"]["dynamic"] == ["version"]
+    assert config["tool"]["setuptools"]["dynamic"]["version"] == {"attr": f"{module}.__version__"}
+    assert importlib.import_module(module).__version__ == importlib.metadata.version(dist)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("dist", "module"), PACKAGES.items())
+def test_a_built_wheel_carries_py_typed_the_licence_and_the_version(dist, module, tmp_path):
+    r = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", "-w", str(tmp_path),
+         str(REPO / "packages" / dist)],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    if r.returncode != 0:
+        pytest.skip(f"pip could not build here (build dependencies from the index): {r.stderr[-300:]}")
+    (wheel,) = tmp_path.glob("*.whl")
+    version = importlib.import_module(module).__version__
+    assert wheel.name.startswith(f"{module}-{version}-")
+    with zipfile.ZipFile(wheel) as z:
+        names = set(z.namelist())
+        info = f"{module}-{version}.dist-info"
+        assert f"{module}/py.typed" in names
+        assert z.read(f"{info}/licenses/LICENSE").decode() == (REPO / "LICENSE").read_text()
+        metadata = z.read(f"{info}/METADATA").decode()
+    assert f"Version: {version}\n" in metadata and "License-Expression: MIT\n" in metadata
