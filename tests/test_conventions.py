@@ -9,6 +9,7 @@ import shutil
 import subprocess
 import sys
 import zipfile
+from pathlib import Path
 
 import pytest
 import tomllib
@@ -85,3 +86,29 @@ def test_a_built_wheel_carries_py_typed_the_licence_and_the_version(dist, module
         assert z.read(f"{info}/licenses/LICENSE").decode() == (REPO / "LICENSE").read_text()
         metadata = z.read(f"{info}/METADATA").decode()
     assert f"Version: {version}\n" in metadata and "License-Expression: MIT\n" in metadata
+
+
+def _command(how: str, dist: str, module: str) -> list[str]:
+    """The command line ``dist`` started as a console script or as ``python -m``."""
+    if how == "python -m":
+        return [sys.executable, "-m", module]
+    script = Path(sys.executable).parent / dist
+    if not script.is_file():
+        pytest.skip(f"no console script {script} beside this interpreter")
+    return [str(script)]
+
+
+@pytest.mark.parametrize("how", ["python -m", "script"])
+@pytest.mark.parametrize(("dist", "module"), PACKAGES.items())
+def test_every_command_line_says_its_version(how, dist, module):
+    r = subprocess.run([*_command(how, dist, module), "--version"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout == f"{dist} {importlib.metadata.version(dist)}\n"
+
+
+@pytest.mark.parametrize(("dist", "module"), PACKAGES.items())
+def test_every_command_line_runs_as_python_m(dist, module):
+    """``python -m svbrdf_X --help`` is the command itself, under its own name, --version listed."""
+    r = subprocess.run([sys.executable, "-m", module, "--help"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.lower().startswith(f"usage: {dist} ") and "--version" in r.stdout

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import torch
 
+from . import __version__
 from .effects import DES18_EFFECTS, EFFECTS
 from .errors import SVBRDFError
 from .maps import SVBRDF
@@ -131,6 +132,7 @@ def build_parser() -> argparse.ArgumentParser:
         "roughness|specular), a folder with normal/diffuse/roughness/specular.png, or a "
         "built-in example:tiles, example:brushed-metal, example:leather.",
     )
+    parser.add_argument("--version", action="version", version=f"svbrdf-render {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     p = sub.add_parser("render", help="render a material to a PNG", description="Render one "

@@ -12,6 +12,8 @@ import click
 
 from svbrdf_render import SVBRDFError
 
+from . import __version__
+
 
 class OneLineErrors(click.Group):
     """A click group whose commands report SVBRDFError/OSError as one line, exit code 2.
@@ -43,7 +45,7 @@ def run_main(group: click.Group, prog: str, argv: list[str] | None = None) -> in
 
 
 @click.group(cls=OneLineErrors, context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(package_name="svbrdf-train")
+@click.version_option(__version__, message="%(prog)s %(version)s")
 def cli():
     """Training data and training for single-image SVBRDF recovery.
 
