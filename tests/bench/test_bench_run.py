@@ -320,6 +320,18 @@ def test_two_reused_fits_of_one_recipe_get_a_row_each(bench, tmp_path):
     assert label == "ours" and TRAIN_RUN_TAG not in client.get_run(picked).data.tags
 
 
+@pytest.mark.parametrize("command", ["run", "render"])
+def test_the_experiment_is_the_flag_else_mlflow_experiment_name_else_svbrdf_bench(command, monkeypatch):
+    def chosen(*args):
+        return cli.commands[command].make_context(command, list(args)).params["experiment"]
+
+    assert chosen() == "svbrdf-bench"
+    monkeypatch.setenv("MLFLOW_EXPERIMENT_NAME", "from-the-environment")
+    assert chosen() == "from-the-environment"
+    assert chosen("--experiment", "from-the-flag") == "from-the-flag"
+    assert "MLFLOW_EXPERIMENT_NAME" in _invoke(command, "--help").output
+
+
 @pytest.mark.parametrize(
     ("args", "needles"),
     [
