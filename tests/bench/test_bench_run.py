@@ -277,6 +277,13 @@ def test_from_runs_reuses_a_finished_fit_as_a_child(bench, tmp_path):
     assert client.get_run(reused[0].data.tags["svbrdf.train_run"]).data.tags["recipe"] == "radn"
 
 
+def test_the_benchmark_s_experiment_opens_in_the_model_training_view(bench):
+    client = _client()
+    experiment = client.get_experiment(client.get_run(bench[2]).info.experiment_id)
+    assert experiment.name == "tests-bench"
+    assert experiment.tags["mlflow.experimentKind"] == "custom_model_development"
+
+
 def test_the_preset_s_overrides_reach_every_fit(bench):
     """The quick preset gives the fits 10x the cpu size's samples, so that its time budget, not the
     end of the recipe's epochs, stops the faster models; the parent run records the overrides."""

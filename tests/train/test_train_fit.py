@@ -117,6 +117,16 @@ def test_mlflow_run_holds_config_tags_metrics_and_artifacts(tmp_path):
     assert yaml.safe_load(open(local)) == recipe.to_dict()
 
 
+def test_experiments_made_here_open_in_the_model_training_view():
+    """MLflow 3's UI opens an experiment in its GenAI or its model-training view after the kind tag."""
+    from svbrdf_train.tracking import MlflowTracker
+
+    assert _client().get_experiment_by_name("tests-kind") is None
+    MlflowTracker(experiment="tests-kind", run_name="kind").finish("FINISHED")
+    tags = _client().get_experiment_by_name("tests-kind").tags
+    assert tags["mlflow.experimentKind"] == "custom_model_development"
+
+
 def test_time_budget_stops_the_fit_and_says_so(tmp_path):
     result, _ = _fit(tmp_path, **{"train.max_steps": None, "train.epochs": 1000, "train.max_minutes": 0.0})
     assert result.status == "FINISHED"

@@ -109,7 +109,9 @@ def test_a_fit_logs_to_the_experiment_mlflow_experiment_name_names(tmp_path):
     assert result.exit_code == 0, result.output
     client = MlflowClient()
     run = client.get_run(json.loads((tmp_path / "out" / "last.json").read_text())["run_id"])
-    assert client.get_experiment(run.info.experiment_id).name == "tests-env-experiment"
+    experiment = client.get_experiment(run.info.experiment_id)
+    assert experiment.name == "tests-env-experiment"
+    assert experiment.tags["mlflow.experimentKind"] == "custom_model_development"  # the training view
 
 
 def test_help_teaches_with_examples():
