@@ -46,6 +46,9 @@ class Tracker:
     def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
         pass
 
+    def log_image(self, path: str | Path, key: str, step: int) -> None:
+        pass
+
     def set_tags(self, tags: Mapping[str, Any]) -> None:
         pass
 
@@ -259,6 +262,15 @@ class MlflowTracker(Tracker):
 
     def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
         self.client.log_artifact(self.run_id, os.fspath(path), artifact_path)
+
+    def log_image(self, path: str | Path, key: str, step: int) -> None:
+        """The image file ``path`` as step ``step`` of the image series ``key``: the UI shows the
+        series with a step slider (unlike a plain artifact)."""
+        from PIL import Image
+
+        with Image.open(path) as image:
+            image.load()
+            self.client.log_image(self.run_id, image, key=key, step=int(step))
 
     def set_tags(self, tags: Mapping[str, Any]) -> None:
         from mlflow.entities import RunTag
