@@ -22,6 +22,8 @@ SHARED_DATA = REPO.parent / "shared" / "data"
 # gets a store of its own, in a temporary folder, before anything imports mlflow.
 _MLFLOW_DIR = tempfile.mkdtemp(prefix="svbrdf-tests-mlflow-")
 os.environ["MLFLOW_TRACKING_URI"] = f"sqlite:///{_MLFLOW_DIR}/mlflow.db"
+# Nor may a user's MLFLOW_EXPERIMENT_NAME move the runs the tests look for (tests set it themselves).
+os.environ.pop("MLFLOW_EXPERIMENT_NAME", None)
 
 
 def random_svbrdf(

@@ -274,7 +274,38 @@ def test_from_runs_reuses_a_finished_fit_as_a_child(bench, tmp_path):
     )
     reused = [c for c in children if c.data.tags["svbrdf.model"] == "radn"]
     assert len(reused) == 1 and "svbrdf.train_run" in reused[0].data.tags
-    assert client.get_run(reused[0].data.tags["svbrdf.train_run"]).data.tags["recipe"] == "radn"
+    fitted = client.get_run(reused[0].data.tags["svbrdf.train_run"])
+    assert fitted.data.tags["recipe"] == "radn"
+    # The reused child carries the fit's params, as a child trained in the benchmark (the fit's own
+    # run) does: the runs table compares them by recipe field.
+    assert reused[0].data.params == fitted.data.params and reused[0].data.params["loss.adv"] == "0.0"
+
+
+def test_the_benchmark_s_experiment_opens_in_the_model_training_view(bench):
+    client = _client()
+    experiment = client.get_experiment(client.get_run(bench[2]).info.experiment_id)
+    assert experiment.name == "tests-bench"
+    assert experiment.tags["mlflow.experimentKind"] == "custom_model_development"
+
+
+def test_a_reused_child_carries_every_param_of_its_fit():
+    """More params than MLflow takes in one batch (100), all copied; the recipe tag is the fit's."""
+    from mlflow.entities import Param
+
+    from svbrdf_bench.runner import TRAIN_RUN_TAG, _reused_child
+
+    client = _client()
+    experiment = client.create_experiment("tests-reused-child")
+    fitted = client.create_run(experiment, tags={"recipe": "ours"}).info.run_id
+    params = {f"section.field_{i:03d}": str(i * 0.5) for i in range(150)}
+    items = [Param(k, v) for k, v in params.items()]
+    client.log_batch(fitted, params=items[:100])
+    client.log_batch(fitted, params=items[100:])
+    parent = client.create_run(experiment).info.run_id
+    child = client.get_run(_reused_child(client, experiment, parent, "ours-second", fitted))
+    assert child.data.params == params
+    assert child.data.tags[TRAIN_RUN_TAG] == fitted and child.data.tags["mlflow.parentRunId"] == parent
+    assert child.data.tags["recipe"] == "ours" and child.info.run_name == "ours-second (reused)"
 
 
 def test_the_preset_s_overrides_reach_every_fit(bench):
@@ -318,6 +349,18 @@ def test_two_reused_fits_of_one_recipe_get_a_row_each(bench, tmp_path):
 
     ((label, picked),) = _resolve_reuse(["ours"])
     assert label == "ours" and TRAIN_RUN_TAG not in client.get_run(picked).data.tags
+
+
+@pytest.mark.parametrize("command", ["run", "render"])
+def test_the_experiment_is_the_flag_else_mlflow_experiment_name_else_svbrdf_bench(command, monkeypatch):
+    def chosen(*args):
+        return cli.commands[command].make_context(command, list(args)).params["experiment"]
+
+    assert chosen() == "svbrdf-bench"
+    monkeypatch.setenv("MLFLOW_EXPERIMENT_NAME", "from-the-environment")
+    assert chosen() == "from-the-environment"
+    assert chosen("--experiment", "from-the-flag") == "from-the-flag"
+    assert "MLFLOW_EXPERIMENT_NAME" in _invoke(command, "--help").output
 
 
 @pytest.mark.parametrize(

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
-from PIL import Image
+from PIL import Image, ImageOps
 
 from svbrdf_render import MapFileError, write_image
 from svbrdf_render.mapfiles import srgb_to_linear
@@ -115,3 +116,23 @@ def test_real_dev_photos(shared_data):
     # Decoding sRGB darkens: the same files read as linear are brighter on average.
     as_stored = PhotoFolder(folder, encoding="linear", pattern="luo2024_*")
     assert float(as_stored[0]["input"].mean()) > float(phones[0]["input"].mean())
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_the_exif_orientation_is_applied_as_predict_does(tmp_path, orientation):
+    """A 24x40 PNG with EXIF Orientation k reads as Pillow's exif_transpose shows it, then its centre
+    square: what `svbrdf-bench run --real-data` predicts from, as `svbrdf-train predict` does."""
+    stored = (_photo(5, 24, 40).permute(1, 2, 0).numpy() * 255).round().astype(np.uint8)
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    Image.fromarray(stored).save(tmp_path / "shot.png", exif=exif)
+    with Image.open(tmp_path / "shot.png") as im:
+        assert im.getexif()[0x0112] == orientation  # the tag is in the file
+        shown = torch.from_numpy(np.asarray(ImageOps.exif_transpose(im), dtype=np.float32) / 255)
+    h, w = shown.shape[:2]
+    s = min(h, w)
+    top, left = (h - s) // 2, (w - s) // 2
+    expected = shown.permute(2, 0, 1)[:, top : top + s, left : left + s]
+    got = PhotoFolder(tmp_path, encoding="linear")[0]["input"]
+    assert got.shape == expected.shape == (3, 24, 24)
+    assert torch.equal(got, expected)

@@ -117,6 +117,39 @@ def test_mlflow_run_holds_config_tags_metrics_and_artifacts(tmp_path):
     assert yaml.safe_load(open(local)) == recipe.to_dict()
 
 
+def test_sample_grids_are_an_image_series_with_their_steps(tmp_path):
+    """Each validation's grid is logged with its step (MLflow's log_image key/step), which the UI
+    shows with a step slider, and the logged image is the grid written to --out."""
+    import re
+
+    import numpy as np
+    from PIL import Image
+
+    result, _ = _fit(tmp_path, "radn", **{"train.validate_every": 1})
+    assert result.status == "FINISHED" and result.step == 2
+    client = _client()
+    pngs = {}
+    for a in client.list_artifacts(result.run_id, "images"):
+        found = re.fullmatch(r"samples[+%]step[+%](\d+)[+%].*\.png", a.path.split("/")[-1])
+        if found:
+            pngs[int(found[1])] = a.path
+    assert sorted(pngs) == [1, 2]
+    assert client.get_run(result.run_id).data.tags["mlflow.loggedImages"].lower() == "true"
+    logged = np.asarray(Image.open(client.download_artifacts(result.run_id, pngs[2], str(tmp_path))))
+    written = np.asarray(Image.open(tmp_path / "radn" / "samples" / "step_0000002.png"))
+    assert logged.shape == written.shape and (logged == written).all()
+
+
+def test_experiments_made_here_open_in_the_model_training_view():
+    """MLflow 3's UI opens an experiment in its GenAI or its model-training view after the kind tag."""
+    from svbrdf_train.tracking import MlflowTracker
+
+    assert _client().get_experiment_by_name("tests-kind") is None
+    MlflowTracker(experiment="tests-kind", run_name="kind").finish("FINISHED")
+    tags = _client().get_experiment_by_name("tests-kind").tags
+    assert tags["mlflow.experimentKind"] == "custom_model_development"
+
+
 def test_time_budget_stops_the_fit_and_says_so(tmp_path):
     result, _ = _fit(tmp_path, **{"train.max_steps": None, "train.epochs": 1000, "train.max_minutes": 0.0})
     assert result.status == "FINISHED"

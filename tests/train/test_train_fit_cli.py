@@ -84,6 +84,36 @@ def test_resume_without_recipe_takes_the_checkpoint_s_and_a_new_budget(finished)
     assert "3 steps" in result.stdout
 
 
+def test_the_experiment_is_the_flag_else_mlflow_experiment_name_else_svbrdf(monkeypatch):
+    from svbrdf_train.commands.fit import fit
+
+    def chosen(*args):
+        return fit.make_context("fit", ["--recipe", "ours", *args]).params["experiment"]
+
+    assert chosen() == "svbrdf"
+    monkeypatch.setenv("MLFLOW_EXPERIMENT_NAME", "from-the-environment")
+    assert chosen() == "from-the-environment"
+    assert chosen("--experiment", "from-the-flag") == "from-the-flag"
+    assert "MLFLOW_EXPERIMENT_NAME" in CliRunner().invoke(cli, ["fit", "--help"]).output
+
+
+def test_a_fit_logs_to_the_experiment_mlflow_experiment_name_names(tmp_path):
+    import json
+
+    from mlflow import MlflowClient
+
+    result = CliRunner(env={"MLFLOW_EXPERIMENT_NAME": "tests-env-experiment"}).invoke(
+        cli, ["fit", "-q", "--recipe", "radn", "--size", "smoke", "--out", str(tmp_path / "out")],
+        catch_exceptions=False,
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    client = MlflowClient()
+    run = client.get_run(json.loads((tmp_path / "out" / "last.json").read_text())["run_id"])
+    experiment = client.get_experiment(run.info.experiment_id)
+    assert experiment.name == "tests-env-experiment"
+    assert experiment.tags["mlflow.experimentKind"] == "custom_model_development"  # the training view
+
+
 def test_help_teaches_with_examples():
     result = CliRunner().invoke(cli, ["fit", "--help"])
     assert result.exit_code == 0

@@ -138,7 +138,7 @@ def test_artifacts_go_to_the_server_folder(server, fitted, client):
     checkpoint there is the fit's last.pt, and nothing is written in the fit's working folder."""
     run = client.get_run(fitted.run_id)
     assert run.info.artifact_uri.startswith("mlflow-artifacts:")
-    assert {a.path for a in client.list_artifacts(fitted.run_id)} == {"config", "checkpoints", "samples"}
+    assert {a.path for a in client.list_artifacts(fitted.run_id)} == {"config", "checkpoints", "samples", "images"}
     assert [a.path for a in client.list_artifacts(fitted.run_id, "config")] == ["config/recipe.yaml"]
     listed = {a.path: a.file_size for a in client.list_artifacts(fitted.run_id, "checkpoints")}
     local = fitted.out / "last.pt"

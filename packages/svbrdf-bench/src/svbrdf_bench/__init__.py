@@ -3,4 +3,5 @@
 Nothing here imports mlflow, scikit-image or matplotlib at import time.
 """
 
+#: The package's version, its one source: pyproject.toml reads it (setuptools dynamic version).
 __version__ = "0.1.0"

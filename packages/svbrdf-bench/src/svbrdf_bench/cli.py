@@ -13,6 +13,8 @@ import click
 from svbrdf_render.files import EXIT_STATUS
 from svbrdf_train.cli import OneLineErrors, run_main
 
+from . import __version__
+
 
 class _Group(OneLineErrors):
     """svbrdf-train's one-line error reporting, under this command's name."""
@@ -21,7 +23,7 @@ class _Group(OneLineErrors):
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]}, epilog=EXIT_STATUS)
-@click.version_option(package_name="svbrdf-bench")
+@click.version_option(__version__, message="%(prog)s %(version)s")
 def cli():
     """Which model, at what cost? Train, evaluate and compare SVBRDF models.
 

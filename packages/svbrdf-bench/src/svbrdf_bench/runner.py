@@ -4,7 +4,8 @@ MLflow layout of one invocation::
 
     parent run  "bench-<models>-<preset>"  (tags svbrdf.kind=bench; the report, tables and plots)
       child run  per model: the model's training run itself (svbrdf-train fit --parent-run), or,
-                 for a reused run (--from-runs), a new run tagged svbrdf.train_run=<that run>;
+                 for a reused run (--from-runs), a new run tagged svbrdf.train_run=<that run>
+                 with that run's params;
                  holds test/* metrics, time/* metrics and eval/per_sample.json
       child run  per baseline (``mean``, ``photo``; none with --no-baselines): a generator with
                  no trained parameters built from the registry, tagged svbrdf.baseline=true and
@@ -281,6 +282,28 @@ def _baseline_child(client, experiment_id: str, parent_id: str, name: str) -> tu
     return child.info.run_id, sm.create_generator(name).eval()
 
 
+def _reused_child(client, experiment_id: str, parent_id: str, label: str, source: str) -> str:
+    """The child run of a reused fit ``source``: tagged with it, and carrying its params (the whole
+    recipe, the networks' configs, parameter counts), as the child of a fit trained here does, being
+    that fit's own run. Returns the child's run id."""
+    from mlflow.entities import Param
+
+    fitted = client.get_run(source)
+    child = client.create_run(
+        experiment_id,
+        run_name=f"{label} (reused)",
+        tags={
+            "mlflow.parentRunId": parent_id,
+            TRAIN_RUN_TAG: source,
+            "recipe": fitted.data.tags.get("recipe", label),
+        },
+    )
+    params = [Param(k, v) for k, v in sorted(fitted.data.params.items())]
+    for start in range(0, len(params), 100):  # MLflow takes at most 100 params per batch
+        client.log_batch(child.info.run_id, params=params[start : start + 100])
+    return child.info.run_id
+
+
 # -- the whole run ------------------------------------------------------------------------------
 
 
@@ -391,12 +414,8 @@ def run_bench(options: BenchOptions) -> str:
                 run_id, wall, local = _train(model, options, parent_id, work)
                 jobs.append((Path(model).stem, run_id, wall, None, local))
             for label, source in reuse:
-                child = client.create_run(
-                    parent.experiment_id,
-                    run_name=f"{label} (reused)",
-                    tags={"mlflow.parentRunId": parent_id, TRAIN_RUN_TAG: source, "recipe": label},
-                )
-                jobs.append((label, child.info.run_id, None, source, None))
+                child = _reused_child(client, parent.experiment_id, parent_id, label, source)
+                jobs.append((label, child, None, source, None))
             shown_by_model = {}
 
             def evaluate_one(label: str, generator) -> tuple[dict[str, float], dict[str, np.ndarray]]:

@@ -36,6 +36,7 @@ from ._registry import (
 )
 from .errors import ConfigError, DuplicateNameError, PluginLoadError, RegistryError, UnknownNameError
 
+#: The package's version, its one source: pyproject.toml reads it (setuptools dynamic version).
 __version__ = "0.1.0"
 
 # The built-in networks load on first access, like any plugin.

@@ -8,6 +8,7 @@ import statistics
 import sys
 import time
 
+from . import __version__
 from ._registry import _NOUNS, KINDS, REINSTALL_HINT, Registry, default_registry
 from .errors import RegistryError, UnknownNameError
 
@@ -40,6 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
         "(built-ins and plugins, found through entry points).",
         epilog="Exit status: 0 done; 2 bad arguments (an unknown name, a bad option); 130 interrupted.",
     )
+    parser.add_argument("--version", action="version", version=f"svbrdf-models {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser(

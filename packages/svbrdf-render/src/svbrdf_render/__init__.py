@@ -31,6 +31,7 @@ from .renderer import BACKENDS, build_plan, log_radiance, render
 from .sampling import EVAL_CONFIGS, EVAL_SEED, evaluation_scene, training_scene
 from .scene import DES18_DISTANCE, Camera, Flash, PointLight, Scene
 
+#: The package's version, its one source: pyproject.toml reads it (setuptools dynamic version).
 __version__ = "0.1.0"
 
 __all__ = [

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import torch
 
+from . import __version__
 from .effects import DES18_EFFECTS, EFFECTS
 from .errors import SVBRDFError, exit_status
 from .files import EXIT_STATUS
@@ -133,6 +134,7 @@ def build_parser() -> argparse.ArgumentParser:
         "built-in example:tiles, example:brushed-metal, example:leather.",
         epilog=EXIT_STATUS,
     )
+    parser.add_argument("--version", action="version", version=f"svbrdf-render {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     p = sub.add_parser("render", help="render a material to a PNG", description="Render one "

@@ -53,7 +53,7 @@ from svbrdf_render import (
 )
 from svbrdf_render.files import atomic_output, write_text
 
-from .data.photos import square_photo
+from .data.photos import exif_orientation, orient, square_photo
 from .errors import DataError
 
 __all__ = [
@@ -96,7 +96,6 @@ RELIT_SIZE = 256
 #: Linear error shown at the top of the heat map's scale.
 HEAT_MAX = 0.25
 
-_EXIF_ORIENTATION = 0x0112
 _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 _GREY_MODES = ("1", "L", "LA", "La", "I", "I;16", "I;16B", "I;16L", "I;16N", "F")
 
@@ -112,21 +111,6 @@ class PhotoError(DataError):
 
 
 # -- reading ---------------------------------------------------------------------------------
-
-
-def orient(image: Tensor, orientation: int) -> Tensor:
-    """Apply an EXIF orientation (1-8) to ``(C, H, W)``: what ``PIL.ImageOps.exif_transpose`` does."""
-    ops = {
-        1: lambda t: t,
-        2: lambda t: t.flip(-1),
-        3: lambda t: t.flip(-1, -2),
-        4: lambda t: t.flip(-2),
-        5: lambda t: t.transpose(-1, -2),
-        6: lambda t: torch.rot90(t, -1, (-2, -1)),
-        7: lambda t: t.transpose(-1, -2).flip(-1, -2),
-        8: lambda t: torch.rot90(t, 1, (-2, -1)),
-    }
-    return ops.get(int(orientation), ops[1])(image).contiguous()
 
 
 def square(photo: Tensor, crop: tuple[int, int, int] | None = None, *, path=None) -> Tensor:
@@ -219,18 +203,11 @@ def _inspect(path: Path, notes: list[str]) -> int:
             notes.append("palette image (at most 256 colours) converted to RGB: expect banding")
         elif mode == "CMYK":
             notes.append("CMYK image converted to RGB")
-        try:
-            orientation = int(im.getexif().get(_EXIF_ORIENTATION, 1))
-        except Exception:  # a damaged EXIF block: keep the pixels as stored
-            orientation = 1
-            notes.append("EXIF block unreadable: orientation not applied")
+        orientation, orientation_note = exif_orientation(im)
     if fmt == "PNG" and _png_bit_depth(path) == 16:
         notes.append("16-bit PNG read at full precision")
-    if orientation not in range(1, 9):
-        notes.append(f"EXIF orientation {orientation} is not 1-8: ignored")
-        orientation = 1
-    elif orientation != 1:
-        notes.append(f"EXIF orientation {orientation} applied")
+    if orientation_note:
+        notes.append(orientation_note)
     return orientation
 
 

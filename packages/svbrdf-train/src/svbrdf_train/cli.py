@@ -14,6 +14,8 @@ from svbrdf_render import SVBRDFError
 from svbrdf_render.errors import exit_status
 from svbrdf_render.files import EXIT_STATUS
 
+from . import __version__
+
 
 class OneLineErrors(click.Group):
     """A click group whose commands report SVBRDFError/OSError as one line.
@@ -47,7 +49,7 @@ def run_main(group: click.Group, prog: str, argv: list[str] | None = None) -> in
 
 
 @click.group(cls=OneLineErrors, context_settings={"help_option_names": ["-h", "--help"]}, epilog=EXIT_STATUS)
-@click.version_option(package_name="svbrdf-train")
+@click.version_option(__version__, message="%(prog)s %(version)s")
 def cli():
     """Training data and training for single-image SVBRDF recovery.
 

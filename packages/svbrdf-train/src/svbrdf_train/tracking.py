@@ -33,6 +33,10 @@ __all__ = ["Tracker", "MlflowTracker", "flatten_params", "run_tags", "tracking_u
 
 #: The distributions whose versions every run records.
 PACKAGES = ("svbrdf-render", "svbrdf-models", "svbrdf-train", "torch", "numpy", "mlflow")
+#: MLflow 3 keeps an experiment's kind in this tag; the UI opens the model-training view for this
+#: value rather than the GenAI one. Set on every experiment this project creates.
+EXPERIMENT_KIND_TAG = "mlflow.experimentKind"
+EXPERIMENT_KIND = "custom_model_development"
 
 
 class Tracker:
@@ -44,6 +48,9 @@ class Tracker:
         pass
 
     def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
+        pass
+
+    def log_image(self, path: str | Path, key: str, step: int) -> None:
         pass
 
     def set_tags(self, tags: Mapping[str, Any]) -> None:
@@ -220,7 +227,8 @@ class MlflowTracker(Tracker):
     """One MLflow run: a new one, or ``run_id`` continued (after ``--resume``).
 
     Args:
-        experiment: experiment name (made if missing, with its artifacts beside a local store).
+        experiment: experiment name (made if missing, with its artifacts beside a local store and
+            the kind tag of a model-training experiment).
         run_name: shown in the UI.
         tags, params: set on a new run (params are immutable in MLflow, so a continued run
             keeps the ones it has).
@@ -281,7 +289,9 @@ class MlflowTracker(Tracker):
             safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in name)
             location = (folder / "mlartifacts" / safe).as_uri()
         try:
-            return self.client.create_experiment(name, artifact_location=location)
+            return self.client.create_experiment(
+                name, artifact_location=location, tags={EXPERIMENT_KIND_TAG: EXPERIMENT_KIND}
+            )
         except Exception:  # made by another process in the meantime
             found = self.client.get_experiment_by_name(name)
             if found is None:
@@ -319,6 +329,15 @@ class MlflowTracker(Tracker):
             parsed = urlparse(uri)
             self._artifacts = Path(unquote(parsed.path)) if parsed.scheme in ("", "file") else None
         return self._artifacts
+
+    def log_image(self, path: str | Path, key: str, step: int) -> None:
+        """The image file ``path`` as step ``step`` of the image series ``key``: the UI shows the
+        series with a step slider (unlike a plain artifact)."""
+        from PIL import Image
+
+        with Image.open(path) as image:
+            image.load()
+            self.client.log_image(self.run_id, image, key=key, step=int(step))
 
     def set_tags(self, tags: Mapping[str, Any]) -> None:
         from mlflow.entities import RunTag

@@ -869,6 +869,7 @@ def _validate(run: _Fit, tracker: Tracker, step: int) -> dict[str, float]:
 
         path = write_image(run.out / "samples" / f"step_{step:07d}.png", grid)
         tracker.log_artifact(path, "samples")
+        tracker.log_image(path, "samples", step)  # the same grid, shown with a step slider
     return metrics
 
 

@@ -142,7 +142,14 @@ def _write(out: Path, header: str, table: str, records: list[dict], meta: dict) 
     "--seed", type=int, default=0, show_default=True, help="Seed of the random materials and scene."
 )
 @click.option("--no-track", is_flag=True, help="Do not log the run to MLflow.")
-@click.option("--experiment", default="svbrdf-bench", show_default=True, help="MLflow experiment.")
+@click.option(
+    "--experiment",
+    default="svbrdf-bench",
+    envvar="MLFLOW_EXPERIMENT_NAME",
+    show_default=True,
+    show_envvar=True,
+    help="MLflow experiment (this flag, else the variable, else the default).",
+)
 def render(size, materials, repeats, backend, effects, quick, out, device, seed, no_track, experiment):
     """Time the renderer in float64, float32 and bfloat16, eager and compiled, with each
     effect on and off, and show how far each result is from the float64 reference.

@@ -105,7 +105,14 @@ def _split(value: str | None) -> list[str]:
 @click.option(
     "--size", type=click.Choice(["paper", "cpu", "smoke"]), help="Recipe size instead of the preset's."
 )
-@click.option("--experiment", default="svbrdf-bench", show_default=True, help="MLflow experiment.")
+@click.option(
+    "--experiment",
+    default="svbrdf-bench",
+    envvar="MLFLOW_EXPERIMENT_NAME",
+    show_default=True,
+    show_envvar=True,
+    help="MLflow experiment (this flag, else the variable, else the default).",
+)
 @click.option(
     "--no-baselines",
     is_flag=True,

@@ -11,6 +11,7 @@ from __future__ import annotations
 import fnmatch
 from pathlib import Path
 
+import torch
 import torch.nn.functional as F
 from torch import Tensor
 from torch.utils.data import Dataset
@@ -20,12 +21,41 @@ from svbrdf_render.mapfiles import srgb_to_linear
 
 from ..errors import DataError
 
-__all__ = ["PhotoFolder", "ENCODINGS", "PHOTO_EXTENSIONS", "square_photo"]
+__all__ = ["PhotoFolder", "ENCODINGS", "PHOTO_EXTENSIONS", "exif_orientation", "orient", "square_photo"]
 
 #: How the values of a photo file are encoded.
 ENCODINGS = ("srgb", "linear")
 #: File types read (case-insensitive).
 PHOTO_EXTENSIONS = (".png", ".jpg", ".jpeg")
+#: The EXIF tag saying how to turn the stored pixels to show the photo upright (1-8).
+EXIF_ORIENTATION = 0x0112
+
+
+def exif_orientation(image) -> tuple[int, str | None]:
+    """The EXIF orientation (1-8) of an open Pillow image, and a note for the user when it is applied,
+    unreadable or invalid (both of the latter read as 1: the pixels as stored)."""
+    try:
+        orientation = int(image.getexif().get(EXIF_ORIENTATION, 1))
+    except Exception:  # a damaged EXIF block: keep the pixels as stored
+        return 1, "EXIF block unreadable: orientation not applied"
+    if orientation not in range(1, 9):
+        return 1, f"EXIF orientation {orientation} is not 1-8: ignored"
+    return orientation, (f"EXIF orientation {orientation} applied" if orientation != 1 else None)
+
+
+def orient(image: Tensor, orientation: int) -> Tensor:
+    """Apply an EXIF orientation (1-8) to ``(C, H, W)``: what ``PIL.ImageOps.exif_transpose`` does."""
+    ops = {
+        1: lambda t: t,
+        2: lambda t: t.flip(-1),
+        3: lambda t: t.flip(-1, -2),
+        4: lambda t: t.flip(-2),
+        5: lambda t: t.transpose(-1, -2),
+        6: lambda t: torch.rot90(t, -1, (-2, -1)),
+        7: lambda t: t.transpose(-1, -2).flip(-1, -2),
+        8: lambda t: torch.rot90(t, 1, (-2, -1)),
+    }
+    return ops.get(int(orientation), ops[1])(image).contiguous()
 
 
 def square_photo(photo: Tensor, size: int | None) -> Tensor:
@@ -45,6 +75,14 @@ def square_photo(photo: Tensor, size: int | None) -> Tensor:
     return photo.contiguous()
 
 
+def _file_orientation(path: Path) -> int:
+    """The EXIF orientation of an image file (1 when it has none, or a damaged or invalid one)."""
+    from PIL import Image
+
+    with Image.open(path) as image:
+        return exif_orientation(image)[0]
+
+
 class PhotoFolder(Dataset):
     """The photos of a folder, decoded to linear values when indexed.
 
@@ -60,7 +98,9 @@ class PhotoFolder(Dataset):
             ``.png``, ``.jpg`` or ``.jpeg``.
 
     Each sample is ``{"input": (3, S, S) float32 linear in [0, 1], "name": file name}``, with
-    no ``maps``. An unreadable file raises :class:`~svbrdf_render.MapFileError` naming it.
+    no ``maps``; the photo is taken as displayed, its EXIF orientation applied (as ``svbrdf-train
+    predict`` does) before the square crop. An unreadable file raises
+    :class:`~svbrdf_render.MapFileError` naming it.
 
     Example:
         >>> phones = PhotoFolder("../shared/data/real-dev", encoding="srgb", pattern="luo2024_*", size=256)
@@ -104,7 +144,7 @@ class PhotoFolder(Dataset):
         if not -len(self) <= index < len(self):
             raise IndexError(f"PhotoFolder: index {index} out of range for {len(self)} photos")
         path = self.files[index]
-        photo = read_image(path, channels=3)
+        photo = orient(read_image(path, channels=3), _file_orientation(path))
         if self.encoding == "srgb":
             photo = srgb_to_linear(photo)
         return {"input": square_photo(photo, self.size), "name": path.name}
