@@ -518,4 +518,5 @@ def test_command_bad_options_exit_2_and_write_nothing(tmp_path, checkpoint, args
 def test_help_states_the_limits_and_exit_codes():
     text = _invoke("--help").output
     assert f"under {MIN_SIDE} px" in text and f"over {MAX_PIXELS // 1_000_000} megapixels" in text
-    assert "Exit code: 0 every photo captured; 1 some photos failed" in text and "2 every" in text
+    assert "Exit status: 0 every photo captured; 1 some photos failed" in text and "2 every" in text
+    assert "3 a file could not be written" in text

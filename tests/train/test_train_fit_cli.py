@@ -117,7 +117,7 @@ def test_a_fit_logs_to_the_experiment_mlflow_experiment_name_names(tmp_path):
 def test_help_teaches_with_examples():
     result = CliRunner().invoke(cli, ["fit", "--help"])
     assert result.exit_code == 0
-    for needle in ("--resume", "--max-minutes", "--set", "torchrun", "Exit codes"):
+    for needle in ("--resume", "--max-minutes", "--set", "torchrun", "Exit status"):
         assert needle in result.output
 
 
