@@ -17,10 +17,11 @@ from ._optional import require
 
 __all__ = ["safe_load", "loader"]
 
-#: YAML 1.2 floats without a dot or with an unsigned exponent (``3e-4``, ``1e5``, ``1.5e3``);
-#: tried after YAML 1.1's own resolvers, so ``4`` stays an int and ``2024-01-01`` a date.
+#: YAML 1.2 floats that 1.1 reads as strings: no dot (``3e-4``, ``1e5``), an unsigned
+#: exponent (``1.5e3``), a signed leading dot (``-.5``). Tried after YAML 1.1's own
+#: resolvers, so ``4`` stays an int and ``2024-01-01`` a date.
 _FLOAT = re.compile(
-    r"""^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$""",
+    r"""^[-+]?(?:(?:\.[0-9_]+|[0-9][0-9_]*\.[0-9_]*)(?:[eE][-+]?[0-9]+)?|[0-9][0-9_]*[eE][-+]?[0-9]+)$""",
 )
 
 _LOADER = None

@@ -1,8 +1,9 @@
 """Recipes: named, complete training configurations, read from YAML.
 
-A recipe file holds the sections below; a recipe may start from another (``base: ours``)
-and change only what differs, and lists ``sizes``: dotted overrides that turn the paper's
-configuration into ones that finish in minutes on a CPU::
+A recipe file holds the sections below; a recipe may start from another (``base: ours``, or
+the path of a YAML file, read from the recipe's own folder when relative) and change only
+what differs, and lists ``sizes``: dotted overrides that turn the paper's configuration into
+ones that finish in minutes on a CPU::
 
     description: the paper's model
     generator: {name: ours, config: {}}
@@ -13,7 +14,8 @@ configuration into ones that finish in minutes on a CPU::
 
 Recipes are found by name through the entry-point group ``svbrdf.recipes`` (each entry
 names a YAML file path; svbrdf-train registers its own that way), or given as a path. Any
-field can be overridden with ``--set section.field=value`` (the value is read as YAML).
+field can be overridden with ``--set section.field=value`` (the value is read as YAML;
+files and values alike read ``3e-4`` as a number, see :mod:`svbrdf_render.yamlio`).
 Unknown sections and fields are errors naming the field and the file.
 """
 
@@ -28,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from svbrdf_models import ConfigError, RegistryError, build_config, param, resolve_config
+from svbrdf_render.yamlio import safe_load
 
 from .errors import RecipeError
 
@@ -322,7 +325,7 @@ def _read_yaml(path: Path) -> dict[str, Any]:
     import yaml
 
     try:
-        data = yaml.safe_load(path.read_text())
+        data = safe_load(path.read_text())  # lr: 3e-4 is a number, as with --set
     except yaml.YAMLError as e:
         raise RecipeError(f"{path}: not valid YAML: {e}") from None
     if data is None:
@@ -363,7 +366,7 @@ def _resolve_file(path: Path, seen: tuple[Path, ...] = ()) -> tuple[dict[str, An
     sections: dict[str, Any] = {}
     sizes: dict[str, dict] = {}
     if "base" in data:
-        base_path = recipe_path(data["base"])
+        base_path = _base_path(data["base"], path)
         sections, sizes = _resolve_file(base_path, (*seen, path.resolve()))
     own = {k: v for k, v in data.items() if k not in ("base", "sizes")}
     sections = _merge(sections, own)
@@ -372,6 +375,29 @@ def _resolve_file(path: Path, seen: tuple[Path, ...] = ()) -> tuple[dict[str, An
             raise RecipeError(f"{path}: sizes.{size} must map dotted fields to values")
         sizes[size] = {**sizes.get(size, {}), **overrides}
     return sections, sizes
+
+
+def _base_path(base: Any, path: Path) -> Path:
+    """The file ``base:`` names in recipe ``path``: a relative path is read from the recipe's own
+    folder (wherever the command runs), a bare name is a registered recipe."""
+    if not isinstance(base, str) or not base.strip():
+        raise RecipeError(
+            f"{path}: base: expected a recipe name or the path of a YAML file, got {base!r}"
+        )
+    p = Path(base).expanduser()
+    if not p.is_absolute():
+        beside = path.parent / p
+        if beside.suffix in (".yaml", ".yml") or beside.is_file():
+            if not beside.is_file():
+                raise RecipeError(
+                    f"{path}: base: {base!r}: no file {beside} (a relative base is read from the "
+                    "folder of the recipe that names it)"
+                )
+            return beside
+    try:
+        return recipe_path(p if p.is_absolute() else base)
+    except RecipeError as e:
+        raise RecipeError(f"{path}: base: {e}") from None
 
 
 def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
@@ -384,21 +410,11 @@ def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
         if not sep or "." not in key:
             raise RecipeError(f"--set {item!r}: expected section.field=value, e.g. --set loss.adv=0")
         try:
-            value = yaml.safe_load(raw)
+            value = safe_load(raw)  # read as recipe files are: 3e-4 is a number
         except yaml.YAMLError as e:
             raise RecipeError(f"--set {item!r}: the value is not valid YAML: {e}") from None
-        out[key.strip()] = _number(value)
+        out[key.strip()] = value
     return out
-
-
-def _number(value: Any) -> Any:
-    """YAML 1.1 reads ``1e30`` and ``2e-4`` (no dot) as strings; people mean numbers."""
-    if isinstance(value, str) and value.strip().lower().lstrip("+-").replace(".", "", 1)[:1].isdigit():
-        try:
-            return float(value)
-        except ValueError:
-            return value
-    return value
 
 
 def _apply(
