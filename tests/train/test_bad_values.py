@@ -62,7 +62,7 @@ RECIPE_ROWS = [
     (_set("data.count=1"), ["data.count is 1", "train.batch 2"]),
     (_set("data.seed=-1"), ["seed must be in [0, 4294967295]", "got -1"]),
     (_set("data.workers=-1"), ["workers must be at least 0, got -1"]),
-    (_set("data.path=train.h5"), ["path is 'train.h5' but source is 'procedural'", "data.source"]),
+    (_set("data.path=train.h5"), ["data.path is train.h5 but data.source is 'procedural'", "data.path=null"]),
     (_set("data.source=mix", "data.mix=[{source: procedural, weight: 0}]"), ["mix[0].weight", "got 0"]),
     (_set("generator.config.attention=nope"), ["field 'attention'", "unknown attention module 'nope'"]),
     (_set("generator.config.attention_config.scales=[0]"), ["field 'attention_config'", "scales must be", "(0,)"]),

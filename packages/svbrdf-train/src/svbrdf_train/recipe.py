@@ -223,11 +223,6 @@ class DataSection:
             raise ValueError(
                 f"real_validation must name a folder or shards (or be null), got {self.real_validation!r}"
             )
-        if self.source == "procedural" and self.path is not None:
-            raise ValueError(
-                f"path is {self.path!r} but source is 'procedural', which reads no files; set "
-                "data.source to shards or des18 (fit --data PATH does both), or data.path=null"
-            )
         if self.source == "mix":
             if not self.mix:
                 raise ValueError("source 'mix' needs data.mix: a list of {source, weight} entries")
@@ -653,6 +648,11 @@ def check_recipe(recipe: Recipe, where: str) -> None:
                 f"{where}: discriminator.config.renderings is {wants} but train.renderings is "
                 f"{t.renderings}; the discriminator judges the renderings the loss draws: set both alike"
             )
+    if d is not None and d.source == "procedural" and d.path is not None:
+        raise RecipeError(
+            f"{where}: data.path is {_show(d.path)} but data.source is 'procedural', which reads no files; "
+            "set data.source to shards or des18 (fit --data PATH does both), or data.path=null"
+        )
     if t is not None and d is not None and d.source in ("procedural", "mix") and d.count < t.batch:
         raise RecipeError(
             f"{where}: data.count is {d.count}, fewer samples per epoch than one step of train.batch "
