@@ -79,6 +79,8 @@ FLAG_ROWS = [
     (["fit", "--recipe", "ours", "--size", "smoke", "--max-steps", "-5"], ["'--max-steps'", "-5"]),
     (["fit", "--recipe", "ours", "--size", "smoke", "--device", "cuda:x"], ["--device 'cuda:x'", "cpu, cuda or cuda:K"]),
     (["fit", "--resume", "--size", "cpu"], ["--size cpu goes with --recipe"]),
+    (["recipes", "--set", "train.batch=4"], ["--set train.batch=4", "give its NAME or FILE"]),
+    (["recipes", "--size", "cpu"], ["--size cpu", "give its NAME or FILE"]),
     (["data", "make", "--count", "0", "-o", "x.h5"], ["'--count'", "0 is not in the range x>=1"]),
     (["data", "make", "--count", "-5", "-o", "x.h5"], ["'--count'", "-5"]),
     (["data", "make", "-n", "4", "--resolution", "7", "-o", "x.h5"], ["'--resolution'", "7 is not in the range 8<=x<=4096"]),

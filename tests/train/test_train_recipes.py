@@ -162,3 +162,16 @@ def test_a_relative_base_is_read_from_the_recipe_folder_not_the_current_one(tmp_
     (mine / "typo.yaml").write_text("base: ourz\n")
     with pytest.raises(RecipeError, match=r"typo.yaml: base: unknown recipe 'ourz'.*'ours'"):
         load_recipe(mine / "typo.yaml")
+
+
+def test_overrides_of_a_loaded_recipe_and_checkpoint_recipes_are_checked_alike():
+    from svbrdf_train.recipe import recipe_from_dict, with_overrides
+
+    r = load_recipe("ours", "smoke")
+    with pytest.raises(RecipeError, match=r"--set train.resolution=30 \(recipe .*ours.yaml\): train.resolution is 30, but generator 'ours'.*multiples of 16"):
+        with_overrides(r, {"train.resolution": 30})  # what fit --resume --set does
+    data = r.to_dict()
+    data["optim"]["lr"] = float("nan")
+    with pytest.raises(RecipeError, match=r"last.pt: optim: lr must be a finite number > 0, got nan"):
+        recipe_from_dict(data, where="last.pt")
+    assert recipe_from_dict(r.to_dict()) == r

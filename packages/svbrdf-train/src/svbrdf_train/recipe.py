@@ -716,5 +716,7 @@ def with_overrides(recipe: Recipe, overrides: Mapping[str, Any], where: str = "-
         return recipe
     data = recipe.to_dict()
     meta = {k: data.pop(k) for k in ("name", "size", "description", "source")}
-    sections = _apply(data, overrides, f"{where} (recipe {meta['source'] or meta['name']})")
-    return recipe_from_dict({**sections, **meta}, where=where)
+    recipe_name = f"recipe {meta['source'] or meta['name']}"
+    sections = _apply(data, overrides, f"{where} ({recipe_name})")
+    given = ", ".join(f"{k}={_show(v)}" for k, v in overrides.items())
+    return recipe_from_dict({**sections, **meta}, where=f"{where} {given} ({recipe_name})")
