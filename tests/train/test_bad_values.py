@@ -158,3 +158,20 @@ def test_good_values_still_load_and_a_file_reads_numbers_like_set(tmp_path, caps
     printed = yaml.safe_load(capsys.readouterr().out)
     assert printed["optim"]["lr"] == 3e-4 and printed["optim"]["d_lr"] == 5e-5
     assert printed["train"]["max_minutes"] == 10.0 and printed["train"]["resolution"] == 32
+
+
+def test_a_gpu_index_the_machine_lacks_is_named_as_such(monkeypatch):
+    # cuda:K beyond the GPUs there failed later in torch; cuda:x was a traceback.
+    import torch
+
+    from svbrdf_train.distributed import pick_device
+    from svbrdf_train.errors import TrainingError
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 2)
+    assert pick_device("cuda:1") == torch.device("cuda:1")
+    assert pick_device("cuda", local_rank=3) == torch.device("cuda:1")
+    with pytest.raises(TrainingError, match=r"--device cuda:2: this machine has 2 GPU\(s\), cuda:0 to cuda:1"):
+        pick_device("cuda:2")
+    with pytest.raises(TrainingError, match="--device 'cuda:x': expected auto, cpu, cuda or cuda:K"):
+        pick_device("cuda:x")
