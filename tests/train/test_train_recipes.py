@@ -145,9 +145,9 @@ def test_a_file_reads_exponent_numbers_as_the_command_line_does(tmp_path):
 
 def test_a_relative_base_is_read_from_the_recipe_folder_not_the_current_one(tmp_path, monkeypatch):
     mine = tmp_path / "recipes"
-    (mine / "shared").mkdir(parents=True)
-    (mine / "shared" / "common.yaml").write_text("base: ours\ntrain: {batch: 3}\n")
-    (mine / "child.yaml").write_text("base: shared/common.yaml\noptim: {lr: 1e-4}\n")
+    (mine / "parts").mkdir(parents=True)
+    (mine / "parts" / "common.yaml").write_text("base: ours\ntrain: {batch: 3}\n")
+    (mine / "child.yaml").write_text("base: parts/common.yaml\noptim: {lr: 1e-4}\n")
     (mine / "grandchild.yaml").write_text("base: ./child.yaml\ndescription: deeper\n")
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
