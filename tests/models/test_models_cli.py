@@ -5,6 +5,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 from svbrdf_models.cli import main
 
 
@@ -87,3 +89,31 @@ def test_console_script_help():
         [sys.executable, "-m", "svbrdf_models.cli", "list", "--help"], capture_output=True, text=True
     )
     assert r.returncode == 0 and "examples:" in r.stdout and "--detail" in r.stdout
+
+
+@pytest.mark.parametrize(
+    "argv, fragments",
+    [
+        (["list", "--detail", "--channels", "0"], ["--channels", "from 1 to 4096", "got 0"]),
+        (["list", "--detail", "--kind", "attention", "--channels", "100000"], ["--channels", "got 100000"]),
+        (["list", "--detail", "--repeats", "0"], ["--repeats", "from 1 to 1000", "got 0"]),
+        (["list", "--detail", "--repeats", "many"], ["--repeats", "'many'"]),
+        (["list", "--kind", "generatr"], ["--kind", "'generatr'"]),
+        # --detail's options without --detail, or where nothing listed reads them, did nothing
+        (["list", "--repeats", "2"], ["--repeats 2", "add --detail"]),
+        (["list", "--preset", "small"], ["--preset small", "add --detail"]),
+        (["list", "--detail", "--kind", "generator", "--channels", "8"], ["--channels 8", "--kind attention"]),
+        (["list", "--detail", "--preset", "smal"], ["--preset 'smal'", "'small'"]),
+        (["list", "--detail", "--kind", "generator", "--pattern", "mean", "--preset", "tiny"], ["--preset 'tiny'", "Presets: none"]),
+        (["list", "--pattern", "zzz*"], ["--pattern 'zzz*' matches no registered"]),
+        (["describe"], ["name"]),
+    ],
+)
+def test_bad_flags_exit_2_with_one_line_naming_them(argv, fragments, capsys):
+    assert main(argv) == 2
+    captured = capsys.readouterr()
+    err = captured.err
+    assert err.startswith("svbrdf-models") and ": error: " in err and err.count("\n") == 1, err
+    assert "Traceback" not in err and captured.out == ""  # refused before the table starts
+    for fragment in fragments:
+        assert fragment in err, (fragment, err)

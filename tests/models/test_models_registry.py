@@ -211,3 +211,48 @@ def test_config_from_yaml_like_values():
     assert cfg.attention == ("se", "none", "cbam", "multiscale") and cfg.dropout == 0.0 and cfg.depth == 4
     assert sm.config_to_dict(cfg)["base_channels"] == 8
     assert sm.resolve_config("attention", "multiscale", {"scales": [1, 3]}).scales == (1, 3)
+
+
+def test_resolving_a_config_checks_the_modules_it_names():
+    # Before, an unknown attention name or an attention_config the module does not take passed
+    # resolve_config and failed while the U-Net was being built.
+    with pytest.raises(sm.UnknownNameError, match="generator 'ours': field 'attention': unknown attention module 'cbma'.*'cbam'"):
+        sm.resolve_config("generator", "ours", {"attention": "cbma"})
+    with pytest.raises(sm.UnknownNameError, match="field 'attention': unknown attention module 'gate'"):
+        sm.resolve_config("generator", "ours", {"preset": "tiny", "attention": ["se", "gate", "none", "se"]})
+    with pytest.raises(sm.ConfigError, match="field 'attention_config': attention module 'cbam': unknown config field 'scales'"):
+        sm.resolve_config("generator", "ours", {"attention": "cbam", "attention_config": {"scales": [1, 2]}})
+    with pytest.raises(sm.ConfigError, match="field 'attention_config': attention module 'multiscale': scales must be"):
+        sm.resolve_config("generator", "ours", {"attention_config": {"scales": [0]}})
+    with pytest.raises(sm.ConfigError, match=r"init_std must be a finite number >= 0.*-0.5"):
+        sm.resolve_config("discriminator", "patchgan", {"init_std": -0.5})
+    # The same checks through a registry of plugins: a name only the full registry has is unknown here.
+    with pytest.raises(sm.UnknownNameError, match="unknown attention module 'se'"):
+        registry_with().resolve_config("generator", "ours", {"attention": "se"})
+
+
+@pytest.mark.parametrize(
+    "kind, name, config, size, fragment",
+    [
+        ("generator", "ours", {"preset": "tiny"}, 30, "multiples of 16 (2**depth, depth 4), got 30x30; the nearest sizes are 16 and 32"),
+        ("generator", "ours", {}, 128, "multiples of 256 (2**depth, depth 8), got 128x128"),
+        ("discriminator", "patchgan", {}, 16, "at least 24 (3 * 2**layers, layers 3), got 16x16"),
+        ("discriminator", "multi", {"preset": "tiny"}, 8, "at least 12"),
+    ],
+)
+def test_input_sizes_a_network_cannot_take_are_refused_before_it_is_built(kind, name, config, size, fragment):
+    with pytest.raises(sm.ConfigError) as e:
+        sm.check_input_size(kind, name, config, size)
+    assert str(e.value).startswith(f"{kind} {name!r}: ") and fragment in str(e.value)
+
+
+def test_input_sizes_that_work_pass_and_really_go_through():
+    sm.check_input_size("generator", "ours", {"preset": "tiny"}, 32, 48)
+    sm.check_input_size("discriminator", "patchgan", {"preset": "tiny", "renderings": 1}, 12)
+    sm.check_input_size("generator", "mean", {}, 7)  # the baselines take any size
+    g = sm.create_generator("ours", preset="tiny").eval()
+    assert g(torch.rand(1, 3, 32, 48)).normal.shape[-2:] == (32, 48)
+    d = sm.create_discriminator("patchgan", {"preset": "tiny", "renderings": 1})
+    assert d(renderings=torch.rand(2, 1, 3, 12, 12))[0].numel() >= 2
+    with pytest.raises(ValueError):  # one pixel less and the network itself fails
+        d(renderings=torch.rand(2, 1, 3, 11, 11))

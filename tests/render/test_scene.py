@@ -48,6 +48,15 @@ def test_yaml_round_trip(tmp_path):
     assert back.to_dict() == scene.to_dict()
 
 
+def test_yaml_reads_exponent_numbers_without_a_dot_as_numbers(tmp_path):
+    # YAML 1.1 (PyYAML) reads 1e1 and 2e-1 as strings; a scene file means the numbers.
+    path = tmp_path / "studio.yaml"
+    path.write_text("camera: {position: [0, 0, 22e-1]}\nlights: [{type: flash, intensity: 1e1}]\n")
+    scene = Scene.load(path)
+    assert scene.lights[0].intensity.item() == 10.0
+    assert scene.camera.position.tolist() == pytest.approx([0.0, 0.0, 2.2])
+
+
 def test_effects_are_resolved_with_defaults_and_in_pipeline_order():
     fx = resolve_effects(["gamma", "diffuse", {"noise": {"sigma": 0.1}}, "exposure"])
     assert list(fx) == ["diffuse", "exposure", "noise", "gamma"]

@@ -45,7 +45,7 @@ def _assert_refused(result, *needles):
         ),
         (
             ["--recipe", "ours", "--size", "smoke", "--set", "data.count=1"],
-            ["1 training samples do not fill one step", "train.batch"],
+            ["data.count is 1, fewer samples per epoch than one step of train.batch 2"],
         ),
         (["--recipe", "ours", "--size", "smoke", "--device", "tpu"], ["--device 'tpu'"]),
         (["--recipe", "ours", "--size", "smoke", "--resume"], ["nothing to resume"]),

@@ -130,3 +130,48 @@ def test_unknown_recipe_size_and_bad_files(tmp_path):
     b.write_text(f"base: {a}\n")
     with pytest.raises(RecipeError, match="loop"):
         load_recipe(a)
+
+
+def test_a_file_reads_exponent_numbers_as_the_command_line_does(tmp_path):
+    # YAML 1.1 reads 3e-4 as a string: the file was refused while --set optim.lr=3e-4 passed.
+    f = write(tmp_path, "base: ours\noptim: {lr: 3e-4, d_lr: 1e-3}\ndata: {count: 1e5}\n")
+    with pytest.raises(RecipeError, match=r"'count' expects int, got 100000.0"):
+        load_recipe(f)  # a float is still no sample count
+    f = write(tmp_path, "base: ours\noptim: {lr: 3e-4, d_lr: 1e-3}\n")
+    r = load_recipe(f)
+    assert (r.optim.lr, r.optim.d_lr) == (3e-4, 1e-3)
+    assert r.optim == load_recipe("ours", overrides=parse_overrides(["optim.lr=3e-4", "optim.d_lr=1e-3"])).optim
+
+
+def test_a_relative_base_is_read_from_the_recipe_folder_not_the_current_one(tmp_path, monkeypatch):
+    mine = tmp_path / "recipes"
+    (mine / "parts").mkdir(parents=True)
+    (mine / "parts" / "common.yaml").write_text("base: ours\ntrain: {batch: 3}\n")
+    (mine / "child.yaml").write_text("base: parts/common.yaml\noptim: {lr: 1e-4}\n")
+    (mine / "grandchild.yaml").write_text("base: ./child.yaml\ndescription: deeper\n")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    r = load_recipe(mine / "grandchild.yaml")
+    assert (r.train.batch, r.optim.lr, r.description) == (3, 1e-4, "deeper")
+    # A name still means a registered recipe; a missing relative file names where it was looked for.
+    assert load_recipe(mine / "child.yaml", "smoke").generator.config["preset"] == "tiny"
+    (mine / "bad.yaml").write_text("base: missing.yaml\n")
+    with pytest.raises(RecipeError, match=r"bad.yaml: base: 'missing.yaml': no file .*recipes/missing.yaml"):
+        load_recipe(mine / "bad.yaml")
+    (mine / "typo.yaml").write_text("base: ourz\n")
+    with pytest.raises(RecipeError, match=r"typo.yaml: base: unknown recipe 'ourz'.*'ours'"):
+        load_recipe(mine / "typo.yaml")
+
+
+def test_overrides_of_a_loaded_recipe_and_checkpoint_recipes_are_checked_alike():
+    from svbrdf_train.recipe import recipe_from_dict, with_overrides
+
+    r = load_recipe("ours", "smoke")
+    with pytest.raises(RecipeError, match=r"--set train.resolution=30 \(recipe .*ours.yaml\): train.resolution is 30, but generator 'ours'.*multiples of 16"):
+        with_overrides(r, {"train.resolution": 30})  # what fit --resume --set does
+    data = r.to_dict()
+    data["optim"]["lr"] = float("nan")
+    with pytest.raises(RecipeError, match=r"last.pt: optim: lr must be a finite number > 0, got nan"):
+        recipe_from_dict(data, where="last.pt")
+    assert recipe_from_dict(r.to_dict()) == r

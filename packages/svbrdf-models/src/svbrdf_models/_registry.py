@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ._config import FieldInfo, build_config, config_fields
-from .errors import DuplicateNameError, PluginLoadError, RegistryError, UnknownNameError
+from .errors import ConfigError, DuplicateNameError, PluginLoadError, RegistryError, UnknownNameError
 
 __all__ = [
     "KINDS",
@@ -35,6 +35,7 @@ __all__ = [
     "list_models",
     "describe",
     "resolve_config",
+    "check_input_size",
     "create",
     "create_generator",
     "create_attention",
@@ -69,6 +70,14 @@ class ModelSpec:
             one network class serves several names (``no-attn`` is ``ours`` with
             ``attention="none"``).
         presets: named partial configs, e.g. ``{"small": {"depth": 6, "base_channels": 16}}``.
+
+    A config class may also declare, so that a bad config is refused before any layer is built:
+
+    - ``sub_networks()`` -> ``(name field, config field, kind, name, config)`` of each
+      registered module it will create (a generator's attention modules), which
+      :meth:`Registry.resolve_config` resolves too.
+    - ``check_input_size(height, width)``, raising ValueError for inputs the network cannot
+      take (a U-Net's multiple of ``2**depth``); see :meth:`Registry.check_input_size`.
 
     Example (a plugin's module)::
 
@@ -287,7 +296,32 @@ class Registry:
                 known = ", ".join(spec.presets) or "none"
                 raise RegistryError(f"{what}: unknown preset {preset!r}.{hint} Presets: {known}.")
             merged.update(spec.presets[preset])
-        return build_config(spec.config, values, what=what, defaults=merged)
+        config = build_config(spec.config, values, what=what, defaults=merged)
+        subs = getattr(config, "sub_networks", None)
+        for name_field, config_field, sub_kind, sub_name, sub_config in subs() if callable(subs) else ():
+            try:
+                self.resolve_config(sub_kind, sub_name, sub_config)
+            except RegistryError as e:
+                field_name = config_field if isinstance(e, ConfigError) else name_field
+                raise type(e)(f"{what}: field {field_name!r}: {e}") from None
+        return config
+
+    def check_input_size(
+        self, kind: str, name: str, config: Mapping[str, Any] | None, height: int, width: int | None = None
+    ) -> None:
+        """Refuse ``height x width`` inputs that ``name`` with ``config`` cannot take (a U-Net's
+        size must be a multiple of ``2**depth``), before any layer is built.
+
+        Raises:
+            ConfigError: naming the network and what sizes it takes.
+        """
+        resolved = self.resolve_config(kind, name, config)
+        check = getattr(resolved, "check_input_size", None)
+        if callable(check):
+            try:
+                check(height, height if width is None else width)
+            except ValueError as e:
+                raise ConfigError(f"{_NOUNS[kind]} {name!r}: {e}") from None
 
     def create(self, kind: str, name: str, config: Mapping[str, Any] | None = None, **runtime):
         """Build ``name`` from a config dict (which may hold ``"preset"``); see ModelSpec.build."""
@@ -332,6 +366,13 @@ def describe(kind: str, name: str) -> ModelInfo:
 def resolve_config(kind: str, name: str, config: Mapping[str, Any] | None = None):
     """The complete config dataclass that ``create`` would use (log it with every run)."""
     return _DEFAULT.resolve_config(kind, name, config)
+
+
+def check_input_size(
+    kind: str, name: str, config: Mapping[str, Any] | None, height: int, width: int | None = None
+) -> None:
+    """Refuse input sizes a network cannot take, naming it (see :meth:`Registry.check_input_size`)."""
+    _DEFAULT.check_input_size(kind, name, config, height, width)
 
 
 def create(kind: str, name: str, config: Mapping[str, Any] | None = None, **runtime):

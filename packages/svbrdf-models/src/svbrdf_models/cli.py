@@ -8,9 +8,15 @@ import statistics
 import sys
 import time
 
+from svbrdf_render.cli import OneLineParser, int_range
+
 from . import __version__
 from ._registry import _NOUNS, KINDS, REINSTALL_HINT, Registry, default_registry
 from .errors import RegistryError, UnknownNameError
+
+#: Bounds of --channels (a 4096-channel 256x256 input is 1 GiB) and --repeats.
+MAX_CHANNELS, MAX_REPEATS = 4096, 1000
+DEFAULT_CHANNELS, DEFAULT_REPEATS = 64, 3
 
 EPILOG_LIST = """\
 examples:
@@ -35,7 +41,7 @@ Fields can be set from Python (create_generator("ours", {"depth": 6})) or a reci
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="svbrdf-models",
         description="List and describe the registered generators, attention modules and discriminators "
         "(built-ins and plugins, found through entry points).",
@@ -59,12 +65,21 @@ def build_parser() -> argparse.ArgumentParser:
         "--detail", action="store_true", help="also parameter count and CPU inference time at 256x256"
     )
     p.add_argument(
-        "--preset", default=None, help="preset to build with --detail where one exists (e.g. small)"
+        "--preset", default=None, help="with --detail: preset to build where one exists (e.g. small)"
     )
     p.add_argument(
-        "--channels", type=int, default=64, help="input channels for attention modules with --detail"
+        "--channels",
+        type=int_range(1, MAX_CHANNELS),
+        default=None,
+        help=f"with --detail: input channels for attention modules, 1 to {MAX_CHANNELS} "
+        f"(default: {DEFAULT_CHANNELS})",
     )
-    p.add_argument("--repeats", type=int, default=3, help="timed runs per network with --detail (default: 3)")
+    p.add_argument(
+        "--repeats",
+        type=int_range(1, MAX_REPEATS),
+        default=None,
+        help=f"with --detail: timed runs per network, 1 to {MAX_REPEATS} (default: {DEFAULT_REPEATS})",
+    )
 
     p = sub.add_parser(
         "describe",
@@ -79,9 +94,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_list(args, registry: Registry, out) -> None:
-    kinds = args.kind or list(KINDS)
-    if args.repeats < 1 or args.channels < 1:
-        raise RegistryError("--repeats and --channels must be at least 1")
+    kinds = list(dict.fromkeys(args.kind or KINDS))
+    _check_list_flags(args, registry, kinds)
+    args.channels = args.channels or DEFAULT_CHANNELS
+    args.repeats = args.repeats or DEFAULT_REPEATS
     header = f"{'kind':<14} {'name':<14} {'source':<24}"
     if args.detail:
         header += f" {'params':>10} {'CPU ms':>9}"
@@ -89,6 +105,41 @@ def _cmd_list(args, registry: Registry, out) -> None:
     for kind in kinds:
         for name in registry.names(kind, args.pattern):
             print(_row(registry, kind, name, args), file=out, flush=True)
+
+
+def _check_list_flags(args, registry: Registry, kinds: list[str]) -> None:
+    """Refuse flags that would have no effect: --detail's options without it, a --channels no
+    listed kind reads, a --preset no listed network has, a --pattern that matches nothing."""
+    flags = ("preset", "channels", "repeats")
+    given = [f"--{n} {getattr(args, n)}" for n in flags if getattr(args, n) is not None]
+    if given and not args.detail:
+        raise RegistryError(f"{', '.join(given)}: only --detail builds and times networks; add --detail")
+    names = {kind: registry.names(kind, args.pattern) for kind in kinds}
+    if not any(names.values()):
+        raise UnknownNameError(
+            f"--pattern {args.pattern!r} matches no registered {' or '.join(_NOUNS[k] for k in kinds)}; "
+            f"'svbrdf-models list' shows every name. {REINSTALL_HINT}"
+        )
+    if args.channels is not None and not names.get("attention"):
+        raise RegistryError(
+            f"--channels {args.channels}: only attention modules take it, and none is listed "
+            "(add --kind attention)"
+        )
+    if args.preset is not None:
+        has = set()
+        for kind, listed in names.items():
+            for name in listed:
+                try:
+                    has.update(registry.spec(kind, name).presets)
+                except RegistryError:
+                    continue  # listed with its error
+        if args.preset not in has:
+            close = difflib.get_close_matches(args.preset, sorted(has), n=2, cutoff=0.5)
+            hint = f" Did you mean {' or '.join(map(repr, close))}?" if close else ""
+            raise RegistryError(
+                f"--preset {args.preset!r}: no listed network has it.{hint} "
+                f"Presets: {', '.join(sorted(has)) or 'none'}."
+            )
 
 
 def _row(registry: Registry, kind: str, name: str, args) -> str:
@@ -165,7 +216,10 @@ def _cmd_describe(args, registry: Registry, out) -> None:
 
 
 def main(argv: list[str] | None = None, registry: Registry | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as e:  # a usage error (one line, exit 2) or --help (exit 0)
+        return int(e.code or 0)
     registry = registry or default_registry()
     try:
         {"list": _cmd_list, "describe": _cmd_describe}[args.command](args, registry, sys.stdout)

@@ -17,6 +17,7 @@ name            what
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from torch import Tensor, nn
@@ -89,7 +90,21 @@ class MultiGANConfig:
 
     def __post_init__(self):
         if self.base_channels < 1 or self.layers < 1:
-            raise ValueError("base_channels and layers must be positive")
+            raise ValueError(
+                f"base_channels and layers must be positive, got {self.base_channels} and {self.layers}"
+            )
+        if not 0.0 <= self.init_std < math.inf:
+            raise ValueError(f"init_std must be a finite number >= 0 (0: torch's init), got {self.init_std}")
+
+    def check_input_size(self, height: int, width: int) -> None:
+        """Raise ValueError when ``height x width`` inputs leave no logit: each of the ``layers``
+        strided convolutions halves the size and the last two 4x4 convolutions take 2 more."""
+        least = 3 * 2**self.layers
+        if min(height, width) < least:
+            raise ValueError(
+                f"H and W must be at least {least} (3 * 2**layers, layers {self.layers}), "
+                f"got {height}x{width}"
+            )
 
 
 @dataclass(frozen=True)

@@ -77,6 +77,31 @@ class GeneratorConfig:
             raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
         if not 0 <= self.dropout_levels <= self.depth:
             raise ValueError(f"dropout_levels must be in [0, depth], got {self.dropout_levels}")
+        if not 0.0 <= self.init_std < math.inf:
+            raise ValueError(f"init_std must be a finite number >= 0 (0: torch's init), got {self.init_std}")
+
+    def sub_networks(self) -> tuple[tuple[str, str, str, str, dict], ...]:
+        """``(name field, config field, kind, name, config)`` of each registered module this
+        generator creates: the attention module of every level, so a config naming an unknown
+        one, or an attention_config it does not take, is refused before any layer is built
+        (see :meth:`svbrdf_models.Registry.resolve_config`)."""
+        names = dict.fromkeys(self.level_attention())  # each name once, in level order
+        return tuple(("attention", "attention_config", "attention", n, self.attention_config) for n in names)
+
+    @property
+    def input_multiple(self) -> int:
+        """H and W of a photo must be multiples of this: ``2**depth``."""
+        return 2**self.depth
+
+    def check_input_size(self, height: int, width: int) -> None:
+        """Raise ValueError when a ``height x width`` photo cannot go through this U-Net."""
+        m = self.input_multiple
+        if height % m or width % m or min(height, width) < m:
+            lo = max(m, min(height, width) // m * m)
+            raise ValueError(
+                f"H and W must be multiples of {m} (2**depth, depth {self.depth}), got {height}x{width}; "
+                f"the nearest sizes are {lo} and {lo + m}"
+            )
 
     def level_attention(self) -> tuple[str, ...]:
         """The attention module name of each level, outermost first."""

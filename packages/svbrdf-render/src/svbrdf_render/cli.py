@@ -18,7 +18,7 @@ from .effects import DES18_EFFECTS, EFFECTS
 from .errors import SVBRDFError, exit_status
 from .files import EXIT_STATUS
 from .maps import SVBRDF
-from .scene import Camera, PointLight, Scene
+from .scene import DES18_DISTANCE, Camera, PointLight, Scene
 
 EPILOG_RENDER = """\
 examples:
@@ -45,8 +45,66 @@ Lambertian patch right under a light to 1.0.
 """
 
 
-class CliError(Exception):
+#: Largest --size, and largest side of a preview grid: 8192 px is 0.8 GB per map in float32.
+MAX_SIZE = 8192
+#: Largest |--exposure|: 2**64 already turns any rendering white.
+MAX_EV = 64.0
+
+
+class CliError(SVBRDFError):
     """A user error: printed as one line, exit code 2."""
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are one line, ``PROG: error: ...`` with exit code 2 (no
+    usage block); svbrdf-models' command line uses it too."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def int_range(low: int, high: int | None = None):
+    """An argparse ``type``: an integer in ``[low, high]``; the message names the bounds."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < low or (high is not None and value > high):
+            bounds = f"from {low} to {high}" if high is not None else f"at least {low}"
+            raise argparse.ArgumentTypeError(f"expected an integer {bounds}, got {value}")
+        return value
+
+    parse.__name__ = "integer"
+    return parse
+
+
+def float_range(low: float | None = None, high: float | None = None, *, above: bool = False):
+    """An argparse ``type``: a finite number ``>= low`` (``> low`` with ``above``) and ``<= high``."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        bad = not math.isfinite(value)
+        if low is not None:
+            bad = bad or (value <= low if above else value < low)
+        if high is not None:
+            bad = bad or value > high
+        if bad:
+            parts = []
+            if low is not None:
+                parts.append(f"{'>' if above else '>='} {low:g}")
+            if high is not None:
+                parts.append(f"<= {high:g}")
+            bounds = " " + " and ".join(parts) if parts else ""
+            raise argparse.ArgumentTypeError(f"expected a finite number{bounds}, got {text}")
+        return value
+
+    parse.__name__ = "number"
+    return parse
 
 
 def _examples():
@@ -90,11 +148,40 @@ def _effects_arg(text: str) -> list[str]:
     return names
 
 
+#: Flags that describe the scene themselves: with --scene the file does, and they would be ignored.
+_SCENE_FLAGS = ("distance", "intensity", "light", "effects")
+
+
+def _flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def _check_flags(args, *, light_moves: bool = False) -> None:
+    """Refuse flags that would have no effect in this combination (no flag is silently ignored)."""
+    if args.scene:
+        given = [_flag(n) for n in _SCENE_FLAGS if getattr(args, n) is not None]
+        if given:
+            raise CliError(
+                f"{', '.join(given)} with --scene {args.scene}: the scene file sets the camera, lights and "
+                "effects; edit it (or drop --scene); only --exposure and --gamma add to a scene file"
+            )
+    if light_moves and args.light is not None:
+        raise CliError(
+            f"--light {' '.join(f'{v:g}' for v in args.light)}: preview moves the light over --grid "
+            "positions at --height; use render for one light position"
+        )
+    if args.light is not None and args.light[2] <= 0:
+        raise CliError(
+            f"--light {' '.join(f'{v:g}' for v in args.light)}: Z must be > 0 (the light above the "
+            "patch, which lies at z = 0); below it, nothing is lit"
+        )
+
+
 def _scene_from_args(args) -> Scene:
     if args.scene:
         scene = Scene.load(args.scene)
     else:
-        d = args.distance
+        d = args.distance if args.distance is not None else DES18_DISTANCE
         intensity = args.intensity if args.intensity is not None else math.pi * d * d
         camera = Camera(torch.tensor([0.0, 0.0, d]), 2 * math.degrees(math.atan(1 / d)))
         light_pos = torch.tensor(args.light) if args.light else camera.position
@@ -111,22 +198,25 @@ def _scene_from_args(args) -> Scene:
 def _add_scene_flags(p: argparse.ArgumentParser, gamma_default) -> None:
     g = p.add_argument_group("scene")
     g.add_argument("--scene", metavar="YAML", help="scene file (camera, lights, effects); "
-                   "the flags below then only add exposure/gamma")
-    g.add_argument("--distance", type=float, default=2.2, help="camera distance (default 2.2, Des18)")
-    g.add_argument("--intensity", type=float, default=None,
-                   help="light intensity (default pi * distance^2)")
-    g.add_argument("--light", type=float, nargs=3, metavar=("X", "Y", "Z"),
-                   help="light position (default: a flash at the camera)")
+                   "only --exposure and --gamma may be added to it")
+    g.add_argument("--distance", type=float_range(0, above=True), default=None,
+                   help=f"camera distance, > 0 (default {DES18_DISTANCE}, Des18)")
+    g.add_argument("--intensity", type=float_range(0), default=None,
+                   help="light intensity, >= 0 (default pi * distance^2)")
+    g.add_argument("--light", type=float_range(), nargs=3, metavar=("X", "Y", "Z"),
+                   help="light position, Z > 0 (default: a flash at the camera)")
     g.add_argument("--effects", type=_effects_arg, metavar="LIST",
                    help=f"comma-separated effects (default {','.join(DES18_EFFECTS)}); "
                    f"known: {', '.join(EFFECTS)}")
-    g.add_argument("--exposure", type=float, metavar="EV", help="add an exposure of EV stops")
-    g.add_argument("--gamma", type=float, default=gamma_default,
-                   help=f"encode the output with x^(1/GAMMA) (default: {gamma_default or 'linear'})")
+    g.add_argument("--exposure", type=float_range(-MAX_EV, MAX_EV), metavar="EV",
+                   help=f"add an exposure of EV stops (-{MAX_EV:g} to {MAX_EV:g})")
+    g.add_argument("--gamma", type=float_range(0, above=True), default=gamma_default,
+                   help=f"encode the output with x^(1/GAMMA), GAMMA > 0 "
+                   f"(default: {gamma_default or 'linear'})")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="svbrdf-render",
         description="Render SVBRDF maps (normal, diffuse, roughness, specular) of a flat patch "
         "under a camera and lights. MATERIAL is a Des18 strip PNG (input|normal|diffuse|"
@@ -142,7 +232,8 @@ def build_parser() -> argparse.ArgumentParser:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("material", metavar="MATERIAL")
     p.add_argument("-o", "--output", required=True, help="output PNG")
-    p.add_argument("--size", type=int, help="resample the maps to SIZE x SIZE first")
+    p.add_argument("--size", type=int_range(1, MAX_SIZE),
+                   help=f"resample the maps to SIZE x SIZE first (1 to {MAX_SIZE})")
     p.add_argument("--bits", type=int, choices=(8, 16), default=8, help="PNG bit depth (default 8)")
     p.add_argument("--backend", choices=("eager", "compiled"), default="eager",
                    help="compiled = torch.compile (faster for repeated renders, slow first call)")
@@ -154,10 +245,13 @@ def build_parser() -> argparse.ArgumentParser:
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("material", metavar="MATERIAL")
     p.add_argument("-o", "--output", required=True, help="output PNG")
-    p.add_argument("--grid", type=int, default=3, help="lights per side (default 3)")
-    p.add_argument("--spread", type=float, default=1.0, help="light offsets span [-S, S] (default 1)")
-    p.add_argument("--height", type=float, default=1.5, help="light height (default 1.5)")
-    p.add_argument("--size", type=int, help="resample the maps to SIZE x SIZE first")
+    p.add_argument("--grid", type=int_range(1, 16), default=3, help="lights per side, 1 to 16 (default 3)")
+    p.add_argument("--spread", type=float_range(0), default=1.0,
+                   help="light offsets span [-S, S], S >= 0 (default 1)")
+    p.add_argument("--height", type=float_range(0, above=True), default=1.5,
+                   help="light height, > 0 (default 1.5)")
+    p.add_argument("--size", type=int_range(1, MAX_SIZE),
+                   help=f"resample the maps to SIZE x SIZE first; the grid is at most {MAX_SIZE} px a side")
     _add_scene_flags(p, 2.2)
 
     p = sub.add_parser("scene", help="write the default scene as YAML (a template to edit)")
@@ -171,6 +265,7 @@ def _cmd_render(args) -> None:
     from .mapfiles import write_image
     from .renderer import render
 
+    _check_flags(args)
     m = load_material(args.material, args.size)
     scene = _scene_from_args(args)
     if scene.config_shape != torch.Size():
@@ -184,13 +279,29 @@ def _cmd_preview(args) -> None:
     from .mapfiles import write_image
     from .renderer import render
 
-    if args.grid < 1 or args.grid > 16:
-        raise CliError(f"--grid must be between 1 and 16, got {args.grid}")
+    _check_flags(args, light_moves=True)
+    if args.size is not None and args.grid * args.size > MAX_SIZE:
+        raise CliError(
+            f"--grid {args.grid} x --size {args.size} makes a {args.grid * args.size} px grid; keep "
+            f"grid x size within {MAX_SIZE} px (lower --size or --grid)"
+        )
     m = load_material(args.material, args.size)
+    side = args.grid * max(m.size)
+    if side > MAX_SIZE:
+        raise CliError(
+            f"{args.material}: {max(m.size)} px maps on a --grid {args.grid} make a {side} px grid; keep "
+            f"it within {MAX_SIZE} px (give --size, or a smaller --grid)"
+        )
     if args.intensity is None and not args.scene:
         # A white Lambertian patch right under a light then reaches 1.0.
         args.intensity = math.pi * args.height**2
     base = _scene_from_args(args)
+    if args.scene and (len(base.lights) > 1 or base.config_shape != torch.Size()):
+        raise CliError(
+            f"{args.scene}: preview moves one light over the grid; the scene has {len(base.lights)} "
+            f"light(s) and configuration shape {tuple(base.config_shape)}: keep one light and one "
+            "configuration"
+        )
     t = torch.linspace(-args.spread, args.spread, args.grid) if args.grid > 1 else torch.zeros(1)
     ys, xs = torch.meshgrid(-t, t, indexing="ij")  # top row = light above the top edge
     pos = torch.stack([xs, ys, torch.full_like(xs, args.height)], dim=-1).reshape(-1, 3)
@@ -225,7 +336,10 @@ def _cmd_effects(args) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as e:  # a usage error (one line, exit 2) or --help (exit 0)
+        return int(e.code or 0)
     commands = {"render": _cmd_render, "preview": _cmd_preview, "scene": _cmd_scene, "effects": _cmd_effects}
     try:
         commands[args.command](args)

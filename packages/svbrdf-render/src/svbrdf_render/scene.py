@@ -32,6 +32,7 @@ from torch import Tensor
 from ._optional import require
 from .effects import DES18_EFFECTS, resolve_effects
 from .errors import SceneError
+from .yamlio import safe_load
 
 __all__ = ["Camera", "PointLight", "Flash", "Light", "Scene", "DES18_DISTANCE"]
 
@@ -333,7 +334,7 @@ class Scene:
     def from_yaml(cls, text: str, *, source: str = "scene") -> Scene:
         yaml = _yaml()
         try:
-            data = yaml.safe_load(text)
+            data = safe_load(text)  # 1e5 is a number, as in YAML 1.2
         except yaml.YAMLError as e:
             raise SceneError(f"{source}: not valid YAML ({e})") from None
         return cls.from_dict(data, source=source)

@@ -9,6 +9,7 @@ on when to stop through :meth:`Dist.any`.
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass
 
 import torch
@@ -24,11 +25,16 @@ def pick_device(name: str, local_rank: int = 0) -> torch.device:
     process takes the GPU of its local rank."""
     if name == "auto":
         name = "cuda" if torch.cuda.is_available() else "cpu"
-    if name.startswith("cuda"):
+    if name == "cuda" or re.fullmatch(r"cuda:[0-9]+", name):
         if not torch.cuda.is_available():
             raise TrainingError(f"--device {name}: this torch sees no CUDA GPU; use --device cpu")
+        count = torch.cuda.device_count()
         if name == "cuda":
-            name = f"cuda:{local_rank % torch.cuda.device_count()}"
+            name = f"cuda:{local_rank % count}"
+        elif int(name[5:]) >= count:
+            raise TrainingError(
+                f"--device {name}: this machine has {count} GPU(s), cuda:0 to cuda:{count - 1}"
+            )
     elif name != "cpu":
         raise TrainingError(f"--device {name!r}: expected auto, cpu, cuda or cuda:K")
     return torch.device(name)

@@ -1,8 +1,9 @@
 """Recipes: named, complete training configurations, read from YAML.
 
-A recipe file holds the sections below; a recipe may start from another (``base: ours``)
-and change only what differs, and lists ``sizes``: dotted overrides that turn the paper's
-configuration into ones that finish in minutes on a CPU::
+A recipe file holds the sections below; a recipe may start from another (``base: ours``, or
+the path of a YAML file, read from the recipe's own folder when relative) and change only
+what differs, and lists ``sizes``: dotted overrides that turn the paper's configuration into
+ones that finish in minutes on a CPU::
 
     description: the paper's model
     generator: {name: ours, config: {}}
@@ -13,7 +14,8 @@ configuration into ones that finish in minutes on a CPU::
 
 Recipes are found by name through the entry-point group ``svbrdf.recipes`` (each entry
 names a YAML file path; svbrdf-train registers its own that way), or given as a path. Any
-field can be overridden with ``--set section.field=value`` (the value is read as YAML).
+field can be overridden with ``--set section.field=value`` (the value is read as YAML;
+files and values alike read ``3e-4`` as a number, see :mod:`svbrdf_render.yamlio`).
 Unknown sections and fields are errors naming the field and the file.
 """
 
@@ -22,17 +24,22 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import importlib.metadata
+import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from svbrdf_models import ConfigError, RegistryError, build_config, param, resolve_config
+from svbrdf_render.yamlio import safe_load
 
 from .errors import RecipeError
 
 __all__ = [
     "SIZES",
+    "MAX_SEED",
+    "MIN_RESOLUTION",
+    "MAX_RESOLUTION",
     "RECIPE_GROUP",
     "NetworkSection",
     "LossSection",
@@ -46,6 +53,7 @@ __all__ = [
     "load_recipe",
     "parse_overrides",
     "recipe_from_dict",
+    "check_recipe",
     "recipe_differences",
     "with_overrides",
 ]
@@ -53,6 +61,36 @@ __all__ = [
 RECIPE_GROUP = "svbrdf.recipes"
 #: Sizes every built-in recipe has: the paper's, one for a CPU in minutes, one for tests.
 SIZES = ("paper", "cpu", "smoke")
+#: Seeds are drawn from [0, MAX_SEED] (numpy's SeedSequence refuses negative ones).
+MAX_SEED = 2**32 - 1
+#: Training sizes in pixels: below, no network has a layer left; above, no GPU holds a batch.
+MIN_RESOLUTION, MAX_RESOLUTION = 8, 8192
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _check(ok: bool, field: str, value: Any, expected: str) -> None:
+    """ValueError ``"field must be expected, got value"`` unless ``ok``."""
+    if not ok:
+        raise ValueError(f"{field} must be {expected}, got {value!r}")
+
+
+def _finite(value: Any, field: str, *, low: float = 0.0, positive: bool = False) -> None:
+    ok = _number(value) and math.isfinite(value) and (value > low if positive else value >= low)
+    _check(ok, field, value, f"a finite number {'>' if positive else '>='} {low:g}")
+
+
+def _int_at_least(value: Any, field: str, low: int, *, none: str | None = None) -> None:
+    if value is None and none is not None:
+        return
+    expected = f"at least {low}" + (f" (or null: {none})" if none else "")
+    _check(value is not None and value >= low, field, value, expected)
+
+
+def _seed(value: int, field: str) -> None:
+    _check(0 <= value <= MAX_SEED, field, value, f"in [0, {MAX_SEED}] (2**32 - 1)")
 
 
 @dataclass(frozen=True)
@@ -76,15 +114,25 @@ class LossSection:
     eps: float = param(0.01, "offset of the log in the rendering loss")
 
     def __post_init__(self):
-        for name in ("adv", "render", "svbrdf", "eps"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"{name} must be a non-negative number, got {getattr(self, name)}")
+        for name in ("adv", "render", "svbrdf"):
+            _finite(getattr(self, name), name)
+        _finite(self.eps, "eps", positive=True)  # log(0) of a black rendering is -inf
         if self.adv + self.render + self.svbrdf <= 0:
-            raise ValueError("at least one of adv, render and svbrdf must be positive")
+            raise ValueError(
+                f"at least one of adv, render and svbrdf must be positive, got {self.adv}, "
+                f"{self.render} and {self.svbrdf}"
+            )
         unknown = set(self.maps) - {"normal", "diffuse", "roughness", "specular"}
         if unknown:
             raise ValueError(
                 f"maps: unknown map {sorted(unknown)}; maps are normal, diffuse, roughness, specular"
+            )
+        for name, weight in self.maps.items():
+            _finite(weight, f"maps.{name}")
+        if self.svbrdf > 0 and not any(w > 0 for w in self.maps.values()):
+            raise ValueError(
+                f"svbrdf is {self.svbrdf} but every weight of maps is 0 ({self.maps}), so the map loss "
+                "is always 0; give a map a weight, or set svbrdf to 0"
             )
 
 
@@ -108,22 +156,21 @@ class OptimSection:
     warmup_samples: int = param(0, "linear warm-up of both rates over this many samples (0: none)")
 
     def __post_init__(self):
-        if not (self.lr > 0 and self.d_lr > 0 and self.g_steps_per_d >= 1):
-            raise ValueError("lr and d_lr must be positive; g_steps_per_d at least 1")
+        _finite(self.lr, "lr", positive=True)
+        _finite(self.d_lr, "d_lr", positive=True)
+        for i, beta in enumerate(self.betas):
+            _check(_number(beta) and 0 <= beta < 1, f"betas[{i}]", beta, "in [0, 1) (Adam's)")
+        _int_at_least(self.g_steps_per_d, "g_steps_per_d", 1)
         for name in ("decay_every_samples", "decay_every_epochs"):
-            value = getattr(self, name)
-            if value is not None and value < 1:
-                raise ValueError(f"{name} must be at least 1 (or null: no decay), got {value}")
+            _int_at_least(getattr(self, name), name, 1, none="no decay")
         if self.decay_every_samples is not None and self.decay_every_epochs is not None:
             raise ValueError(
                 f"decay_every_samples={self.decay_every_samples} and decay_every_epochs="
                 f"{self.decay_every_epochs} are both set; keep one (--set optim.decay_every_samples=null "
                 "to count in epochs)"
             )
-        if not 0 < self.decay <= 1:
-            raise ValueError(f"decay must be in (0, 1], got {self.decay}")
-        if self.warmup_samples < 0:
-            raise ValueError(f"warmup_samples must be non-negative, got {self.warmup_samples}")
+        _check(0 < self.decay <= 1, "decay", self.decay, "in (0, 1] (1: no decay)")
+        _int_at_least(self.warmup_samples, "warmup_samples", 0)
 
 
 #: Keys of one ``data.mix`` entry, and the sources an entry may name.
@@ -165,8 +212,17 @@ class DataSection:
     )
 
     def __post_init__(self):
-        if self.count < 1 or self.validation < 0 or self.workers < 0:
-            raise ValueError("count must be positive; validation and workers non-negative")
+        _int_at_least(self.count, "count", 1)
+        _int_at_least(self.validation, "validation", 0)
+        _int_at_least(self.workers, "workers", 0)
+        _seed(self.seed, "seed")
+        paths = (self.path,) if isinstance(self.path, str) else self.path or ()
+        if any(not p.strip() for p in paths) or self.path == ():
+            raise ValueError(f"path must name files or folders (or be null), got {self.path!r}")
+        if self.real_validation is not None and not self.real_validation.strip():
+            raise ValueError(
+                f"real_validation must name a folder or shards (or be null), got {self.real_validation!r}"
+            )
         if self.source == "mix":
             if not self.mix:
                 raise ValueError("source 'mix' needs data.mix: a list of {source, weight} entries")
@@ -196,6 +252,15 @@ def _check_mix_entry(i: int, entry: Mapping[str, Any]) -> None:
         value = entry.get(key)
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
             raise ValueError(f"{where}.{key} must be a non-negative integer, got {value!r}")
+    path = entry.get("path")
+    paths = [path] if isinstance(path, str) else path
+    named = isinstance(paths, (list, tuple)) and bool(paths) and all(
+        isinstance(p, str) and p.strip() for p in paths
+    )
+    if path is not None and not named:
+        raise ValueError(f"{where}.path must be a path or a list of paths, got {path!r}")
+    if entry["source"] == "procedural" and path is not None:
+        raise ValueError(f"{where}.path is {path!r} but its source is 'procedural', which reads no files")
 
 
 @dataclass(frozen=True)
@@ -225,10 +290,18 @@ class TrainSection:
     )
 
     def __post_init__(self):
-        if min(self.resolution, self.batch, self.epochs, self.renderings) < 1:
-            raise ValueError("resolution, batch, epochs and renderings must be positive")
-        if min(self.log_every, self.validate_every, self.checkpoint_every) < 1:
-            raise ValueError("log_every, validate_every and checkpoint_every must be positive")
+        _check(
+            MIN_RESOLUTION <= self.resolution <= MAX_RESOLUTION,
+            "resolution",
+            self.resolution,
+            f"in [{MIN_RESOLUTION}, {MAX_RESOLUTION}] pixels (and what the generator takes)",
+        )
+        for name in ("batch", "epochs", "renderings", "log_every", "validate_every", "checkpoint_every"):
+            _int_at_least(getattr(self, name), name, 1)
+        _int_at_least(self.max_steps, "max_steps", 1, none="no limit")
+        if self.max_minutes is not None:
+            _finite(self.max_minutes, "max_minutes")  # 0: stop after the first step
+        _seed(self.seed, "seed")
 
 
 _SECTIONS: dict[str, type] = {
@@ -322,7 +395,7 @@ def _read_yaml(path: Path) -> dict[str, Any]:
     import yaml
 
     try:
-        data = yaml.safe_load(path.read_text())
+        data = safe_load(path.read_text())  # lr: 3e-4 is a number, as with --set
     except yaml.YAMLError as e:
         raise RecipeError(f"{path}: not valid YAML: {e}") from None
     if data is None:
@@ -363,7 +436,7 @@ def _resolve_file(path: Path, seen: tuple[Path, ...] = ()) -> tuple[dict[str, An
     sections: dict[str, Any] = {}
     sizes: dict[str, dict] = {}
     if "base" in data:
-        base_path = recipe_path(data["base"])
+        base_path = _base_path(data["base"], path)
         sections, sizes = _resolve_file(base_path, (*seen, path.resolve()))
     own = {k: v for k, v in data.items() if k not in ("base", "sizes")}
     sections = _merge(sections, own)
@@ -372,6 +445,29 @@ def _resolve_file(path: Path, seen: tuple[Path, ...] = ()) -> tuple[dict[str, An
             raise RecipeError(f"{path}: sizes.{size} must map dotted fields to values")
         sizes[size] = {**sizes.get(size, {}), **overrides}
     return sections, sizes
+
+
+def _base_path(base: Any, path: Path) -> Path:
+    """The file ``base:`` names in recipe ``path``: a relative path is read from the recipe's own
+    folder (wherever the command runs), a bare name is a registered recipe."""
+    if not isinstance(base, str) or not base.strip():
+        raise RecipeError(
+            f"{path}: base: expected a recipe name or the path of a YAML file, got {base!r}"
+        )
+    p = Path(base).expanduser()
+    if not p.is_absolute():
+        beside = path.parent / p
+        if beside.suffix in (".yaml", ".yml") or beside.is_file():
+            if not beside.is_file():
+                raise RecipeError(
+                    f"{path}: base: {base!r}: no file {beside} (a relative base is read from the "
+                    "folder of the recipe that names it)"
+                )
+            return beside
+    try:
+        return recipe_path(p if p.is_absolute() else base)
+    except RecipeError as e:
+        raise RecipeError(f"{path}: base: {e}") from None
 
 
 def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
@@ -384,21 +480,11 @@ def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
         if not sep or "." not in key:
             raise RecipeError(f"--set {item!r}: expected section.field=value, e.g. --set loss.adv=0")
         try:
-            value = yaml.safe_load(raw)
+            value = safe_load(raw)  # read as recipe files are: 3e-4 is a number
         except yaml.YAMLError as e:
             raise RecipeError(f"--set {item!r}: the value is not valid YAML: {e}") from None
-        out[key.strip()] = _number(value)
+        out[key.strip()] = value
     return out
-
-
-def _number(value: Any) -> Any:
-    """YAML 1.1 reads ``1e30`` and ``2e-4`` (no dot) as strings; people mean numbers."""
-    if isinstance(value, str) and value.strip().lower().lstrip("+-").replace(".", "", 1)[:1].isdigit():
-        try:
-            return float(value)
-        except ValueError:
-            return value
-    return value
 
 
 def _apply(
@@ -445,49 +531,65 @@ def load_recipe(
 ) -> Recipe:
     """Read, merge and check a recipe: the file, its bases, the chosen size, then ``overrides``.
 
+    Every size of the file is checked, not only ``size``: a bad value that the chosen size
+    happens to override is still reported, naming the size it breaks. Checks cover each
+    field's range, and settings that cannot work together (a resolution the generator cannot
+    take, a discriminator that judges another number of renderings than the loss draws, ...),
+    so that nothing fails later in the first step.
+
     Raises:
-        RecipeError: an unknown recipe, section, field or size, or a value of the wrong type,
-            naming the field and the file.
+        RecipeError: an unknown recipe, section, field or size, or a value of the wrong type or
+            out of range, naming the field, the value, the file and the size or override.
     """
     path = recipe_path(name_or_path)
     sections, sizes = _resolve_file(path)
-    if size != "paper":
-        if size not in sizes:
-            raise RecipeError(
-                f"{path}: no size {size!r}{_suggest(size, sizes)}; "
-                f"sizes: paper, {', '.join(sizes) or '(none)'}"
-            )
-        sections = _apply(sections, sizes[size], f"{path} (sizes.{size})", skip_disabled=True)
-    sections = _apply(sections, overrides or {}, f"--set (recipe {path})")
+    if size != "paper" and size not in sizes:
+        raise RecipeError(
+            f"{path}: no size {size!r}{_suggest(size, sizes)}; sizes: paper, {', '.join(sizes) or '(none)'}"
+        )
     name = Path(path).stem if Path(str(name_or_path)).suffix else str(name_or_path)
+    for other in ("paper", *sizes):
+        if other != size:
+            _sized(path, name, other, sections, sizes)
+    recipe = _sized(path, name, size, sections, sizes)
+    if overrides:
+        recipe = _sized(path, name, size, sections, sizes, overrides)
+    return recipe
+
+
+def _sized(
+    path: Path,
+    name: str,
+    size: str,
+    sections: dict[str, Any],
+    sizes: Mapping[str, Mapping[str, Any]],
+    overrides: Mapping[str, Any] | None = None,
+) -> Recipe:
+    """The recipe of file ``path`` at ``size`` with ``overrides``, checked; errors say which."""
+    where = f"{path} (size {size})"
+    if size != "paper":
+        sections = _apply(sections, sizes[size], f"{path} (sizes.{size})", skip_disabled=True)
+    if overrides:
+        sections = _apply(sections, overrides, f"--set (recipe {path})")
+        given = ", ".join(f"{k}={_show(v)}" for k, v in overrides.items())
+        where = f"{where} with {given}"
 
     def build(section: str):
         values = sections.get(section)
         if values is None:
             return None
         if not isinstance(values, Mapping):
-            raise RecipeError(f"{path}: section {section!r} must be a mapping, got {values!r}")
+            raise RecipeError(f"{where}: section {section!r} must be a mapping, got {values!r}")
         try:
-            return build_config(_SECTIONS[section], values, what=f"{path}: section {section!r}")
+            return build_config(_SECTIONS[section], values, what=f"{where}: section {section!r}")
         except ConfigError as e:
             raise RecipeError(str(e)) from None
 
     loss = build("loss") or LossSection()
     discriminator = build("discriminator") if "discriminator" in sections else None
-    if loss.adv > 0 and discriminator is None:
-        raise RecipeError(
-            f"{path}: loss.adv is {loss.adv} but no discriminator is set; set one or loss.adv=0"
-        )
     if loss.adv == 0:
         discriminator = None  # never built nor trained without an adversarial term
-    # Check the network configs against the registry now, so a typo names this file.
-    for kind, section in (("generator", build("generator")), ("discriminator", discriminator)):
-        if section is not None:
-            try:
-                resolve_config(kind, section.name, section.config)
-            except RegistryError as e:
-                raise RecipeError(f"{path}: {kind}: {e}") from None
-    return Recipe(
+    recipe = Recipe(
         name=name,
         size=size,
         description=str(sections.get("description", "")),
@@ -499,6 +601,63 @@ def load_recipe(
         train=build("train") or TrainSection(),
         source=str(path),
     )
+    check_recipe(recipe, where)
+    return recipe
+
+
+def _show(value: Any) -> str:
+    return "null" if value is None else str(value)
+
+
+def check_recipe(recipe: Recipe, where: str) -> None:
+    """Refuse settings of ``recipe`` that are each in range but cannot work together.
+
+    The networks are checked through svbrdf-models' own config validation (names, presets,
+    fields, the attention modules a generator names) and asked which input sizes they take;
+    nothing is built.
+
+    Raises:
+        RecipeError: starting with ``where`` and naming the fields.
+    """
+    from svbrdf_models import check_input_size
+
+    t, d = recipe.train, recipe.data  # None only in a damaged checkpoint's recipe
+    if recipe.loss is not None and recipe.loss.adv > 0 and recipe.discriminator is None:
+        raise RecipeError(
+            f"{where}: loss.adv is {recipe.loss.adv} but no discriminator is set; set one or loss.adv=0"
+        )
+    for kind, section in (("generator", recipe.generator), ("discriminator", recipe.discriminator)):
+        if section is None:
+            continue
+        try:
+            config = resolve_config(kind, section.name, section.config)
+        except RegistryError as e:
+            raise RecipeError(f"{where}: {kind}: {e}") from None
+        if t is None:
+            continue
+        try:
+            check_input_size(kind, section.name, section.config, t.resolution)
+        except RegistryError as e:
+            raise RecipeError(
+                f"{where}: train.resolution is {t.resolution}, but {e}; set train.resolution to a size "
+                f"the {kind} takes, or change {kind}.config"
+            ) from None
+        wants = getattr(config, "renderings", None) if kind == "discriminator" else None
+        if wants is not None and wants != t.renderings:
+            raise RecipeError(
+                f"{where}: discriminator.config.renderings is {wants} but train.renderings is "
+                f"{t.renderings}; the discriminator judges the renderings the loss draws: set both alike"
+            )
+    if d is not None and d.source == "procedural" and d.path is not None:
+        raise RecipeError(
+            f"{where}: data.path is {_show(d.path)} but data.source is 'procedural', which reads no files; "
+            "set data.source to shards or des18 (fit --data PATH does both), or data.path=null"
+        )
+    if t is not None and d is not None and d.source in ("procedural", "mix") and d.count < t.batch:
+        raise RecipeError(
+            f"{where}: data.count is {d.count}, fewer samples per epoch than one step of train.batch "
+            f"{t.batch}; raise data.count or lower train.batch"
+        )
 
 
 def recipe_from_dict(data: Mapping[str, Any], *, where: str = "recipe") -> Recipe:
@@ -514,13 +673,15 @@ def recipe_from_dict(data: Mapping[str, Any], *, where: str = "recipe") -> Recip
         }
     except ConfigError as e:
         raise RecipeError(str(e)) from None
-    return Recipe(
+    recipe = Recipe(
         name=str(data.get("name", "recipe")),
         size=str(data.get("size", "paper")),
         description=str(data.get("description", "")),
         source=str(data.get("source", "")),
         **sections,
     )
+    check_recipe(recipe, where)
+    return recipe
 
 
 def _flat(value: Any, prefix: str = "") -> dict[str, Any]:
@@ -555,5 +716,7 @@ def with_overrides(recipe: Recipe, overrides: Mapping[str, Any], where: str = "-
         return recipe
     data = recipe.to_dict()
     meta = {k: data.pop(k) for k in ("name", "size", "description", "source")}
-    sections = _apply(data, overrides, f"{where} (recipe {meta['source'] or meta['name']})")
-    return recipe_from_dict({**sections, **meta}, where=where)
+    recipe_name = f"recipe {meta['source'] or meta['name']}"
+    sections = _apply(data, overrides, f"{where} ({recipe_name})")
+    given = ", ".join(f"{k}={_show(v)}" for k, v in overrides.items())
+    return recipe_from_dict({**sections, **meta}, where=f"{where} {given} ({recipe_name})")

@@ -9,6 +9,8 @@ from pathlib import Path
 import click
 import torch
 
+from .options import SEED, explicit
+
 __all__ = ["COMMANDS", "compare"]
 
 _EPILOG = """\b
@@ -121,7 +123,7 @@ def _sheet(proc: dict, families: list[str], real: dict, rows: int):
     help="Side in pixels of both sets (real tiles are resized whole to it).",
 )
 @click.option(
-    "--seed", default=0, show_default=True, type=click.IntRange(0), help="Procedural data set seed."
+    "--seed", default=0, show_default=True, type=SEED, help="Procedural data set seed."
 )
 @click.option(
     "--real-count",
@@ -137,7 +139,9 @@ def _sheet(proc: dict, families: list[str], real: dict, rows: int):
     type=click.Path(dir_okay=False, path_type=Path),
     help="Write a side-by-side sheet PNG: procedural samples (photo and maps) next to real ones.",
 )
-@click.option("--rows", default=8, show_default=True, type=click.IntRange(1, 64), help="Rows of the sheet.")
+@click.option(
+    "--rows", default=8, show_default=True, type=click.IntRange(1, 64), help="Rows of the sheet (with -o)."
+)
 @click.option(
     "--json",
     "json_path",
@@ -145,9 +149,12 @@ def _sheet(proc: dict, families: list[str], real: dict, rows: int):
     type=click.Path(dir_okay=False, path_type=Path),
     help="Also write the statistics (summaries, distances, per-material values) as JSON.",
 )
-def compare(real_folder, count, resolution, seed, real_count, sheet_path, rows, json_path):
+@click.pass_context
+def compare(ctx, real_folder, count, resolution, seed, real_count, sheet_path, rows, json_path):
     """Set N procedural samples against the real materials of REAL_FOLDER: one row per
     statistic with each set's summary and the distance between them (see below)."""
+    if sheet_path is None and explicit(ctx, "rows"):
+        raise click.UsageError(f"--rows {rows} sets the rows of the sheet: give -o SHEET.png with it")
     from ..data.procedural import GENERATOR_VERSION
     from ..data.stats import compare as compare_sets
 

@@ -14,6 +14,10 @@ from pathlib import Path
 import click
 
 from ..errors import DataError
+from .options import SEED, FiniteFloatRange, explicit
+
+#: Largest side of a shard's samples: one 4096 px sample already takes about 1 GB in memory.
+MAX_SHARD_RESOLUTION = 4096
 
 EPILOG_MAKE = """\b
 Examples:
@@ -76,17 +80,26 @@ def _summary(out: Path, count: int, resolution: int, bits: int, seconds: float) 
 @click.command("make", epilog=EPILOG_MAKE)
 @click.option("-n", "--count", type=click.IntRange(min=1), required=True, help="Number of samples.")
 @click.option(
-    "-r", "--resolution", type=click.IntRange(min=8), default=256, show_default=True, help="Side in pixels."
+    "-r",
+    "--resolution",
+    type=click.IntRange(8, MAX_SHARD_RESOLUTION),
+    default=256,
+    show_default=True,
+    help=f"Side in pixels (8 to {MAX_SHARD_RESOLUTION}).",
 )
 @click.option(
     "-o", "--out", type=click.Path(path_type=Path), required=True, help="The shard to write (.h5)."
 )
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Seed of the samples.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the samples.")
 @click.option(
     "--bits", type=click.Choice(["8", "16"]), default="8", show_default=True, help="Bits per stored value."
 )
 @click.option(
-    "--batch", type=click.IntRange(min=1), default=16, show_default=True, help="Samples generated at once."
+    "--batch",
+    type=click.IntRange(1, 1024),
+    default=16,
+    show_default=True,
+    help="Samples generated at once (1 to 1024).",
 )
 @click.option(
     "--family",
@@ -97,7 +110,7 @@ def _summary(out: Path, count: int, resolution: int, bits: int, seconds: float) 
 )
 @click.option(
     "--mix",
-    type=click.FloatRange(0, 1),
+    type=FiniteFloatRange(0, 1),
     default=None,
     help="Fraction of samples mixing two families through a mask (default: the generator's).",
 )
@@ -147,15 +160,22 @@ def make(count, resolution, out, seed, bits, batch, families, mix, force):
     help="Subfolder testBlended/ or trainBlended/ when DIR has them.",
 )
 @click.option(
-    "--crop", type=click.IntRange(min=1), default=256, show_default=True, help="Side of the centre crop."
+    "--crop",
+    type=click.IntRange(8, MAX_SHARD_RESOLUTION),
+    default=256,
+    show_default=True,
+    help="Side of the centre crop (not with --full).",
 )
 @click.option("--full", is_flag=True, help="Keep whole tiles instead of the centre crop.")
 @click.option(
     "--bits", type=click.Choice(["8", "16"]), default="8", show_default=True, help="Bits per stored value."
 )
 @click.option("--force", is_flag=True, help="Replace --out if it exists.")
-def import_(folder, out, split, crop, full, bits, force):
+@click.pass_context
+def import_(ctx, folder, out, split, crop, full, bits, force):
     """Import a Des18 folder (strips with ground truth) into a shard."""
+    if full and explicit(ctx, "crop"):
+        raise click.UsageError(f"--crop {crop} and --full: --full keeps whole tiles, give one of them")
     from ..data.des18 import Des18Folder
     from ..data.shards import ShardWriter
 

@@ -8,6 +8,8 @@ from pathlib import Path
 import click
 import torch
 
+from .options import SEED, FiniteFloatRange
+
 __all__ = ["COMMANDS", "sheet"]
 
 _EPILOG = """\b
@@ -54,7 +56,7 @@ def _families(ctx, param, value):
     help="Size of every tile in pixels.",
 )
 @click.option(
-    "--seed", default=0, show_default=True, type=click.IntRange(0), help="Data set seed (as in `data make`)."
+    "--seed", default=0, show_default=True, type=SEED, help="Data set seed (as in `data make`)."
 )
 @click.option(
     "--start", default=0, show_default=True, type=click.IntRange(0), help="Index of the first sample shown."
@@ -72,7 +74,7 @@ def _families(ctx, param, value):
     "--mix",
     default=0.3,
     show_default=True,
-    type=click.FloatRange(0, 1),
+    type=FiniteFloatRange(0, 1),
     help="Probability that a sample blends two materials through a mask.",
 )
 @click.option(

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from ..recipe import SIZES
+from .options import FiniteFloatRange, explicit
 
 EPILOG = """\b
 Examples:
@@ -38,7 +39,7 @@ def _data_overrides(items: tuple[str, ...]) -> dict:
     if not items:
         return {}
     if items == ("procedural",):
-        return {"data.source": "procedural"}
+        return {"data.source": "procedural", "data.path": None}  # a shards recipe's path goes too
     paths = [Path(p).expanduser() for p in items]
     for p in paths:
         if not p.exists():
@@ -82,12 +83,12 @@ def _data_overrides(items: tuple[str, ...]) -> dict:
 )
 @click.option(
     "--max-minutes",
-    type=float,
+    type=FiniteFloatRange(min=0),
     help="Stop after this much training time, validation excluded, on the recipe's train.clock: "
     "by default the process's CPU time over its threads on a CPU (a busy machine cannot shorten "
-    "it), GPU time on a GPU.",
+    "it), GPU time on a GPU. 0: after the first step.",
 )
-@click.option("--max-steps", type=int, help="Stop after this many generator steps.")
+@click.option("--max-steps", type=click.IntRange(min=1), help="Stop after this many generator steps.")
 @click.option(
     "--set",
     "sets",
@@ -127,7 +128,9 @@ def _data_overrides(items: tuple[str, ...]) -> dict:
 )
 @click.option("--no-track", is_flag=True, help="Do not log to MLflow (local files only).")
 @click.option("-q", "--quiet", is_flag=True, help="No progress line.")
+@click.pass_context
 def fit(
+    ctx,
     recipe_name,
     size,
     data,
@@ -160,6 +163,11 @@ def fit(
     if init and resume:
         raise RecipeError(
             "--init starts a new fit from trained weights and --resume continues one; give one of them"
+        )
+    if recipe_name is None and resume and explicit(ctx, "size"):
+        raise RecipeError(
+            f"--size {size} goes with --recipe; --resume without --recipe continues the checkpoint's "
+            "recipe at the size it was started with"
         )
     overrides = parse_overrides(sets)
     data_overrides = _data_overrides(data)

@@ -7,6 +7,9 @@ from pathlib import Path
 
 import click
 
+#: Largest --map-size: photos are refused over 50 megapixels (about 7071 px on a side).
+MAX_MAP_SIZE = 8192
+
 EPILOG = """\b
 Examples:
   svbrdf-train predict photo.jpg --checkpoint runs/ours-cpu/last.pt -o maps/
@@ -86,9 +89,10 @@ def _parse_crop(ctx, param, value):
 @click.option("--tiles", is_flag=True, help="Predict at high resolution from overlapping tiles.")
 @click.option(
     "--map-size",
-    type=click.IntRange(min=1),
+    type=click.IntRange(1, MAX_MAP_SIZE),
     metavar="N",
-    help="With --tiles: side of the maps in pixels (default: the square's own side).",
+    help=f"With --tiles: side of the maps in pixels, at most {MAX_MAP_SIZE} (default: the square's "
+    "own side).",
 )
 @click.option(
     "--normal-convention",
@@ -146,6 +150,9 @@ def predict(
         raise CheckpointError("give the generator with --checkpoint FILE or --run RUN_ID (one of them)")
     if map_size is not None and not tiles:
         raise click.UsageError("--map-size goes with --tiles")
+    from ..distributed import pick_device
+
+    device = pick_device(device)  # a GPU that is not there is named as such, not blamed on the checkpoint
     options = CaptureOptions(
         linear, crop, tiles, map_size, int(bits), normal_convention, relit, albedo_encoding=albedo_encoding
     )

@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from ..recipe import SIZES
+from .options import explicit
 
 
 @click.command("recipes")
@@ -13,7 +14,8 @@ from ..recipe import SIZES
     "--size", type=click.Choice(SIZES), default="paper", show_default=True, help="Size to resolve NAME at."
 )
 @click.option("--set", "sets", multiple=True, metavar="SECTION.FIELD=VALUE", help="Overrides, as for fit.")
-def recipes(name, size, sets):
+@click.pass_context
+def recipes(ctx, name, size, sets):
     """List the recipes (built-in and from plugins), or print one fully resolved as YAML.
 
     \b
@@ -24,6 +26,11 @@ def recipes(name, size, sets):
 
     from ..recipe import list_recipes, load_recipe, parse_overrides, recipe_path
 
+    if name is None and (sets or explicit(ctx, "size")):
+        given = " ".join(
+            [*(f"--set {x}" for x in sets), *([f"--size {size}"] if explicit(ctx, "size") else [])]
+        )
+        raise click.UsageError(f"{given}: resolves one recipe; give its NAME or FILE (the list ignores it)")
     if name is not None:
         recipe = load_recipe(name, size, parse_overrides(sets))
         click.echo(yaml.safe_dump(recipe.to_dict(), sort_keys=False), nl=False)
