@@ -237,6 +237,15 @@ CASES = [
     ("predict-no-model", "svbrdf-train", "predict {photo} -o {tmp}/maps", None, 2, "--checkpoint"),
     ("bench-unknown-model", "svbrdf-bench", "run --models no-such-recipe -o {tmp}/bench", None, 2, "no-such-recipe"),
     ("bench-no-models", "svbrdf-bench", "run -o {tmp}/bench", None, 2, "--models"),
+    ("bench-unknown-report", "svbrdf-bench", "report 0123456789abcdef0123456789abcdef", None, 2, "0123456789abcdef0123456789abcdef"),
+    ("fit-real-validation-missing", "svbrdf-train", "fit {smoke} --set data.real_validation={tmp}/none --out {tmp}/run", None, 2, "{tmp}/none"),
+    ("fit-resolution-not-multiple", "svbrdf-train", "fit {smoke} --set train.resolution=30 --out {tmp}/run", None, 2, "train.resolution"),
+    ("fit-lr-zero", "svbrdf-train", "fit {smoke} --set optim.lr=0 --out {tmp}/run", None, 2, "lr"),
+    ("fit-max-steps-zero", "svbrdf-train", "fit {smoke} --max-steps 0 --out {tmp}/run", None, 2, "--max-steps"),
+    ("render-distance-zero", "svbrdf-render", "render example:tiles --distance 0 -o {tmp}/x.png", None, 2, "--distance"),
+    ("render-size-negative", "svbrdf-render", "render example:tiles --size -3 -o {tmp}/x.png", None, 2, "--size"),
+    ("render-size-huge", "svbrdf-render", "render example:tiles --size 100000 -o {tmp}/x.png", None, 2, "--size"),
+    ("models-channels-huge", "svbrdf-models", "describe multiscale --kind attention --detail --channels 100000", None, 2, "--channels"),
 ]
 
 
