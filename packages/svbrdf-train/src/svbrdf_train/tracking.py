@@ -335,7 +335,7 @@ class MlflowTracker(Tracker):
         series with a step slider (unlike a plain artifact)."""
         from PIL import Image
 
-        with Image.open(path) as image:
+        with Image.open(path) as image, self._writing(f"log image {key} of step {step} to"):
             image.load()
             self.client.log_image(self.run_id, image, key=key, step=int(step))
 

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import click
 
+from svbrdf_train.commands.options import experiment_option
+
 EPILOG = """\b
 Examples:
   svbrdf-bench render                       # the full table: 8 x 9 renders of 256x256 (minutes)
@@ -142,14 +144,7 @@ def _write(out: Path, header: str, table: str, records: list[dict], meta: dict) 
     "--seed", type=int, default=0, show_default=True, help="Seed of the random materials and scene."
 )
 @click.option("--no-track", is_flag=True, help="Do not log the run to MLflow.")
-@click.option(
-    "--experiment",
-    default="svbrdf-bench",
-    envvar="MLFLOW_EXPERIMENT_NAME",
-    show_default=True,
-    show_envvar=True,
-    help="MLflow experiment (this flag, else the variable, else the default).",
-)
+@experiment_option("svbrdf-bench")
 def render(size, materials, repeats, backend, effects, quick, out, device, seed, no_track, experiment):
     """Time the renderer in float64, float32 and bfloat16, eager and compiled, with each
     effect on and off, and show how far each result is from the float64 reference.

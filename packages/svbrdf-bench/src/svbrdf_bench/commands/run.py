@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from svbrdf_train.commands.options import experiment_option
+
 from ..presets import PRESETS
 
 EPILOG = (
@@ -105,14 +107,7 @@ def _split(value: str | None) -> list[str]:
 @click.option(
     "--size", type=click.Choice(["paper", "cpu", "smoke"]), help="Recipe size instead of the preset's."
 )
-@click.option(
-    "--experiment",
-    default="svbrdf-bench",
-    envvar="MLFLOW_EXPERIMENT_NAME",
-    show_default=True,
-    show_envvar=True,
-    help="MLflow experiment (this flag, else the variable, else the default).",
-)
+@experiment_option("svbrdf-bench")
 @click.option(
     "--no-baselines",
     is_flag=True,

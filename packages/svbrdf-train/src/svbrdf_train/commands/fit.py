@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from ..recipe import SIZES
-from .options import FiniteFloatRange, explicit
+from .options import FiniteFloatRange, experiment_option, explicit
 
 EPILOG = """\b
 Examples:
@@ -108,14 +108,7 @@ def _data_overrides(items: tuple[str, ...]) -> dict:
     "--force", is_flag=True, help="Start afresh even though --out holds a checkpoint (it is replaced)."
 )
 @click.option("--device", default="auto", show_default=True, help="auto, cpu, cuda or cuda:K.")
-@click.option(
-    "--experiment",
-    default="svbrdf",
-    envvar="MLFLOW_EXPERIMENT_NAME",
-    show_default=True,
-    show_envvar=True,
-    help="MLflow experiment (this flag, else the variable, else the default).",
-)
+@experiment_option("svbrdf")
 @click.option("--run-name", help="MLflow run name [default: RECIPE-SIZE].")
 @click.option(
     "--parent-run", metavar="RUN_ID", help="Make the MLflow run a child of this one (benchmarks do)."

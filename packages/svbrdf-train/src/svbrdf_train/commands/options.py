@@ -13,7 +13,7 @@ import click
 
 from ..recipe import MAX_SEED
 
-__all__ = ["FiniteFloatRange", "SEED", "explicit"]
+__all__ = ["FiniteFloatRange", "SEED", "explicit", "experiment_option"]
 
 
 class FiniteFloatRange(click.FloatRange):
@@ -30,6 +30,20 @@ class FiniteFloatRange(click.FloatRange):
 
 #: Seeds, as recipes take them (numpy refuses negative ones; shards store them as int64).
 SEED = click.IntRange(0, MAX_SEED)
+
+
+def experiment_option(default: str):
+    """``--experiment``: this flag, else ``MLFLOW_EXPERIMENT_NAME`` (as MLflow users set it),
+    else ``default``."""
+    return click.option(
+        "--experiment",
+        default=default,
+        envvar="MLFLOW_EXPERIMENT_NAME",
+        show_default=True,
+        show_envvar=True,
+        help="MLflow experiment (this flag, else the variable, else the default).",
+    )
+
 
 def explicit(ctx: click.Context, name: str) -> bool:
     """Whether option ``name`` was given on the command line (not left at its default)."""
