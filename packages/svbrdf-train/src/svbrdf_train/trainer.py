@@ -64,7 +64,7 @@ from .init import InitWeights
 from .losses import LossWeights, discriminator_loss, generator_loss
 from .metrics import METRIC_NAMES, display_rendering, map_rmse, preview_flash, render_rmse
 from .progress import Progress, format_duration
-from .recipe import Recipe, recipe_differences, recipe_from_dict
+from .recipe import Recipe, check_recipe, recipe_differences, recipe_from_dict
 from .schedule import LrSchedule
 from .tracking import Tracker, flatten_params, run_tags
 
@@ -281,13 +281,6 @@ class _Fit:
         self.G = create_generator(recipe.generator.name, recipe.generator.config).to(self.device)
         self.D = None
         if recipe.discriminator is not None:
-            d_config = resolve_config("discriminator", recipe.discriminator.name, recipe.discriminator.config)
-            wants = getattr(d_config, "renderings", None)
-            if wants is not None and wants != t.renderings:
-                raise TrainingError(
-                    f"{recipe.source}: discriminator.config.renderings is {wants} but train.renderings is "
-                    f"{t.renderings}; the discriminator judges the renderings the loss draws: set both alike"
-                )
             self.D = create_discriminator(recipe.discriminator.name, recipe.discriminator.config).to(
                 self.device
             )
@@ -674,6 +667,7 @@ def fit(recipe: Recipe | None, options: FitOptions) -> FitResult:
 def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> FitResult:
     state = _check_out(options, dist)
     recipe = _resolve_resume(recipe, state)
+    check_recipe(recipe, recipe.source or recipe.name)  # a Recipe made in Python is checked too
     init = None
     if options.init and state is None:
         from .init import check_generator, load_init
