@@ -106,13 +106,13 @@ def test_mlflow_run_holds_config_tags_metrics_and_artifacts(tmp_path):
     assert sorted(m.step for m in history) == [1, 2]
     assert all(math.isfinite(m.value) for m in history)
     assert {m.key for m in client.get_metric_history(result.run_id, "val/rmse/render")} == {"val/rmse/render"}
-    # artifacts: the config as YAML, sample grids, the checkpoint
+    # artifacts: the config as YAML, sample grids, the weights
     listed = {
         a.path
         for folder in ("config", "samples", "checkpoints")
         for a in client.list_artifacts(result.run_id, folder)
     }
-    assert {"config/recipe.yaml", "samples/step_0000002.png", "checkpoints/last.pt"} <= listed
+    assert {"config/recipe.yaml", "samples/step_0000002.png", "checkpoints/weights.pt"} <= listed
     local = client.download_artifacts(result.run_id, "config/recipe.yaml", str(tmp_path))
     assert yaml.safe_load(open(local)) == recipe.to_dict()
 
@@ -186,7 +186,7 @@ def test_default_store_is_mlflow_db_in_the_working_folder_with_artifacts_beside_
     )
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "mlflow.db").is_file()
-    saved = list((tmp_path / "mlartifacts").rglob("last.pt"))
+    saved = list((tmp_path / "mlartifacts").rglob("weights.pt"))
     assert len(saved) == 1 and saved[0].parent.name == "checkpoints"
     from mlflow import MlflowClient
 
@@ -197,16 +197,16 @@ def test_default_store_is_mlflow_db_in_the_working_folder_with_artifacts_beside_
 
 def test_a_non_finite_gradient_behind_a_finite_loss_stops_before_the_step(tmp_path, monkeypatch):
     """sqrt at 0 has an infinite derivative: the loss stays finite, every gradient becomes NaN.
-    The trainer checks the gradient norm, stops without stepping, and names the gradient."""
-    import svbrdf_train.trainer as trainer
+    The step checks the gradient norm, stops without stepping, and names the gradient."""
+    import svbrdf_train.step as step
 
-    real_loss = trainer.generator_loss
+    real_loss = step.generator_loss
 
     def poisoned(pred, target, **kwargs):
         total, terms = real_loss(pred, target, **kwargs)
         return total + (0.0 * pred.roughness.sum()).sqrt(), terms
 
-    monkeypatch.setattr(trainer, "generator_loss", poisoned)
+    monkeypatch.setattr(step, "generator_loss", poisoned)
     result, _ = _fit(tmp_path, "radn")
     assert result.status == "FAILED" and result.exit_code == 1
     assert result.message.startswith("non-finite generator gradient at step 1;")

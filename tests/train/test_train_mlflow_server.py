@@ -135,15 +135,15 @@ def test_fit_logs_one_finished_run_to_the_server(server, fitted, client):
 
 def test_artifacts_go_to_the_server_folder(server, fitted, client):
     """Artifacts are uploaded through the server (mlflow-artifacts:) into its artifact folder: the
-    checkpoint there is the fit's last.pt, and nothing is written in the fit's working folder."""
+    weights there are the fit's weights.pt, and nothing is written in the fit's working folder."""
     run = client.get_run(fitted.run_id)
     assert run.info.artifact_uri.startswith("mlflow-artifacts:")
     assert {a.path for a in client.list_artifacts(fitted.run_id)} == {"config", "checkpoints", "samples", "images"}
     assert [a.path for a in client.list_artifacts(fitted.run_id, "config")] == ["config/recipe.yaml"]
     listed = {a.path: a.file_size for a in client.list_artifacts(fitted.run_id, "checkpoints")}
-    local = fitted.out / "last.pt"
-    assert listed == {"checkpoints/last.pt": local.stat().st_size}
-    stored = list(server.artifacts.rglob("last.pt"))
+    local = fitted.out / "weights.pt"
+    assert listed == {"checkpoints/weights.pt": local.stat().st_size}
+    stored = list(server.artifacts.rglob("weights.pt"))
     assert len(stored) == 1 and fitted.run_id in stored[0].parts
     assert stored[0].read_bytes() == local.read_bytes()
     assert len(list(server.artifacts.rglob("recipe.yaml"))) == 1

@@ -22,7 +22,8 @@ from svbrdf_train.recipe import (
     recipe_from_dict,
     with_overrides,
 )
-from svbrdf_train.trainer import _From, _scene_rows
+from svbrdf_train.order import From as _From
+from svbrdf_train.step import scene_rows as _scene_rows
 
 # -- checkpoints --------------------------------------------------------------------------
 

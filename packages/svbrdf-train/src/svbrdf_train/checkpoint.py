@@ -25,6 +25,10 @@ temporary file. A fit killed by SIGKILL mid-write leaves its ``.last.pt.PID.tmp`
 :func:`remove_leftovers` clears such files when the next fit in that folder starts. A small
 ``last.json`` beside the checkpoint says which step and run it holds, for people and scripts.
 
+``weights.pt`` (:data:`WEIGHTS_NAME`) beside it holds the same minus ``optimizers``,
+``schedule`` and ``rng``: what predicting or ``--init`` needs, and what a fit uploads to its
+MLflow run (``checkpoints/weights.pt``), about a third of the size with Adam's two moments.
+
 Loading refuses NaN or infinite weights (naming the checkpoint), and :func:`load_weights` says
 in one line how weights differ from a network instead of torch's list of every key.
 """
@@ -44,6 +48,7 @@ from .errors import CheckpointError
 __all__ = [
     "FORMAT",
     "CHECKPOINT_NAME",
+    "WEIGHTS_NAME",
     "save_checkpoint",
     "load_checkpoint",
     "load_weights",
@@ -55,6 +60,8 @@ __all__ = [
 
 FORMAT = 1
 CHECKPOINT_NAME = "last.pt"
+#: The weights alone (no optimiser or random state), written beside it: what MLflow gets.
+WEIGHTS_NAME = "weights.pt"
 
 
 def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
@@ -75,8 +82,8 @@ def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
 
 def remove_leftovers(folder: str | Path) -> list[Path]:
     """Remove the temporary checkpoint files of fits in ``folder`` that were killed mid-write."""
-    summary = Path(CHECKPOINT_NAME).with_suffix(".json").name
-    return remove_stale_temporaries(folder, (CHECKPOINT_NAME, summary))
+    names = [n for name in (CHECKPOINT_NAME, WEIGHTS_NAME) for n in (name, Path(name).stem + ".json")]
+    return remove_stale_temporaries(folder, names)
 
 
 def load_checkpoint(
@@ -85,11 +92,14 @@ def load_checkpoint(
     *,
     mmap: bool = False,
     source: str | None = None,
+    check: bool | None = None,
 ) -> dict[str, Any]:
     """Read a checkpoint written by :func:`save_checkpoint` (tensors only: no code is unpickled).
 
-    ``mmap=True`` maps the file instead of reading it: cheap when only a few fields are needed
-    (the weights are then not checked). ``source`` names the checkpoint in messages when
+    ``mmap=True`` maps the file instead of reading it: cheap when only a few fields are needed,
+    and a paper-size checkpoint (over 1 GB with both Adam states) is read as it is used. The
+    weights are checked for NaN and infinite values unless ``check`` is False (default: only
+    without ``mmap``). ``source`` names the checkpoint in messages when
     ``path`` is not what the user gave (a file downloaded from an MLflow run).
 
     Raises:
@@ -111,7 +121,7 @@ def load_checkpoint(
             f"{source}: not an svbrdf-train checkpoint of format {FORMAT} (got {got!r}); "
             "it was written by another tool or version"
         )
-    if not mmap:
+    if (not mmap) if check is None else check:
         for key in ("generator", "discriminator"):
             check_finite(state.get(key), f"{source}: the {key}'s weights")
     return state

@@ -17,12 +17,14 @@ import time
 
 import torch
 
-__all__ = ["TrainClock", "CLOCK_TAG", "CLOCKS"]
+__all__ = ["TrainClock", "Stopwatch", "CLOCK_TAG", "CLOCKS", "WARMUP_STEPS"]
 
 #: MLflow tag naming the clock a fit's training time was counted on.
 CLOCK_TAG = "svbrdf.clock"
 #: Clock names as recorded: process CPU time over torch threads, wall time, wall time of a synchronised GPU.
 CLOCKS = ("cpu", "wall", "cuda")
+#: Steps left out of the throughput figure: the first ones pay for lazy initialisation.
+WARMUP_STEPS = 3
 
 
 class TrainClock:
@@ -52,3 +54,42 @@ class TrainClock:
             "wall": "wall time",
             "cuda": "GPU time (wall time, device synchronised)",
         }[self.name]
+
+
+class Stopwatch:
+    """The training time of a fit's steps, on its clock and on the wall, and its throughput.
+
+    ``start()`` before a step and ``lap(samples)`` after it count the step; what happens in
+    between laps (validation, checkpoints) is not training time. ``seconds`` and
+    ``wall_seconds`` carry on from a resumed fit's.
+    """
+
+    def __init__(self, clock: TrainClock, seconds: float = 0.0, wall_seconds: float = 0.0):
+        self.clock, self.seconds, self.wall_seconds = clock, seconds, wall_seconds
+        self.steps = 0  # laps of this session
+        self.samples = 0
+        self.steady: tuple[float, int] | None = None  # (seconds, samples) when warm-up ended
+        self._tick = self._wall_tick = 0.0
+
+    def start(self) -> None:
+        self._tick, self._wall_tick = self.clock.now(), time.perf_counter()
+
+    def lap(self, samples: int) -> None:
+        self.seconds += self.clock.now() - self._tick
+        self.wall_seconds += time.perf_counter() - self._wall_tick
+        self.steps += 1
+        self.samples += samples
+        if self.steps == WARMUP_STEPS:
+            self.steady = (self.seconds, self.samples)
+
+    def steady_rate(self) -> float | None:
+        """Samples per second of training time after the warm-up steps (None: too few steps)."""
+        if self.steady is None or self.samples <= self.steady[1]:
+            return None
+        return (self.samples - self.steady[1]) / (self.seconds - self.steady[0])
+
+    def pace(self) -> float | None:
+        """Seconds per step since the warm-up, once :data:`WARMUP_STEPS` more steps are done."""
+        if self.steady is None or self.steps < 2 * WARMUP_STEPS:
+            return None
+        return (self.seconds - self.steady[0]) / (self.steps - WARMUP_STEPS)

@@ -19,14 +19,16 @@ from typing import Any
 
 from svbrdf_models import config_to_dict, resolve_config
 
-from .checkpoint import CHECKPOINT_NAME, load_checkpoint
+from .checkpoint import CHECKPOINT_NAME, WEIGHTS_NAME, load_checkpoint
 from .errors import CheckpointError, RecipeError
 from .recipe import NetworkSection, Recipe, recipe_from_dict
 
-__all__ = ["InitWeights", "load_init", "RUN_CHECKPOINT", "download_run_checkpoint"]
+__all__ = ["InitWeights", "load_init", "take_init", "RUN_CHECKPOINT", "download_run_checkpoint"]
 
-#: Where a fit logs its checkpoint in its MLflow run.
-RUN_CHECKPOINT = f"checkpoints/{CHECKPOINT_NAME}"
+#: Where a fit logs its weights in its MLflow run (``OUT/weights.pt``: no optimiser state).
+RUN_CHECKPOINT = f"checkpoints/{WEIGHTS_NAME}"
+#: Where fits before the weights file logged their whole checkpoint; still read.
+_OLD_RUN_CHECKPOINT = f"checkpoints/{CHECKPOINT_NAME}"
 _RUN_ID = re.compile(r"^[0-9a-f]{32}$")
 
 
@@ -60,7 +62,10 @@ def download_run_checkpoint(run_id: str) -> dict[str, Any]:
     client = MlflowClient()
     with tempfile.TemporaryDirectory() as tmp:
         try:
-            local = client.download_artifacts(run_id, RUN_CHECKPOINT, tmp)
+            try:
+                local = client.download_artifacts(run_id, RUN_CHECKPOINT, tmp)
+            except Exception:
+                local = client.download_artifacts(run_id, _OLD_RUN_CHECKPOINT, tmp)
         except Exception as e:  # MlflowException for a missing run or artifact, OSError, HTTP errors
             first = str(e).splitlines()[0] if str(e) else ""
             raise CheckpointError(
@@ -134,3 +139,14 @@ def same_discriminator(init: InitWeights, recipe: Recipe) -> bool:
     if a is None or b is None or init.discriminator is None:
         return False
     return _describe("discriminator", a) == _describe("discriminator", b)
+
+
+def take_init(gan: Any, source: str, recipe: Recipe) -> dict[str, str]:
+    """The generator's weights of ``--init`` into ``gan`` (a :class:`~svbrdf_train.step.GanStep`),
+    and the discriminator's when it is the same one; the MLflow tags that say so."""
+    init = load_init(source)
+    check_generator(init, recipe)
+    both = gan.discriminator is not None and same_discriminator(init, recipe)
+    gan.load_weights(f"--init {init.source}", init.generator, init.discriminator if both else None)
+    taken = "taken" if both else ("new" if gan.discriminator is not None else "none")
+    return {**init.tags(), "svbrdf.init_discriminator": taken}

@@ -2,17 +2,20 @@
 
 On a terminal the line is redrawn in place (at most 10 times a second); into a file or a
 pipe (CI logs, ``nohup``) a full line is printed every ``every_s`` seconds instead, so logs
-stay readable.
+stay readable. :class:`Interrupt` turns Ctrl-C and SIGTERM into a request the fit answers
+after its current step, on the same line.
 """
 
 from __future__ import annotations
 
+import contextlib
+import signal
 import sys
 import time
 from collections.abc import Mapping
-from typing import TextIO
+from typing import Any, TextIO
 
-__all__ = ["Progress", "format_duration"]
+__all__ = ["Progress", "Interrupt", "format_duration"]
 
 
 def format_duration(seconds: float) -> str:
@@ -113,3 +116,29 @@ class Progress:
             self.stream.write("\n")
             self.stream.flush()
             self._width = 0
+
+
+class Interrupt:
+    """Ctrl-C / SIGTERM: the first asks to stop after the current step, the second stops now."""
+
+    def __init__(self, progress: Progress):
+        self.requested: str | None = None
+        self.progress = progress
+        self._old: dict[int, Any] = {}
+
+    def __enter__(self):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            with contextlib.suppress(ValueError):  # not the main thread: leave signals alone
+                self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum, frame):
+        name = signal.Signals(signum).name
+        if self.requested is not None:
+            raise KeyboardInterrupt
+        self.requested = name
+        self.progress.message(f"{name}: saving a checkpoint after this step (again to stop at once)")
+
+    def __exit__(self, *exc):
+        for sig, old in self._old.items():
+            signal.signal(sig, old)

@@ -274,7 +274,21 @@ class TrainSection:
     seed: int = param(0, "seed of initialisation, sampling and dropout")
     log_every: int = param(10, "log losses every this many steps")
     validate_every: int = param(500, "validate every this many steps (and at the end)")
-    checkpoint_every: int = param(500, "write a checkpoint every this many steps (and at the end)")
+    checkpoint_every: int | None = param(
+        None,
+        "write the full checkpoint (OUT/last.pt) every this many steps, and at the end (None: "
+        "by time only, checkpoint_minutes)",
+    )
+    checkpoint_minutes: float | None = param(
+        10.0,
+        "write the full checkpoint when this many minutes of wall time have passed since the "
+        "last one (None: by steps only); a paper-size one is about 1.2 GB",
+    )
+    upload_minutes: float | None = param(
+        60.0,
+        "upload the weights (OUT/weights.pt, no optimiser state) to the MLflow run at most this "
+        "often, and always at the end (None: only at the end)",
+    )
     render_backend: str = param(
         "compiled",
         "renderer of the loss and discriminator renderings: compiled (torch.compile, 2-3x faster "
@@ -288,6 +302,17 @@ class TrainSection:
         "CPU; on a GPU wall time with the GPU synchronised, i.e. GPU time)",
         choices=("auto", "cpu", "wall"),
     )
+    compile: bool = param(
+        False,
+        "torch.compile the generator and the discriminator (a compile of tens of seconds to "
+        "minutes when the fit starts)",
+    )
+    channels_last: bool = param(False, "keep the networks' images in NHWC memory layout for the convolutions")
+    precision: str = param(
+        "fp32",
+        "fp32, or bf16: the networks under bfloat16 autocast (the renderer and losses stay float32)",
+        choices=("fp32", "bf16"),
+    )
 
     def __post_init__(self):
         _check(
@@ -296,8 +321,14 @@ class TrainSection:
             self.resolution,
             f"in [{MIN_RESOLUTION}, {MAX_RESOLUTION}] pixels (and what the generator takes)",
         )
-        for name in ("batch", "epochs", "renderings", "log_every", "validate_every", "checkpoint_every"):
+        for name in ("batch", "epochs", "renderings", "log_every", "validate_every"):
             _int_at_least(getattr(self, name), name, 1)
+        _int_at_least(self.checkpoint_every, "checkpoint_every", 1, none="by time only")
+        for name in ("checkpoint_minutes", "upload_minutes"):
+            if getattr(self, name) is not None:
+                _finite(getattr(self, name), name, positive=True)
+        for name in ("compile", "channels_last"):
+            _check(isinstance(getattr(self, name), bool), name, getattr(self, name), "true or false")
         _int_at_least(self.max_steps, "max_steps", 1, none="no limit")
         if self.max_minutes is not None:
             _finite(self.max_minutes, "max_minutes")  # 0: stop after the first step
