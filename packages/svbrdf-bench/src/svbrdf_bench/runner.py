@@ -439,7 +439,7 @@ def run_bench(options: BenchOptions) -> str:
 
             for label, run_id, wall, source, local in jobs:
                 state = _checkpoint(source or run_id, work, local)
-                from svbrdf_train.trainer import load_generator
+                from svbrdf_train.inference import load_generator
 
                 generator, recipe = load_generator(state, device)
                 figures, per_sample = evaluate_one(label, generator)
