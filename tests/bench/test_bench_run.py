@@ -292,7 +292,8 @@ def test_a_reused_child_carries_every_param_of_its_fit():
     """More params than MLflow takes in one batch (100), all copied; the recipe tag is the fit's."""
     from mlflow.entities import Param
 
-    from svbrdf_bench.runner import TRAIN_RUN_TAG, _reused_child
+    from svbrdf_bench.layout import TRAIN_RUN_TAG
+    from svbrdf_bench.runner import _reused_child
 
     client = _client()
     experiment = client.create_experiment("tests-reused-child")
@@ -345,7 +346,8 @@ def test_two_reused_fits_of_one_recipe_get_a_row_each(bench, tmp_path):
     assert "min of training per model" not in result.stdout.splitlines()[0]
     # The benchmark's children of reused fits carry the recipe tag too, and are finished: a recipe
     # name must still resolve to a fit with a checkpoint, never to such a child.
-    from svbrdf_bench.runner import TRAIN_RUN_TAG, _resolve_reuse
+    from svbrdf_bench.layout import TRAIN_RUN_TAG
+    from svbrdf_bench.runner import _resolve_reuse
 
     ((label, picked),) = _resolve_reuse(["ours"])
     assert label == "ours" and TRAIN_RUN_TAG not in client.get_run(picked).data.tags

@@ -40,3 +40,15 @@ def test_trainer_and_cli_import_without_mlflow():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.split() == ["False"]
+
+
+def test_inference_and_predict_import_no_training_code():
+    """Rebuilding a generator and predicting with it sits below the trainer: neither the
+    trainer, its losses, its training data nor mlflow load with them."""
+    code = (
+        "import sys, svbrdf_train.inference, svbrdf_train.predict\n"
+        "names = ['svbrdf_train.trainer', 'svbrdf_train.losses', 'svbrdf_train.fitdata', 'mlflow']\n"
+        "print(*[n for n in names if n in sys.modules] or ['none'])\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["none"]

@@ -7,6 +7,9 @@ constant-map baseline ``mean``, map by map (paired bootstrap of the RMSE differe
 headline repeats in words; the time table (training time on the budget clock and wall time,
 throughput, latency, parameters, memory); and what each trained model's extra accuracy costs
 against each other one, saying when the difference lies within noise.
+
+The runs are read as :mod:`svbrdf_bench.layout` describes them; this module never imports the
+runner that writes them.
 """
 
 from __future__ import annotations
@@ -25,6 +28,27 @@ import numpy as np
 from svbrdf_render.files import atomic_output, write_text
 
 from .errors import BenchError
+from .layout import (
+    BASELINES_PARAM,
+    BENCH_KIND,
+    FIT_WALL_METRIC,
+    KIND_TAG,
+    LPIPS_TAG,
+    MINUTES_PARAM,
+    MODEL_TAG,
+    PARENT_TAG,
+    PER_SAMPLE,
+    PRESET_PARAM,
+    REAL_DATA_PARAM,
+    REAL_RERENDER,
+    STEPS_METRIC,
+    STEPS_WALL_METRIC,
+    TEST_SET_PARAM,
+    TRAINER_PREFIXES,
+    is_baseline,
+    read_per_sample,
+    train_run_id,
+)
 
 __all__ = ["Report", "ModelEntry", "build_report", "write_report", "COLUMNS", "REFERENCE"]
 
@@ -48,8 +72,8 @@ CLOCK_WORDS = {
 }
 TIME_COLUMNS = (
     ("time/train_s", "train time, budget clock (s)", "{:.1f}"),
-    ("time/train_steps_wall_s", "train wall (s)", "{:.1f}"),
-    ("train/steps", "steps", "{:.0f}"),
+    (STEPS_WALL_METRIC, "train wall (s)", "{:.1f}"),
+    (STEPS_METRIC, "steps", "{:.0f}"),
     ("time/train_samples_per_s", "train samples/s", "{:.1f}"),
     ("time/train_ms_per_step", "train ms/step", "{:.0f}"),
     ("time/latency_ms", "latency 256px (ms)", "{:.1f}"),
@@ -289,7 +313,7 @@ class Report:
 
         rows = []
         for e in self.models:
-            values = e.per_sample.get("real/rerender_rmse")
+            values = e.per_sample.get(REAL_RERENDER)
             if values is None or len(values) == 0:
                 continue
             mean, low, high = bootstrap_ci(values)
@@ -406,7 +430,7 @@ class Report:
             for key, _, _ in TIME_COLUMNS:
                 if key in e.figures:
                     rec[key.replace("/", "_")] = e.figures[key]
-            real = e.per_sample.get("real/rerender_rmse")
+            real = e.per_sample.get(REAL_RERENDER)
             if real is not None and len(real):
                 rec["real_rerender_rmse_median"] = float(np.median(real))
             out.append(rec)
@@ -457,17 +481,15 @@ def build_report(parent_id: str) -> Report:
 
     from svbrdf_train.clock import CLOCK_TAG
 
-    from .runner import BASELINE_TAG, KIND_TAG, MODEL_TAG, PER_SAMPLE, TRAIN_RUN_TAG
-
     client = MlflowClient()
     try:
         parent = client.get_run(parent_id)
     except Exception as e:  # MlflowException for an unknown id
         raise BenchError(f"no MLflow run {parent_id} in {client.tracking_uri} ({type(e).__name__})") from None
-    if parent.data.tags.get(KIND_TAG) != "bench":
+    if parent.data.tags.get(KIND_TAG) != BENCH_KIND:
         raise BenchError(f"run {parent_id} is not the parent run of an svbrdf-bench run")
     children = client.search_runs(
-        [parent.info.experiment_id], filter_string=f"tags.`mlflow.parentRunId` = '{parent_id}'"
+        [parent.info.experiment_id], filter_string=f"tags.`{PARENT_TAG}` = '{parent_id}'"
     )
     models = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -476,20 +498,17 @@ def build_report(parent_id: str) -> Report:
             if label is None:
                 continue  # trained but never evaluated (an interrupted benchmark)
             local = client.download_artifacts(child.info.run_id, PER_SAMPLE, tmp)
-            per_sample = {
-                k: np.asarray(v, dtype=np.float64) for k, v in json.loads(Path(local).read_text()).items()
-            }
-            train_run = child.data.tags.get(TRAIN_RUN_TAG, child.info.run_id)
+            per_sample = read_per_sample(Path(local).read_text())
+            train_run = train_run_id(child.info.run_id, child.data.tags)
             metrics = child.data.metrics
-            figures = {k: v for k, v in metrics.items() if not k.startswith(("val/", "val_real/", "train/"))}
-            baseline = child.data.tags.get(BASELINE_TAG) == "true"
-            if baseline:
+            figures = {k: v for k, v in metrics.items() if not k.startswith(TRAINER_PREFIXES)}
+            if is_baseline(child.data.tags):
                 entry = ModelEntry(label, child.info.run_id, train_run, per_sample, figures, baseline=True)
                 models.append(entry)
                 continue
-            figures["train/steps"] = metrics.get("train/steps", math.nan)
-            if "time/train_steps_wall_s" not in figures and "train/total_wall_seconds" in metrics:
-                figures["time/train_steps_wall_s"] = metrics["train/total_wall_seconds"]
+            figures[STEPS_METRIC] = metrics.get(STEPS_METRIC, math.nan)
+            if STEPS_WALL_METRIC not in figures and FIT_WALL_METRIC in metrics:
+                figures[STEPS_WALL_METRIC] = metrics[FIT_WALL_METRIC]
             tags = child.data.tags if train_run == child.info.run_id else client.get_run(train_run).data.tags
             before = float(tags.get("svbrdf.init_train_seconds", 0.0))
             init = (tags["svbrdf.init"], before) if "svbrdf.init" in tags else None
@@ -509,16 +528,16 @@ def build_report(parent_id: str) -> Report:
     if not models:
         raise BenchError(f"run {parent_id} has no evaluated models yet")
     params = parent.data.params
-    minutes = params.get("train_minutes_per_model", "?")
+    minutes = params.get(MINUTES_PARAM, "?")
     return Report(
         parent_id=parent_id,
-        preset=params.get("preset", "?"),
-        test_set=params.get("test_set", "?"),
-        lpips_note=parent.data.tags.get("lpips", ""),
+        preset=params.get(PRESET_PARAM, "?"),
+        test_set=params.get(TEST_SET_PARAM, "?"),
+        lpips_note=parent.data.tags.get(LPIPS_TAG, ""),
         minutes=f"{minutes} min of training per model" if minutes[:1].isdigit() else minutes,
         models=models,
-        real_data=params.get("real_data", "-"),
-        baselines=params.get("baselines"),
+        real_data=params.get(REAL_DATA_PARAM, "-"),
+        baselines=params.get(BASELINES_PARAM),
     )
 
 

@@ -1,18 +1,8 @@
 """``svbrdf-bench run``: train (or reuse) each model, evaluate all on one test set, log and report.
 
-MLflow layout of one invocation::
-
-    parent run  "bench-<models>-<preset>"  (tags svbrdf.kind=bench; the report, tables and plots)
-      child run  per model: the model's training run itself (svbrdf-train fit --parent-run), or,
-                 for a reused run (--from-runs), a new run tagged svbrdf.train_run=<that run>
-                 with that run's params;
-                 holds test/* metrics, time/* metrics and eval/per_sample.json
-      child run  per baseline (``mean``, ``photo``; none with --no-baselines): a generator with
-                 no trained parameters built from the registry, tagged svbrdf.baseline=true and
-                 evaluated exactly like the models (same test images, same figures, params 0)
-
-:mod:`svbrdf_bench.report` builds every table and plot from those runs alone, so
-``svbrdf-bench report PARENT`` rebuilds them later.
+Each invocation is one MLflow parent run with a child run per model and per baseline, laid out
+as :mod:`svbrdf_bench.layout` describes; :mod:`svbrdf_bench.report` builds every table and plot
+from those runs alone, so ``svbrdf-bench report PARENT`` rebuilds them later.
 """
 
 from __future__ import annotations
@@ -33,28 +23,36 @@ import torch
 from svbrdf_render.files import check_output_folder
 
 from .errors import BenchError
+from .layout import (
+    BASELINES_PARAM,
+    BENCH_KIND,
+    FIT_WALL_METRIC,
+    KIND_TAG,
+    LPIPS_TAG,
+    MINUTES_PARAM,
+    MODEL_TAG,
+    PARENT_TAG,
+    PER_SAMPLE,
+    PRESET_PARAM,
+    REAL_DATA_PARAM,
+    REAL_PREFIX,
+    REAL_RERENDER,
+    REPORT_ARTIFACTS,
+    STEPS_METRIC,
+    STEPS_WALL_METRIC,
+    TEST_PREFIX,
+    TEST_SET_PARAM,
+    TRAIN_RUN_TAG,
+    baseline_tags,
+    per_sample_json,
+)
 from .presets import Preset
 from .testset import TestSet
 
-__all__ = [
-    "BenchOptions",
-    "run_bench",
-    "MODEL_TAG",
-    "KIND_TAG",
-    "TRAIN_RUN_TAG",
-    "BASELINE_TAG",
-    "BASELINES",
-    "PER_SAMPLE",
-]
+__all__ = ["BenchOptions", "run_bench", "BASELINES"]
 
-MODEL_TAG = "svbrdf.model"
-KIND_TAG = "svbrdf.kind"
-TRAIN_RUN_TAG = "svbrdf.train_run"
-#: Tag of the child runs of baselines (generators with no trained parameters): "true".
-BASELINE_TAG = "svbrdf.baseline"
 #: The baselines every benchmark evaluates unless told not to (svbrdf_models.baselines).
 BASELINES = ("mean", "photo")
-PER_SAMPLE = "eval/per_sample.json"
 #: Test samples shown in the visual comparison grid.
 GRID_SAMPLES = 3
 #: Tiles of the comparison grid smaller than this many pixels are enlarged.
@@ -248,7 +246,7 @@ def _log_child(run_id: str, figures: dict[str, float], per_sample: dict[str, np.
     client.log_batch(run_id, metrics=[Metric(k, float(v), now, 0) for k, v in figures.items()])
     target = work / f"eval-{run_id}" / Path(PER_SAMPLE).name
     target.parent.mkdir(exist_ok=True)
-    target.write_text(json.dumps({k: v.tolist() for k, v in per_sample.items()}))
+    target.write_text(per_sample_json(per_sample))
     client.log_artifact(run_id, str(target), str(Path(PER_SAMPLE).parent))
 
 
@@ -275,7 +273,7 @@ def _baseline_child(client, experiment_id: str, parent_id: str, name: str) -> tu
     child = client.create_run(
         experiment_id,
         run_name=f"{name} (baseline)",
-        tags={"mlflow.parentRunId": parent_id, MODEL_TAG: name, BASELINE_TAG: "true"},
+        tags=baseline_tags(parent_id, name),
     )
     params = [Param(f"model.{k}", str(v)) for k, v in sm.config_to_dict(config).items()]
     client.log_batch(child.info.run_id, params=[Param("model.name", name), *params])
@@ -293,7 +291,7 @@ def _reused_child(client, experiment_id: str, parent_id: str, label: str, source
         experiment_id,
         run_name=f"{label} (reused)",
         tags={
-            "mlflow.parentRunId": parent_id,
+            PARENT_TAG: parent_id,
             TRAIN_RUN_TAG: source,
             "recipe": fitted.data.tags.get("recipe", label),
         },
@@ -362,32 +360,32 @@ def run_bench(options: BenchOptions) -> str:
         experiment=options.experiment,
         run_name=f"bench-{','.join(labels)}-{p.name}",
         tags={
-            KIND_TAG: "bench",
+            KIND_TAG: BENCH_KIND,
             "preset": p.name,
             "models": ",".join(labels),
             "git_sha": sha,
             "git_dirty": str(dirty).lower(),
             "device": str(device),
             "version.torch": torch.__version__,
-            "lpips": lpips_note,
+            LPIPS_TAG: lpips_note,
         },
         params={
-            "preset": p.name,
+            PRESET_PARAM: p.name,
             "recipe_size": size,
-            "train_minutes_per_model": (
+            MINUTES_PARAM: (
                 "reused fits, each with its own training budget (see the time table)"
                 if not to_train
                 else "recipe schedule"
                 if minutes is None
                 else str(minutes)
             ),
-            "test_set": test.description,
+            TEST_SET_PARAM: test.description,
             "test_count": str(len(test)),
             "overrides": " ".join([*p.overrides, *options.overrides]) or "-",
-            "real_data": f"{len(photos)} photos of {options.real_data} ({options.real_encoding})"
+            REAL_DATA_PARAM: f"{len(photos)} photos of {options.real_data} ({options.real_encoding})"
             if photos
             else "-",
-            "baselines": ",".join(options.baselines) or "-",
+            BASELINES_PARAM: ",".join(options.baselines) or "-",
         },
     )
     parent_id = parent.run_id
@@ -429,17 +427,17 @@ def run_bench(options: BenchOptions) -> str:
                 if photos is not None:
                     options.say(f"fitting the flash to {len(photos)} real photos with {label}'s maps")
                     real = _self_consistency(generator, photos, test.resolution, device)
-                    per_sample["real/rerender_rmse"] = real
-                    figures["real/rerender_rmse_median"] = float(np.median(real))
+                    per_sample[REAL_RERENDER] = real
+                    figures[f"{REAL_RERENDER}_median"] = float(np.median(real))
                 for key, values in per_sample.items():
-                    if not key.startswith("real/"):
-                        figures[f"test/{key}"] = float(values.mean())
+                    if not key.startswith(REAL_PREFIX):
+                        figures[f"{TEST_PREFIX}{key}"] = float(values.mean())
                 shown_by_model[label] = shown
                 return figures, per_sample
 
             for label, run_id, wall, source, local in jobs:
                 state = _checkpoint(source or run_id, work, local)
-                from svbrdf_train.trainer import load_generator
+                from svbrdf_train.inference import load_generator
 
                 generator, recipe = load_generator(state, device)
                 figures, per_sample = evaluate_one(label, generator)
@@ -454,10 +452,10 @@ def run_bench(options: BenchOptions) -> str:
                     "time/train_samples_per_s": rate if rate is not None else float("nan"),
                     "time/train_ms_per_step": 1000 * recipe.train.batch / rate if rate else float("nan"),
                     "memory/peak_rss_mb": m.get("train/peak_rss_mb", float("nan")),
-                    "train/steps": float(state["step"]),
+                    STEPS_METRIC: float(state["step"]),
                 }
-                if "train/total_wall_seconds" in m:
-                    figures["time/train_steps_wall_s"] = m["train/total_wall_seconds"]
+                if FIT_WALL_METRIC in m:
+                    figures[STEPS_WALL_METRIC] = m[FIT_WALL_METRIC]
                 if "train/peak_cuda_mb" in m:
                     figures["memory/peak_cuda_mb"] = m["train/peak_cuda_mb"]
                 client.set_tag(run_id, MODEL_TAG, label)
@@ -473,7 +471,7 @@ def run_bench(options: BenchOptions) -> str:
             grid = _comparison_grid(shown_by_model, work / "comparison.png") if shown_by_model else None
             files = write_report(report, options.out, grid=grid)
             for f in files:
-                parent.log_artifact(f, "report")
+                parent.log_artifact(f, REPORT_ARTIFACTS)
         status = "FINISHED"
         options.say(report.terminal())
         options.say(f"report: {options.out}/report.md; MLflow parent run {parent_id}")

@@ -146,59 +146,10 @@ def _png_bit_depth(path: Path) -> int | None:
 
 def _inspect(path: Path, notes: list[str]) -> int:
     """Judge the file from its header (and alpha); returns its EXIF orientation."""
-    from PIL import Image
-
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-            im = Image.open(path)
-    except Image.DecompressionBombError as e:
-        raise PhotoError(
-            path, f"is far too large ({e})", f"downscale it below {MAX_PIXELS / 1e6:.0f} megapixels"
-        ) from None
-    except Exception as e:  # UnidentifiedImageError, OSError, SyntaxError...
-        raise PhotoError(
-            path,
-            f"cannot decode it as an image ({type(e).__name__})",
-            "give a JPEG or PNG photo (convert HEIC or RAW files first)",
-        ) from None
-    with im:
-        fmt, mode, (w, h) = im.format, im.mode, im.size
-        if fmt not in PHOTO_FORMATS:
-            raise PhotoError(path, f"is a {fmt} image, not a JPEG or PNG", "convert it to PNG or JPEG")
-        if w * h > MAX_PIXELS:
-            raise PhotoError(
-                path,
-                f"has {w}x{h} = {w * h / 1e6:.1f} megapixels, more than {MAX_PIXELS / 1e6:.0f}",
-                "downscale it (the maps are made at a few hundred to a few thousand pixels)",
-            )
-        if min(w, h) < MIN_SIDE:
-            raise PhotoError(
-                path,
-                f"is {w}x{h}, smaller than {MIN_SIDE} px on its short side",
-                "take a larger photo (the material should fill a square of at least a few hundred pixels)",
-            )
-        if mode in _GREY_MODES or (mode == "P" and im.palette is not None and im.palette.mode == "L"):
-            raise PhotoError(
-                path,
-                f"is a grey image (mode {mode})",
-                "the diffuse colour cannot be recovered from it; give the photo in colour",
-            )
-        has_alpha = mode in ("RGBA", "RGBa", "PA") or (mode == "P" and "transparency" in im.info)
-        if has_alpha:
-            try:
-                lo, _ = im.convert("RGBA").getchannel("A").getextrema()
-            except Exception as e:
-                raise PhotoError(
-                    path, f"cannot decode it ({type(e).__name__}: {e})", "is it complete?"
-                ) from None
-            if lo < 255:
-                raise PhotoError(
-                    path,
-                    f"has a translucent alpha channel (lowest alpha {lo}/255)",
-                    "a photo is opaque: export it without transparency (flattened)",
-                )
-            notes.append("opaque alpha channel dropped")
+    with _open_image(path) as im:
+        fmt, mode = im.format, im.mode
+        _check_header(path, im)
+        _check_alpha(path, im, notes)
         if mode == "P":
             notes.append("palette image (at most 256 colours) converted to RGB: expect banding")
         elif mode == "CMYK":
@@ -209,6 +160,69 @@ def _inspect(path: Path, notes: list[str]) -> int:
     if orientation_note:
         notes.append(orientation_note)
     return orientation
+
+
+def _open_image(path: Path):
+    """The PIL image of ``path``, not yet decoded; a file that is no image is a :class:`PhotoError`."""
+    from PIL import Image
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            return Image.open(path)
+    except Image.DecompressionBombError as e:
+        raise PhotoError(
+            path, f"is far too large ({e})", f"downscale it below {MAX_PIXELS / 1e6:.0f} megapixels"
+        ) from None
+    except Exception as e:  # UnidentifiedImageError, OSError, SyntaxError...
+        raise PhotoError(
+            path,
+            f"cannot decode it as an image ({type(e).__name__})",
+            "give a JPEG or PNG photo (convert HEIC or RAW files first)",
+        ) from None
+
+
+def _check_header(path: Path, im) -> None:
+    """Refuse an image that is not a JPEG or PNG, too large, too small or grey."""
+    fmt, mode, (w, h) = im.format, im.mode, im.size
+    if fmt not in PHOTO_FORMATS:
+        raise PhotoError(path, f"is a {fmt} image, not a JPEG or PNG", "convert it to PNG or JPEG")
+    if w * h > MAX_PIXELS:
+        raise PhotoError(
+            path,
+            f"has {w}x{h} = {w * h / 1e6:.1f} megapixels, more than {MAX_PIXELS / 1e6:.0f}",
+            "downscale it (the maps are made at a few hundred to a few thousand pixels)",
+        )
+    if min(w, h) < MIN_SIDE:
+        raise PhotoError(
+            path,
+            f"is {w}x{h}, smaller than {MIN_SIDE} px on its short side",
+            "take a larger photo (the material should fill a square of at least a few hundred pixels)",
+        )
+    if mode in _GREY_MODES or (mode == "P" and im.palette is not None and im.palette.mode == "L"):
+        raise PhotoError(
+            path,
+            f"is a grey image (mode {mode})",
+            "the diffuse colour cannot be recovered from it; give the photo in colour",
+        )
+
+
+def _check_alpha(path: Path, im, notes: list[str]) -> None:
+    """Refuse a translucent alpha channel; note an opaque one (dropped)."""
+    mode = im.mode
+    if not (mode in ("RGBA", "RGBa", "PA") or (mode == "P" and "transparency" in im.info)):
+        return
+    try:
+        lo, _ = im.convert("RGBA").getchannel("A").getextrema()
+    except Exception as e:
+        raise PhotoError(path, f"cannot decode it ({type(e).__name__}: {e})", "is it complete?") from None
+    if lo < 255:
+        raise PhotoError(
+            path,
+            f"has a translucent alpha channel (lowest alpha {lo}/255)",
+            "a photo is opaque: export it without transparency (flattened)",
+        )
+    notes.append("opaque alpha channel dropped")
 
 
 def load_photo(
@@ -461,33 +475,14 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None)
     """
     options = options or CaptureOptions()
     path, out_dir = Path(path), Path(out_dir)
-    res = int(predictor.resolution)
     photo, notes = load_photo(path, linear=options.linear, crop=options.crop)
     side = photo.shape[-1]
-    tiles = 0
-    if options.tiles:
-        size = options.map_size or side
-        if size < res:
-            notes.append(f"the square ({size} px) is smaller than a tile ({res} px): predicted as one tile")
-            size = res
-        photo = _resample(photo, size)
-        tiles = tile_count(size, res)
-        svbrdf = tile_predict(predictor.predict_batch, photo, res) if tiles > 1 else predictor.predict(photo)
-    else:
-        if side < res:
-            notes.append(
-                f"the square ({side} px) is upsampled to the model's {res} px: the maps will be soft"
-            )
-        photo = _resample(photo, res)
-        svbrdf = predictor.predict(photo)
+    photo, svbrdf, tiles = _predict_square(predictor, photo, options, notes)
     fit = flash_consistency(svbrdf, photo)
     rmse = float(fit.rmse[0])
 
-    from .data.sheet import image_grid
-
     # Everything is computed before the first file is written: a failure leaves no half folder.
-    shown = [linear_to_srgb(photo), linear_to_srgb(fit.rendering[0]), error_heatmap(photo, fit.rendering[0])]
-    figure = image_grid([shown], ["photo", "re-rendering", f"|error| 0-{HEAT_MAX:g}"], [f"RMSE {rmse:.4f}"])
+    figure = _rerender_figure(photo, fit.rendering[0], rmse)
     frames = None
     if options.relit != "none":
         frames = relight_frames(svbrdf if max(svbrdf.size) <= RELIT_SIZE else svbrdf.resize(RELIT_SIZE))
@@ -495,16 +490,7 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None)
         svbrdf = SVBRDF(
             to_directx(svbrdf.normal), svbrdf.diffuse, svbrdf.roughness, svbrdf.specular, validate=False
         )
-    write_map_folder(out_dir, svbrdf, bits=options.bits)
-    if options.albedo_encoding == "srgb":  # replace the linear albedos written above
-        for name in ("diffuse", "specular"):
-            write_image(out_dir / f"{name}.png", linear_to_srgb(getattr(svbrdf, name)[0]), bits=options.bits)
-    write_image(out_dir / "input.png", linear_to_srgb(photo), bits=options.bits)
-    write_image(out_dir / "rerender.png", figure)
-    if options.relit == "gif":
-        _write_gif(out_dir / "relit.gif", frames)
-    elif options.relit == "png":
-        write_image(out_dir / "relit.png", _relit_grid(frames))
+    _write_capture(out_dir, svbrdf, photo, figure, frames, options)
     return {
         "photo": str(path),
         "folder": str(out_dir),
@@ -519,6 +505,57 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None)
             "intensity": _finite(fit.intensity[0]),
         },
     }
+
+
+def _predict_square(predictor, photo: Tensor, options: CaptureOptions, notes: list[str]):
+    """The photo's square brought to the size the maps are made at, the maps, and the tiles used
+    (0: not tiled; 1: one tile). A square smaller than that size is noted (upsampled)."""
+    res = int(predictor.resolution)
+    side = photo.shape[-1]
+    if not options.tiles:
+        if side < res:
+            notes.append(
+                f"the square ({side} px) is upsampled to the model's {res} px: the maps will be soft"
+            )
+        photo = _resample(photo, res)
+        return photo, predictor.predict(photo), 0
+    size = options.map_size or side
+    if size < res:
+        notes.append(f"the square ({size} px) is smaller than a tile ({res} px): predicted as one tile")
+        size = res
+    photo = _resample(photo, size)
+    tiles = tile_count(size, res)
+    svbrdf = tile_predict(predictor.predict_batch, photo, res) if tiles > 1 else predictor.predict(photo)
+    return photo, svbrdf, tiles
+
+
+def _rerender_figure(photo: Tensor, rendering: Tensor, rmse: float) -> Tensor:
+    """rerender.png: the photo, its re-rendering under the fitted flash, and the error heat map."""
+    from .data.sheet import image_grid
+
+    shown = [linear_to_srgb(photo), linear_to_srgb(rendering), error_heatmap(photo, rendering)]
+    return image_grid([shown], ["photo", "re-rendering", f"|error| 0-{HEAT_MAX:g}"], [f"RMSE {rmse:.4f}"])
+
+
+def _write_capture(
+    out_dir: Path,
+    svbrdf: SVBRDF,
+    photo: Tensor,
+    figure: Tensor,
+    frames: Tensor | None,
+    options: CaptureOptions,
+) -> None:
+    """Write the maps, input.png, rerender.png and the relit preview of one capture."""
+    write_map_folder(out_dir, svbrdf, bits=options.bits)
+    if options.albedo_encoding == "srgb":  # replace the linear albedos written above
+        for name in ("diffuse", "specular"):
+            write_image(out_dir / f"{name}.png", linear_to_srgb(getattr(svbrdf, name)[0]), bits=options.bits)
+    write_image(out_dir / "input.png", linear_to_srgb(photo), bits=options.bits)
+    write_image(out_dir / "rerender.png", figure)
+    if options.relit == "gif":
+        _write_gif(out_dir / "relit.gif", frames)
+    elif options.relit == "png":
+        write_image(out_dir / "relit.png", _relit_grid(frames))
 
 
 def write_summary(path, entries: list[dict], **extra) -> dict:

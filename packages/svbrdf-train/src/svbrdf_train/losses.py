@@ -323,6 +323,23 @@ def generator_loss(
         ``"adv"``, ``"render"``, ``"svbrdf"``, ``"map/<name>"`` of those computed, and
         ``"total"``; every value is a 0-dim tensor still attached to the graph.
     """
+    _check_generator_inputs(weights, gan, fake_logits, scene, rendered)
+    terms = _generator_terms(
+        pred, target, scene, weights, map_weights, fake_logits, gan, eps, backend, rendered
+    )
+    total = _weighted_total(terms, weights)
+    terms["total"] = total
+    return total, terms
+
+
+def _check_generator_inputs(
+    weights: LossWeights,
+    gan: str,
+    fake_logits: list[Tensor] | None,
+    scene: Scene | None,
+    rendered: tuple[Tensor, Tensor] | None,
+) -> None:
+    """What :func:`generator_loss` needs for the terms its weights ask for, and nothing more."""
     if not isinstance(weights, LossWeights):
         raise ValueError(f"generator_loss: weights must be a LossWeights, got {type(weights).__name__}")
     _check_kind("generator_loss", gan)
@@ -342,25 +359,38 @@ def generator_loss(
             "(e.g. svbrdf_render.training_scene(batch)); or set LossWeights(render=0)"
         )
 
+
+def _generator_terms(
+    pred: SVBRDF,
+    target: SVBRDF,
+    scene: Scene | None,
+    weights: LossWeights,
+    map_weights: Mapping[str, float],
+    fake_logits: list[Tensor] | None,
+    gan: str,
+    eps: float,
+    backend: str,
+    rendered: tuple[Tensor, Tensor] | None,
+) -> dict[str, Tensor]:
+    """The unweighted terms of ``L_G`` whose weight is not 0: ``adv``, ``render``, ``svbrdf`` and
+    its ``map/<name>``, in that order."""
     terms: dict[str, Tensor] = {}
-    total = None
-
-    def add(name: str, weight: float, value: Tensor) -> None:
-        nonlocal total
-        terms[name] = value
-        total = weight * value if total is None else total + weight * value
-
     if weights.adv > 0:
-        add("adv", weights.adv, generator_adversarial_loss(fake_logits, gan))
+        terms["adv"] = generator_adversarial_loss(fake_logits, gan)
     if weights.render > 0:
-        add(
-            "render",
-            weights.render,
-            rendering_loss(pred, target, scene, eps=eps, backend=backend, rendered=rendered),
-        )
+        terms["render"] = rendering_loss(pred, target, scene, eps=eps, backend=backend, rendered=rendered)
     if weights.svbrdf > 0:
-        svbrdf, per_map = map_loss(pred, target, map_weights)
-        add("svbrdf", weights.svbrdf, svbrdf)
+        terms["svbrdf"], per_map = map_loss(pred, target, map_weights)
         terms.update({f"map/{name}": value for name, value in per_map.items()})
-    terms["total"] = total
-    return total, terms
+    return terms
+
+
+def _weighted_total(terms: Mapping[str, Tensor], weights: LossWeights) -> Tensor:
+    """``adv * L_adv + render * L_render + svbrdf * L_svbrdf`` over the terms computed, summed in
+    that order."""
+    total = None
+    for name in ("adv", "render", "svbrdf"):
+        if name in terms:
+            part = getattr(weights, name) * terms[name]
+            total = part if total is None else total + part
+    return total

@@ -20,6 +20,7 @@ from svbrdf_render import SVBRDF
 from .checkpoint import load_checkpoint
 from .data.photos import square_photo
 from .errors import CheckpointError
+from .inference import load_generator
 from .init import RUN_CHECKPOINT, download_run_checkpoint
 
 __all__ = ["Predictor", "RUN_CHECKPOINT"]
@@ -29,8 +30,6 @@ class Predictor:
     """A trained generator in eval mode, and the resolution it was trained at."""
 
     def __init__(self, checkpoint: dict, device: str | torch.device = "cpu", source: str = "checkpoint"):
-        from .trainer import load_generator
-
         try:
             self.generator, self.recipe = load_generator(checkpoint, device, source)
         except (KeyError, RuntimeError) as e:

@@ -147,9 +147,7 @@ def fit(
     sample grids and checkpoints to one MLflow run. Ctrl-C saves a checkpoint first;
     --resume continues from it.
     """
-    from ..checkpoint import CHECKPOINT_NAME, load_checkpoint
     from ..errors import RecipeError
-    from ..recipe import load_recipe, parse_overrides, recipe_from_dict, with_overrides
     from ..trainer import FitOptions
     from ..trainer import fit as run_fit
 
@@ -162,31 +160,8 @@ def fit(
             f"--size {size} goes with --recipe; --resume without --recipe continues the checkpoint's "
             "recipe at the size it was started with"
         )
-    overrides = parse_overrides(sets)
-    data_overrides = _data_overrides(data)
-    if recipe_name is not None and data_overrides.get("data.source") not in (None, "procedural"):
-        # a mix keeps its entries: --data gives the path of those that name none
-        if load_recipe(recipe_name, size, overrides).data.source == "mix":
-            del data_overrides["data.source"]
-    overrides.update(data_overrides)
-    if max_minutes is not None:
-        overrides["train.max_minutes"] = max_minutes
-    if max_steps is not None:
-        overrides["train.max_steps"] = max_steps
-    if recipe_name is None and not resume:
-        raise RecipeError(
-            "--recipe is required (a name from `svbrdf-train recipes`, or a YAML file); "
-            "or pass --resume with --out to continue a fit"
-        )
-    if out is None:
-        if recipe_name is None:
-            raise RecipeError("--resume needs --out: the folder of the fit to continue")
-        out = Path("runs") / f"{Path(recipe_name).stem}-{size}"
-    if recipe_name is not None:
-        recipe = load_recipe(recipe_name, size, overrides)
-    else:  # --resume with the checkpoint's recipe, plus any budget change
-        saved = load_checkpoint(out / CHECKPOINT_NAME, mmap=True)["recipe"]
-        recipe = with_overrides(recipe_from_dict(saved, where=str(out / CHECKPOINT_NAME)), overrides)
+    overrides = _overrides(recipe_name, size, data, sets, max_minutes, max_steps)
+    recipe, out = _recipe_and_out(recipe_name, size, overrides, out, resume)
     options = FitOptions(
         out=out,
         resume=resume,
@@ -200,6 +175,53 @@ def fit(
         track=not no_track,
     )
     result = run_fit(recipe, options)
+    if _is_main():
+        click.echo("\n".join(_summary(result)), err=result.status != "FINISHED")
+    sys.exit(result.exit_code)
+
+
+def _overrides(recipe_name, size, data, sets, max_minutes, max_steps) -> dict:
+    """The recipe overrides of the command line: ``--set`` items, then ``--data``, then the budgets."""
+    from ..recipe import load_recipe, parse_overrides
+
+    overrides = parse_overrides(sets)
+    data_overrides = _data_overrides(data)
+    if recipe_name is not None and data_overrides.get("data.source") not in (None, "procedural"):
+        # a mix keeps its entries: --data gives the path of those that name none
+        if load_recipe(recipe_name, size, overrides).data.source == "mix":
+            del data_overrides["data.source"]
+    overrides.update(data_overrides)
+    if max_minutes is not None:
+        overrides["train.max_minutes"] = max_minutes
+    if max_steps is not None:
+        overrides["train.max_steps"] = max_steps
+    return overrides
+
+
+def _recipe_and_out(recipe_name, size, overrides: dict, out: Path | None, resume: bool):
+    """The recipe to fit and its output folder: the named recipe (``runs/RECIPE-SIZE`` by default),
+    or with ``--resume`` alone the recipe saved in ``out``'s checkpoint, plus any budget change."""
+    from ..checkpoint import CHECKPOINT_NAME, load_checkpoint
+    from ..errors import RecipeError
+    from ..recipe import load_recipe, recipe_from_dict, with_overrides
+
+    if recipe_name is None and not resume:
+        raise RecipeError(
+            "--recipe is required (a name from `svbrdf-train recipes`, or a YAML file); "
+            "or pass --resume with --out to continue a fit"
+        )
+    if out is None:
+        if recipe_name is None:
+            raise RecipeError("--resume needs --out: the folder of the fit to continue")
+        out = Path("runs") / f"{Path(recipe_name).stem}-{size}"
+    if recipe_name is not None:
+        return load_recipe(recipe_name, size, overrides), out
+    saved = load_checkpoint(out / CHECKPOINT_NAME, mmap=True)["recipe"]
+    return with_overrides(recipe_from_dict(saved, where=str(out / CHECKPOINT_NAME)), overrides), out
+
+
+def _summary(result) -> list[str]:
+    """What a finished fit prints: its status, throughput, last validation, checkpoint and run."""
     lines = [f"{result.status.lower()}: {result.message}"]
     if result.samples_per_s is not None:
         lines.append(f"  throughput: {result.samples_per_s:.1f} samples/s after warm-up")
@@ -213,9 +235,7 @@ def fit(
         lines.append(f"  checkpoint: {result.checkpoint} (step {_saved_step(result.checkpoint)})")
     if result.run_id is not None:
         lines.append(f"  MLflow run: {result.run_id}")
-    if _is_main():
-        click.echo("\n".join(lines), err=result.status != "FINISHED")
-    sys.exit(result.exit_code)
+    return lines
 
 
 def _saved_step(path: Path) -> str:

@@ -138,25 +138,30 @@ def predict(
     The maps are judged by re-rendering them under a flash fitted to the photo: the RMSE
     against the photo is printed per photo and as the median of the batch.
     """
-    from svbrdf_render import SVBRDFError
-    from svbrdf_render.errors import OutputError
     from svbrdf_render.files import check_output_folder
 
-    from ..capture import CaptureOptions, capture_one, write_summary
+    from ..capture import CaptureOptions
+    from ..distributed import pick_device
     from ..errors import CheckpointError
-    from ..predict import Predictor
 
     if (checkpoint is None) == (run_id is None):
         raise CheckpointError("give the generator with --checkpoint FILE or --run RUN_ID (one of them)")
     if map_size is not None and not tiles:
         raise click.UsageError("--map-size goes with --tiles")
-    from ..distributed import pick_device
-
     device = pick_device(device)  # a GPU that is not there is named as such, not blamed on the checkpoint
     options = CaptureOptions(
         linear, crop, tiles, map_size, int(bits), normal_convention, relit, albedo_encoding=albedo_encoding
     )
     check_output_folder(out, "-o")  # before the model is loaded and the first photo is done
+    model = _load_model(checkpoint, run_id, device, map_size)
+    entries, stopped = _capture_all(model, photos, out, options)
+    _finish(model, photos, out, entries, stopped)
+
+
+def _load_model(checkpoint, run_id, device, map_size):
+    """The :class:`~svbrdf_train.predict.Predictor` of --checkpoint or --run, announced on stderr."""
+    from ..predict import Predictor
+
     model = (
         Predictor.from_checkpoint(checkpoint, device) if checkpoint else Predictor.from_run(run_id, device)
     )
@@ -169,21 +174,28 @@ def predict(
         f"{model.resolution}x{model.resolution}",
         err=True,
     )
+    return model
+
+
+def _capture_all(model, photos, out: Path, options):
+    """Capture each photo into its own folder of ``out``; the summary entries, and the write error
+    that stopped the batch (None: every photo was tried). A photo that fails is reported and
+    skipped; a file that cannot be written stops the photos after it."""
+    from svbrdf_render import SVBRDFError
+    from svbrdf_render.errors import OutputError
+
+    from ..capture import capture_one
+
     entries: list[dict] = []
     used: set[str] = set()
-    stopped: SVBRDFError | None = None
     for path in photos:
-        name, k = path.stem, 1
-        while name in used:
-            k += 1
-            name = f"{path.stem}-{k}"
+        name = _folder_name(path, used)
         try:
             entry = capture_one(model, path, out / name, options)
         except OutputError as e:  # the disk, not the photo: the photos after it would fail alike
             click.echo(f"svbrdf-train: error: {e}", err=True)
             entries.append({"photo": str(path), "status": "failed", "error": str(e)})
-            stopped = e
-            break
+            return entries, e
         except (SVBRDFError, OSError, RuntimeError) as e:  # RuntimeError: out of memory, a broken model
             what = str(e) if isinstance(e, (SVBRDFError, OSError)) else f"{type(e).__name__}: {e}"
             text = what if what.startswith(str(path)) else f"{path}: {what}"
@@ -195,6 +207,22 @@ def predict(
             click.echo(f"svbrdf-train: note: {path}: {note}", err=True)
         entries.append({"name": name, **entry})
         click.echo(str(out / name))
+    return entries, None
+
+
+def _folder_name(path: Path, used: set[str]) -> str:
+    """The photo's stem, numbered (``NAME-2``, ...) when an earlier photo of the batch took it."""
+    name, k = path.stem, 1
+    while name in used:
+        k += 1
+        name = f"{path.stem}-{k}"
+    return name
+
+
+def _finish(model, photos, out: Path, entries: list[dict], stopped) -> None:
+    """Write summary.json, print the table and exit with the batch's status (0 when all went well)."""
+    from ..capture import write_summary
+
     summary = write_summary(
         out / "summary.json", entries, model=model.source, step=model.step, resolution=model.resolution
     )

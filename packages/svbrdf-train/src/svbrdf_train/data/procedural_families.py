@@ -130,6 +130,20 @@ def _draw_stone(d: Draw) -> dict[str, Any]:
     p["freq"] = d.log_uniform(0.7, 2.5)  # lattice cells per patch unit
     p["warp"] = d.uniform(0.2, 1.4) if kind != "granite" else d.uniform(0.1, 0.5)
     p["gain"] = d.uniform(0.45, 0.62)
+    base, second, vein, polished = _draw_stone_look(d, kind, p)
+    p["base"], p["second"], p["vein_colour"] = base, second, vein
+    p["speck_dark"] = d.colour((0.0, 1.0), (0.0, 0.2), (0.02, 0.15))
+    p["speck_light"] = d.colour((0.0, 0.1), (0.0, 0.35), (0.7, 0.95))
+    p["speck_freq"] = d.uniform(12.0, 30.0)  # cells per patch unit
+    _draw_stone_finish(d, p, polished)
+    p["lattice"] = d.lattice(4)  # warp u, warp v, base, veins
+    p["grain_lattice"] = d.lattice(3)  # dark specks, light specks, grain
+    return p
+
+
+def _draw_stone_look(d: Draw, kind: str, p: dict[str, Any]) -> tuple[Any, Any, Any, bool]:
+    """The colours of one kind of stone and whether it is polished: ``(base, second, vein,
+    polished)``; sets the strength and width of its veins and specks in ``p``."""
     vein_light = ((0.0, 1.0), (0.0, 0.08), (0.82, 0.97))
     if kind == "marble":
         tone = d.choice(["white", "dark", "coloured"], [0.5, 0.2, 0.3])
@@ -171,10 +185,11 @@ def _draw_stone(d: Draw) -> dict[str, Any]:
         p["speck"] = 0.0
         polished = d.chance(0.15)
         second = _vary(d, base, (0.8, 1.25))
-    p["base"], p["second"], p["vein_colour"] = base, second, vein
-    p["speck_dark"] = d.colour((0.0, 1.0), (0.0, 0.2), (0.02, 0.15))
-    p["speck_light"] = d.colour((0.0, 0.1), (0.0, 0.35), (0.7, 0.95))
-    p["speck_freq"] = d.uniform(12.0, 30.0)  # cells per patch unit
+    return base, second, vein, polished
+
+
+def _draw_stone_finish(d: Draw, p: dict[str, Any], polished: bool) -> None:
+    """Roughness, relief and specular albedo of a polished or a rough stone surface."""
     if polished:
         p["roughness"], p["roughness_var"] = d.uniform(0.1, 0.32), d.uniform(0.0, 0.05)
         p["relief"], p["grain_relief"] = d.uniform(0.0, 0.015), d.uniform(0.0, 0.005)
@@ -182,9 +197,6 @@ def _draw_stone(d: Draw) -> dict[str, Any]:
         p["roughness"], p["roughness_var"] = d.uniform(0.4, 0.72), d.uniform(0.05, 0.15)
         p["relief"], p["grain_relief"] = d.uniform(0.02, 0.1), d.uniform(0.01, 0.05)
     p["specular"] = grey(d.uniform(0.035, 0.06) if polished else d.uniform(0.03, 0.05))
-    p["lattice"] = d.lattice(4)  # warp u, warp v, base, veins
-    p["grain_lattice"] = d.lattice(3)  # dark specks, light specks, grain
-    return p
 
 
 def _stone(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
@@ -219,6 +231,32 @@ def _stone(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
 def _draw_tiles(d: Draw) -> dict[str, Any]:
     layout = d.choice(["grid", "bricks", "stack", "mosaic", "random bond"], [0.3, 0.3, 0.1, 0.15, 0.15])
     p = _draw_frame(d, aligned=0.75)
+    rows, aspect, bond, row_jitter = _draw_tile_layout(d, layout)
+    p["rows"], p["columns"], p["bond"], p["row_jitter"] = rows, rows / aspect, bond, row_jitter
+    brick = layout in ("bricks", "random bond")
+    style = "brick" if brick else d.choice(["glazed", "terracotta", "stone"], [0.5, 0.25, 0.25])
+    colour, jitter, mottle, rough, spec, relief, grout = _draw_tile_style(d, style)
+    size = 1.0 / rows  # tile height, patch units
+    p["grout_width"] = size * (d.uniform(0.05, 0.12) if brick else d.uniform(0.015, 0.07))
+    p["bevel"] = size * d.uniform(0.02, 0.12)
+    p["depth"] = p["bevel"] * d.uniform(0.4, 1.2)  # bevel slope 0.4-1.2
+    p["tilt"] = d.uniform(0.0, 0.04)
+    p["colour"], p["grout_colour"] = colour, grout
+    p["jitter"], p["mottle"], p["relief"] = jitter, mottle, relief
+    p["roughness"], p["grout_roughness"] = rough, d.uniform(0.72, 0.9)
+    p["specular"], p["grout_specular"] = grey(spec), grey(d.uniform(0.025, 0.04))
+    p["noise_freq"] = rows * d.uniform(2.0, 6.0)
+    _draw_studs(d, p, layout, size)
+    p["lattice"] = d.lattice(3)  # mottling, bumps, grout grain
+    p["row_shift"] = d.table(256)
+    p["tile_value"] = d.table(1024, -1.0, 1.0)
+    p["tile_tint"] = d.table(3 * 1024, -1.0, 1.0).view(3, 1024)
+    p["tile_tilt"] = d.table(2 * 1024, -1.0, 1.0).view(2, 1024)
+    return p
+
+
+def _draw_tile_layout(d: Draw, layout: str) -> tuple[float, float, float, float]:
+    """``(rows per patch unit, tile aspect, bond, row jitter)`` of a layout of tiles."""
     bond, row_jitter = 0.0, 0.0
     if layout == "grid":
         rows, aspect = d.uniform(1.0, 3.5), d.choice([1.0, 1.0, 1.5, 2.0])
@@ -230,9 +268,11 @@ def _draw_tiles(d: Draw) -> dict[str, Any]:
         rows, aspect = d.uniform(5.0, 10.0), 1.0
     else:
         rows, aspect, row_jitter = d.uniform(2.0, 5.0), d.uniform(2.0, 5.0), 1.0
-    p["rows"], p["columns"], p["bond"], p["row_jitter"] = rows, rows / aspect, bond, row_jitter
-    brick = layout in ("bricks", "random bond")
-    style = "brick" if brick else d.choice(["glazed", "terracotta", "stone"], [0.5, 0.25, 0.25])
+    return rows, aspect, bond, row_jitter
+
+
+def _draw_tile_style(d: Draw, style: str) -> tuple:
+    """``(colour, jitter, mottle, roughness, specular, relief, grout colour)`` of a style of tile."""
     if style == "glazed":
         colour = d.colour((0.0, 1.0), (0.05, 0.7), (0.25, 0.95))
         jitter, mottle = d.uniform(0.0, 0.12), d.uniform(0.0, 0.1)
@@ -254,29 +294,18 @@ def _draw_tiles(d: Draw) -> dict[str, Any]:
         jitter, mottle = d.uniform(0.1, 0.35), d.uniform(0.15, 0.35)
         rough, spec, relief = d.uniform(0.55, 0.74), d.uniform(0.03, 0.04), d.uniform(0.05, 0.15)
         grout = d.colour((0.07, 0.12), (0.05, 0.2), (0.45, 0.8))
-    size = 1.0 / rows  # tile height, patch units
-    p["grout_width"] = size * (d.uniform(0.05, 0.12) if brick else d.uniform(0.015, 0.07))
-    p["bevel"] = size * d.uniform(0.02, 0.12)
-    p["depth"] = p["bevel"] * d.uniform(0.4, 1.2)  # bevel slope 0.4-1.2
-    p["tilt"] = d.uniform(0.0, 0.04)
-    p["colour"], p["grout_colour"] = colour, grout
-    p["jitter"], p["mottle"], p["relief"] = jitter, mottle, relief
-    p["roughness"], p["grout_roughness"] = rough, d.uniform(0.72, 0.9)
-    p["specular"], p["grout_specular"] = grey(spec), grey(d.uniform(0.025, 0.04))
-    p["noise_freq"] = rows * d.uniform(2.0, 6.0)
-    # Metal studs (rivets) where four tiles meet, on grids whose corners line up.
+    return colour, jitter, mottle, rough, spec, relief, grout
+
+
+def _draw_studs(d: Draw, p: dict[str, Any], layout: str, size: float) -> None:
+    """Metal studs (rivets) where four tiles meet, on grids whose corners line up; drawn for every
+    material (``studs`` 0: none shown) so that the draws that follow do not depend on it."""
     p["studs"] = 1.0 if layout in ("grid", "stack") and d.chance(0.35) else 0.0
     p["stud_specular"], _ = draw_metal_specular(d)
     p["stud_diffuse"] = grey(d.uniform(0.0, 0.03))
     p["stud_roughness"] = d.uniform(0.15, 0.4)
     p["stud_radius"] = size * d.uniform(0.08, 0.16)
     p["stud_dome"] = d.uniform(0.2, 0.5)  # height over radius
-    p["lattice"] = d.lattice(3)  # mottling, bumps, grout grain
-    p["row_shift"] = d.table(256)
-    p["tile_value"] = d.table(1024, -1.0, 1.0)
-    p["tile_tint"] = d.table(3 * 1024, -1.0, 1.0).view(3, 1024)
-    p["tile_tilt"] = d.table(2 * 1024, -1.0, 1.0).view(2, 1024)
-    return p
 
 
 def _tiles(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:

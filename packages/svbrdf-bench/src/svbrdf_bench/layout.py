@@ -1,0 +1,156 @@
+"""The MLflow layout of a benchmark: what :mod:`svbrdf_bench.runner` writes and
+:mod:`svbrdf_bench.report` reads back (so ``svbrdf-bench report PARENT`` rebuilds a report from
+the store alone). Both import these names from here, never from each other's module.
+
+One invocation of ``svbrdf-bench run``::
+
+    parent run  "bench-<models>-<preset>"  (tag svbrdf.kind=bench; the report, tables and plots)
+      child run  per model: the model's training run itself (svbrdf-train fit --parent-run), or,
+                 for a reused run (--from-runs), a new run tagged svbrdf.train_run=<that run>
+                 with that run's params
+      child run  per baseline (``mean``, ``photo``; none with --no-baselines): a generator with
+                 no trained parameters built from the registry, tagged svbrdf.baseline=true and
+                 evaluated exactly like the models (same test images, same figures, params 0)
+
+==================================  ======  ======================================================
+name                                run     meaning
+==================================  ======  ======================================================
+tag ``svbrdf.kind``                 parent  ``bench``: the run is the parent of a benchmark
+                                            (:data:`KIND_TAG`, :data:`BENCH_KIND`)
+tag ``lpips``                       parent  how LPIPS was computed, or why it was not
+                                            (:data:`LPIPS_TAG`)
+params ``preset``, ``test_set``,    parent  the preset, the test set's description, the training
+``train_minutes_per_model``,                budget per model in words, the real photos and the
+``real_data``, ``baselines``                baselines evaluated ("-": none) (``*_PARAM``)
+artifacts ``report/``               parent  the written report: ``report.md``, CSV, JSON, plots
+                                            (:data:`REPORT_ARTIFACTS`)
+tag ``mlflow.parentRunId``          child   the benchmark's parent run (MLflow's own nesting tag,
+                                            :data:`PARENT_TAG`)
+tag ``svbrdf.model``                child   the row label of the model or baseline; a child
+                                            without it was trained but never evaluated
+                                            (:data:`MODEL_TAG`)
+tag ``svbrdf.train_run``            child   of a reused fit only: the run that trained it; without
+                                            the tag the child is the fit itself
+                                            (:data:`TRAIN_RUN_TAG`, :func:`train_run_id`)
+tag ``svbrdf.baseline``             child   ``true``: an untrained baseline, not a trained model
+                                            (:data:`BASELINE_TAG`, :func:`is_baseline`)
+artifact ``eval/per_sample.json``   child   each figure per test sample, ``{name: [values]}``
+                                            (:data:`PER_SAMPLE`, :func:`per_sample_json`,
+                                            :func:`read_per_sample`)
+metrics ``test/<metric>/<map>``     child   the mean over the test images of a per-sample figure
+                                            (:data:`TEST_PREFIX`)
+metrics ``time/*``,                 child   training and inference time, parameters, peak memory
+``model/params``, ``memory/*``              (the report's time table; :data:`STEPS_WALL_METRIC`)
+metric ``train/steps``              child   generator steps the fit made (:data:`STEPS_METRIC`)
+metrics ``real/*``                  child   self-consistency on real photos (no ground truth):
+                                            per-sample ``real/rerender_rmse``, metric
+                                            ``real/rerender_rmse_median`` (:data:`REAL_PREFIX`,
+                                            :data:`REAL_RERENDER`)
+metrics ``val/*``, ``val_real/*``,  child   the trainer's own (learning curves,
+``train/*``                                 :data:`FIT_WALL_METRIC`); never figures of the
+                                            report's tables (:data:`TRAINER_PREFIXES`)
+==================================  ======  ======================================================
+
+Per-sample figures are named ``<metric>/<map>`` (``rmse/render``, ``ssim/normal``, ...) as
+:func:`svbrdf_bench.metrics.evaluate` returns them, plus ``real/rerender_rmse``.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+
+import numpy as np
+
+__all__ = [
+    "KIND_TAG",
+    "BENCH_KIND",
+    "PARENT_TAG",
+    "MODEL_TAG",
+    "TRAIN_RUN_TAG",
+    "BASELINE_TAG",
+    "LPIPS_TAG",
+    "PRESET_PARAM",
+    "TEST_SET_PARAM",
+    "MINUTES_PARAM",
+    "REAL_DATA_PARAM",
+    "BASELINES_PARAM",
+    "PER_SAMPLE",
+    "REPORT_ARTIFACTS",
+    "TEST_PREFIX",
+    "REAL_PREFIX",
+    "REAL_RERENDER",
+    "STEPS_METRIC",
+    "STEPS_WALL_METRIC",
+    "FIT_WALL_METRIC",
+    "TRAINER_PREFIXES",
+    "baseline_tags",
+    "is_baseline",
+    "train_run_id",
+    "per_sample_json",
+    "read_per_sample",
+]
+
+#: Tag of the parent run; its value :data:`BENCH_KIND` marks a benchmark's parent.
+KIND_TAG = "svbrdf.kind"
+BENCH_KIND = "bench"
+#: MLflow's tag that nests a child run under its parent.
+PARENT_TAG = "mlflow.parentRunId"
+#: Tag of an evaluated child run: its row label.
+MODEL_TAG = "svbrdf.model"
+#: Tag of the child run of a reused fit: the run that trained it.
+TRAIN_RUN_TAG = "svbrdf.train_run"
+#: Tag of the child runs of baselines (generators with no trained parameters): "true".
+BASELINE_TAG = "svbrdf.baseline"
+#: Tag of the parent run: how LPIPS was computed (or why not).
+LPIPS_TAG = "lpips"
+#: Params of the parent run that the report shows.
+PRESET_PARAM = "preset"
+TEST_SET_PARAM = "test_set"
+MINUTES_PARAM = "train_minutes_per_model"
+REAL_DATA_PARAM = "real_data"
+BASELINES_PARAM = "baselines"
+#: Artifact of each evaluated child run: every per-sample figure (:func:`per_sample_json`).
+PER_SAMPLE = "eval/per_sample.json"
+#: Artifact folder of the parent run holding the written report.
+REPORT_ARTIFACTS = "report"
+
+#: Metrics of a child run that are means over the test images.
+TEST_PREFIX = "test/"
+#: Figures on real photos (no ground truth), kept out of the test means.
+REAL_PREFIX = "real/"
+#: Per-sample figure on real photos: RMSE of the maps re-rendered under the fitted flash.
+REAL_RERENDER = "real/rerender_rmse"
+#: Metric of an evaluated child run: the generator steps its fit made.
+STEPS_METRIC = "train/steps"
+#: Figure of a child run: wall seconds of the fit's steps (the trainer's :data:`FIT_WALL_METRIC`).
+STEPS_WALL_METRIC = "time/train_steps_wall_s"
+#: The trainer's metric of the wall seconds of its steps (absent from older fits).
+FIT_WALL_METRIC = "train/total_wall_seconds"
+#: Prefixes of the trainer's own metrics: never figures of the report's tables.
+TRAINER_PREFIXES = ("val/", "val_real/", "train/")
+
+
+def baseline_tags(parent_id: str, name: str) -> dict[str, str]:
+    """The tags of the child run of baseline ``name`` under ``parent_id``."""
+    return {PARENT_TAG: parent_id, MODEL_TAG: name, BASELINE_TAG: "true"}
+
+
+def is_baseline(tags: Mapping[str, str]) -> bool:
+    """Whether a child run's tags mark an untrained baseline."""
+    return tags.get(BASELINE_TAG) == "true"
+
+
+def train_run_id(run_id: str, tags: Mapping[str, str]) -> str:
+    """The run that trained the model of child run ``run_id``: the fit it reused, else itself."""
+    return tags.get(TRAIN_RUN_TAG, run_id)
+
+
+def per_sample_json(per_sample: Mapping[str, np.ndarray]) -> str:
+    """The text of :data:`PER_SAMPLE`: figure name -> its value per test sample."""
+    return json.dumps({k: v.tolist() for k, v in per_sample.items()})
+
+
+def read_per_sample(text: str) -> dict[str, np.ndarray]:
+    """Per-sample figures back from the text of :data:`PER_SAMPLE` (float64 arrays)."""
+    return {k: np.asarray(v, dtype=np.float64) for k, v in json.loads(text).items()}

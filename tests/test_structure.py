@@ -1,0 +1,206 @@
+"""The shape of the code, read from the source with :mod:`ast` alone (nothing here imports the
+packages): no import circle in any package, and no long function in the training package."""
+
+from __future__ import annotations
+
+import ast
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+#: distribution folder -> import name
+PACKAGES = {
+    "svbrdf-render": "svbrdf_render",
+    "svbrdf-models": "svbrdf_models",
+    "svbrdf-train": "svbrdf_train",
+    "svbrdf-bench": "svbrdf_bench",
+}
+#: The longest function or method (``def`` line to last line, docstring included) of svbrdf-train.
+MAX_FUNCTION_LINES = 60
+
+
+# -- the module graph -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Module:
+    name: str  # dotted: "svbrdf_render.fit"; a package's __init__ is the package's name
+    path: Path
+
+    @property
+    def is_package(self) -> bool:
+        return self.path.name == "__init__.py"
+
+    @property
+    def package(self) -> str:
+        """The package relative imports start from: the module's own for an ``__init__``."""
+        return self.name if self.is_package else self.name.rpartition(".")[0]
+
+
+@dataclass(frozen=True)
+class Edge:
+    source: str
+    target: str
+    line: int
+
+
+def _modules() -> dict[str, Module]:
+    out = {}
+    for dist, name in PACKAGES.items():
+        root = REPO / "packages" / dist / "src"
+        for path in sorted((root / name).rglob("*.py")):
+            parts = list(path.relative_to(root).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts.pop()
+            out[".".join(parts)] = Module(".".join(parts), path)
+    return out
+
+
+def _resolve_from(module: Module, node: ast.ImportFrom) -> str:
+    """The absolute module of a ``from X import ...`` (relative ones resolved by their level)."""
+    if node.level == 0:
+        return node.module or ""
+    base = module.package.split(".")
+    base = base[: len(base) - (node.level - 1)]
+    return ".".join([*base, *([node.module] if node.module else [])])
+
+
+def _edges(module: Module, modules: dict[str, Module]) -> list[Edge]:
+    """Every import of ``module`` of a module of the workspace, at any depth (an import inside a
+    function closes a circle as surely as one at the top). ``from pkg import name`` is an edge to
+    the submodule ``pkg.name`` when there is one, else to ``pkg`` (its ``__init__``)."""
+    tree = ast.parse(module.path.read_text(), filename=str(module.path))
+    out = []
+    for node in ast.walk(tree):
+        targets: list[str] = []
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = _resolve_from(module, node)
+            for alias in node.names:
+                sub = f"{base}.{alias.name}"
+                targets.append(sub if sub in modules else base)
+        out += [Edge(module.name, t, node.lineno) for t in targets if t in modules and t != module.name]
+    return out
+
+
+def _graph() -> dict[str, list[Edge]]:
+    modules = _modules()
+    return {name: _edges(m, modules) for name, m in modules.items()}
+
+
+def _circles(graph: dict[str, list[Edge]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan's algorithm)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for e in graph[v]:
+            if e.target not in index:
+                visit(e.target)
+                low[v] = min(low[v], low[e.target])
+            elif e.target in on_stack:
+                low[v] = min(low[v], index[e.target])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                out.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def _cycle(graph: dict[str, list[Edge]], component: list[str]) -> list[Edge]:
+    """One circle through the component's first module, edge by edge (shortest, breadth first)."""
+    members = set(component)
+    start = component[0]
+    came: dict[str, Edge] = {}
+    frontier = [start]
+    while frontier:
+        nxt = []
+        for v in frontier:
+            for e in graph[v]:
+                if e.target not in members or e.target in came:
+                    continue
+                came[e.target] = e
+                if e.target == start:
+                    path = [e]
+                    while path[0].source != start:
+                        path.insert(0, came[path[0].source])
+                    return path
+                nxt.append(e.target)
+        frontier = nxt
+    raise AssertionError(f"no circle through {start}")  # a component always has one
+
+
+def _describe(graph: dict[str, list[Edge]], component: list[str]) -> str:
+    path = _cycle(graph, component)
+    steps = " -> ".join([path[0].source, *(e.target for e in path)])
+    where = "; ".join(f"{e.source} imports {e.target} at line {e.line}" for e in path)
+    return f"{steps}\n    ({where}; the whole circle: {', '.join(component)})"
+
+
+@pytest.fixture(scope="module")
+def graph() -> dict[str, list[Edge]]:
+    return _graph()
+
+
+@pytest.mark.parametrize("package", PACKAGES.values())
+def test_no_import_circle(graph, package):
+    """Modules form a hierarchy: none imports, even lazily, one that imports it back."""
+    circles = [c for c in _circles(graph) if any(m.split(".")[0] == package for m in c)]
+    assert not circles, f"import circles in {package}:\n" + "\n".join(_describe(graph, c) for c in circles)
+
+
+def test_the_graph_sees_every_kind_of_import():
+    """The graph builder itself: relative imports by level, submodules named in a from-import,
+    names of a package's __init__, and imports inside functions."""
+    g = _graph()
+
+    def targets(name):
+        return {e.target for e in g[name]}
+
+    assert "svbrdf_render.maps" in targets("svbrdf_render.renderer")  # from .maps import SVBRDF
+    assert "svbrdf_render.brdf" in targets("svbrdf_render.renderer")  # from . import brdf
+    assert "svbrdf_train.errors" in targets("svbrdf_train.data.photos")  # from ..errors import
+    assert "svbrdf_render" in targets("svbrdf_train.data.photos")  # from svbrdf_render import read_image
+    assert "svbrdf_train.inference" in targets("svbrdf_bench.runner")  # inside a function
+    assert _circles({"a": [Edge("a", "b", 1)], "b": [Edge("b", "a", 2)], "c": []}) == [["a", "b"]]
+
+
+# -- function length --------------------------------------------------------------------------------
+
+
+def _long_functions(root: Path, limit: int) -> list[str]:
+    out = []
+    for path in sorted(root.rglob("*.py")):
+        tree = ast.parse(path.read_text(), filename=str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                lines = node.end_lineno - node.lineno + 1
+                if lines > limit:
+                    out.append(f"{path.relative_to(REPO)}:{node.lineno} {node.name} ({lines} lines)")
+    return out
+
+
+def test_no_long_function_in_the_training_package():
+    """A function of svbrdf-train fits on a screen: at most MAX_FUNCTION_LINES lines from its
+    ``def`` to its end (decorators excluded, docstring included)."""
+    long = _long_functions(REPO / "packages" / "svbrdf-train" / "src", MAX_FUNCTION_LINES)
+    assert not long, f"functions over {MAX_FUNCTION_LINES} lines:\n" + "\n".join(long)
