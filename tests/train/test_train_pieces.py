@@ -13,6 +13,7 @@ from svbrdf_render import render, training_scene
 from svbrdf_render.errors import OutputError
 from svbrdf_train.checkpoint import load_checkpoint, rng_state, save_checkpoint, set_rng_state
 from svbrdf_train.errors import CheckpointError, RecipeError
+from svbrdf_train.order import From as _From
 from svbrdf_train.progress import Progress, format_duration
 from svbrdf_train.recipe import (
     list_recipes,
@@ -22,7 +23,6 @@ from svbrdf_train.recipe import (
     recipe_from_dict,
     with_overrides,
 )
-from svbrdf_train.order import From as _From
 from svbrdf_train.step import scene_rows as _scene_rows
 
 # -- checkpoints --------------------------------------------------------------------------

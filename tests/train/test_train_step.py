@@ -49,7 +49,7 @@ def test_a_step_continued_from_its_state_dict_is_the_same_step():
     terms_a, bad_a = a(batches[2])
     assert bad_a is None and bad_b is None and a.step == b.step == 3
     assert terms_a == terms_b
-    for (name, pa), pb in zip(a.generator.state_dict().items(), b.generator.state_dict().values()):
+    for (name, pa), pb in zip(a.generator.state_dict().items(), b.generator.state_dict().values(), strict=True):
         assert torch.equal(pa, pb), name
     sa, sb = a.state_dict()["optimizers"]["g"]["state"], b.state_dict()["optimizers"]["g"]["state"]
     assert all(torch.equal(sa[k]["exp_avg_sq"], sb[k]["exp_avg_sq"]) for k in sa)
@@ -78,7 +78,7 @@ def test_each_way_of_running_the_step_learns_with_finite_values(settings):
         terms, bad = gan(batch)
         assert bad is None
         assert all(torch.isfinite(torch.tensor(v)) for v in terms.values())
-    moved = [not torch.equal(p, q) for p, q in zip(gan.generator.parameters(), before)]
+    moved = [not torch.equal(p, q) for p, q in zip(gan.generator.parameters(), before, strict=True)]
     assert sum(moved) > len(moved) // 2
     assert all(p.dtype == torch.float32 for p in gan.generator.parameters())
 
@@ -96,7 +96,7 @@ def test_a_compiled_step_learns_and_its_generator_predicts_as_the_eager_one():
     for batch in batches:
         terms, bad = gan(batch)
         assert bad is None and all(torch.isfinite(torch.tensor(v)) for v in terms.values())
-    assert any(not torch.equal(p, q) for p, q in zip(gan.generator.parameters(), before))
+    assert any(not torch.equal(p, q) for p, q in zip(gan.generator.parameters(), before, strict=True))
     gan.G.eval()
     with torch.no_grad():
         compiled = gan.G(batches[0]["input"]).pack()

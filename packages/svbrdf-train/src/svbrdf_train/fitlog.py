@@ -5,13 +5,14 @@ from __future__ import annotations
 from torch import nn
 
 from svbrdf_models import config_to_dict, resolve_config
+from svbrdf_render.errors import SVBRDFError
 
 from .clock import CLOCK_TAG
 from .hooks import Run
 from .progress import format_duration
 from .tracking import Tracker, flatten_params, run_tags
 
-__all__ = ["open_tracker", "plan", "nan_message", "summary_metrics", "count_params"]
+__all__ = ["open_tracker", "plan", "nan_message", "with_checkpoint_kept", "summary_metrics", "count_params"]
 
 
 def count_params(module: nn.Module | None) -> int:
@@ -116,3 +117,15 @@ def summary_metrics(run: Run) -> dict[str, float]:
 
         out["train/peak_cuda_mb"] = torch.cuda.max_memory_allocated(run.dist.device) / 2**20
     return out
+
+
+def with_checkpoint_kept(error: SVBRDFError, run: Run) -> SVBRDFError:
+    """A write failure during the fit, saying which checkpoint is left to resume from."""
+    kept = (
+        f"the checkpoint of step {run.saved_at} is kept: --resume continues from it"
+        if run.ckpt_path.is_file()
+        else "no checkpoint was written yet"
+    )
+    said = type(error)(f"{error}; {kept}")
+    said.exit_code = error.exit_code
+    return said

@@ -107,12 +107,12 @@ def fit(recipe: Recipe | None, options: FitOptions) -> FitResult:
 
 
 def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> FitResult:
-    out = Path(options.out)
-    state = check_out(out, resume=options.resume, force=options.force, init=options.init, main=dist.main)
+    o = options
+    state = check_out(Path(o.out), resume=o.resume, force=o.force, init=o.init, main=dist.main)
     recipe = resolve_resume(recipe, state)
     check_recipe(recipe, recipe.source or recipe.name)  # a Recipe made in Python is checked too
     run, real_name = _setup(recipe, options, dist, state)
-    del state
+    del state  # a paper-size checkpoint: over 1 GB
     if dist.main:
         _start_tracking(run, options, real_name)
     validation = Validation()
@@ -208,7 +208,9 @@ def _loop(run: Run, hooks: list) -> tuple[str, str]:
             with contextlib.suppress(Exception):  # the store may be what failed: keep that error
                 run.tracker.finish("FAILED")
             if isinstance(e, SVBRDFError) and e.exit_code == OutputError.exit_code:
-                raise _kept(e, run) from None
+                from .fitlog import with_checkpoint_kept
+
+                raise with_checkpoint_kept(e, run) from None
             raise
 
 
@@ -236,15 +238,3 @@ def _steps(run: Run, hooks: list, interrupt: Interrupt) -> tuple[str, str]:
             return "FINISHED", f"time budget of {t.max_minutes:g} min reached at step {gan.step}"
         run.watch.start()
     return "FINISHED", ""
-
-
-def _kept(error: SVBRDFError, run: Run) -> SVBRDFError:
-    """A write failure during the fit, saying which checkpoint is left to resume from."""
-    kept = (
-        f"the checkpoint of step {run.saved_at} is kept: --resume continues from it"
-        if run.ckpt_path.is_file()
-        else "no checkpoint was written yet"
-    )
-    said = type(error)(f"{error}; {kept}")
-    said.exit_code = error.exit_code
-    return said
