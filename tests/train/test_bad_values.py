@@ -62,6 +62,7 @@ RECIPE_ROWS = [
     (_set("data.count=1"), ["data.count is 1", "train.batch 2"]),
     (_set("data.seed=-1"), ["seed must be in [0, 4294967295]", "got -1"]),
     (_set("data.workers=-1"), ["workers must be at least 0, got -1"]),
+    (_set("data.generate=gpu"), ["field 'generate' must be one of 'workers', 'device'", "got 'gpu'"]),
     (_set("data.path=train.h5"), ["data.path is train.h5 but data.source is 'procedural'", "data.path=null"]),
     (_set("data.source=mix", "data.mix=[{source: procedural, weight: 0}]"), ["mix[0].weight", "got 0"]),
     (_set("generator.config.attention=nope"), ["field 'attention'", "unknown attention module 'nope'"]),

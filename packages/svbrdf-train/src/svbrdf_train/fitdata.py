@@ -25,17 +25,25 @@ before their random crop, validation tiles are resized whole.
 
 ``data.real_validation`` names a second validation set of real materials (a Des18 folder or
 shards), resized whole to the training resolution: :func:`real_validation_set`.
+
+``data.generate: device`` makes the training batches with :func:`device_batch` in the
+training process instead of a DataLoader's workers: procedural samples are computed on the
+training device, the rest is read on the CPU and moved there.
 """
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import math
+import operator
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
-from torch.utils.data import ConcatDataset, Dataset, Subset
+from torch.utils.data import ConcatDataset, Dataset, Subset, default_collate
 
 from .data import Des18Folder, ProceduralMaterials
 from .errors import DataError
@@ -44,6 +52,7 @@ from .recipe import DataSection, Recipe
 __all__ = [
     "build_datasets",
     "data_paths",
+    "device_batch",
     "open_materials",
     "real_validation_set",
     "set_epoch",
@@ -203,6 +212,119 @@ class Mixture(Dataset):
         source = self.sources[int(self.which[index])]
         set_epoch(source, self.epoch * (self.count + 1) + int(self.passes[index]))
         return source[int(self.index[index])]
+
+
+def device_batch(dataset: Dataset, indices: Sequence[int], device: torch.device | str) -> dict[str, Any]:
+    """Samples ``indices`` of a training set as one batch on ``device``: ``{"input": (B, 3, R, R),
+    "maps": (B, 10, R, R), "name": [B names]}``, the values a ``DataLoader`` over the same
+    indices gives (default collate), without worker processes.
+
+    ``data.generate: device`` makes training batches this way. Looks through the wrappers
+    :func:`build_datasets` makes: a ``Subset`` maps the indices, a :class:`Mixture` reads
+    each of its sources for the positions that come from it (under the epoch
+    ``Mixture.__getitem__`` would set, and leaving the sources' epochs as a loop over the
+    positions would) and puts the batch back in order, a ``ConcatDataset`` likewise.
+    :class:`ProceduralMaterials` are computed on ``device`` (:meth:`ProceduralMaterials.batch`:
+    on the CPU the very bytes of the DataLoader, elsewhere the same materials up to rounding,
+    with the device's photo noise); anything else (shards, Des18 folders, :class:`Resized`)
+    is read on the CPU item by item, collated and moved.
+    """
+    indices = [operator.index(i) for i in indices]
+    if not indices:
+        raise DataError("device_batch: expected at least one sample index")
+    return _device_batch(dataset, indices, torch.device(device))
+
+
+def _device_batch(data: Dataset, indices: list[int], device: torch.device) -> dict[str, Any]:
+    if isinstance(data, Subset):
+        return _device_batch(data.dataset, [data.indices[i] for i in indices], device)
+    if isinstance(data, ProceduralMaterials):
+        return data.batch(indices, device=device)
+    if isinstance(data, Mixture):
+        return _mixture_batch(data, indices, device)
+    if isinstance(data, ConcatDataset):
+        n = len(data)
+        where = []
+        for i in indices:
+            if i < 0:
+                if -i > n:
+                    raise ValueError("absolute value of index should not exceed dataset length")
+                i += n
+            k = bisect.bisect_right(data.cumulative_sizes, i)
+            where.append((k, i - (data.cumulative_sizes[k - 1] if k else 0)))
+        return _gather(
+            [
+                (positions, _device_batch(data.datasets[k], [where[p][1] for p in positions], device))
+                for k, positions in _groups([k for k, _ in where]).items()
+            ],
+            len(indices),
+        )
+    # What a DataLoader's fetcher does, then its default collate; then to the device.
+    getitems = getattr(data, "__getitems__", None)
+    items = getitems(indices) if getitems else [data[i] for i in indices]
+    batch = default_collate(items)
+    return {k: v.to(device) if isinstance(v, torch.Tensor) else v for k, v in batch.items()}
+
+
+def _groups(keys: list) -> dict[Any, list[int]]:
+    """The positions of each key, keys in order of first appearance."""
+    out: dict[Any, list[int]] = {}
+    for position, key in enumerate(keys):
+        out.setdefault(key, []).append(position)
+    return out
+
+
+def _gather(parts: list[tuple[list[int], dict[str, Any]]], size: int) -> dict[str, Any]:
+    """Batches of some positions each -> one batch of ``size`` in position order."""
+    first = parts[0][1]
+    out: dict[str, Any] = {}
+    for key, value in first.items():
+        if isinstance(value, torch.Tensor):
+            t = value.new_empty((size, *value.shape[1:]))
+            for positions, part in parts:
+                if part[key].shape[1:] != value.shape[1:]:
+                    raise DataError(
+                        f"device_batch: {key} of shape {tuple(part[key].shape[1:])} and "
+                        f"{tuple(value.shape[1:])} in one batch; every source must give one size"
+                    )
+                t[torch.tensor(positions, device=t.device)] = part[key]
+            out[key] = t
+        else:
+            items: list[Any] = [None] * size
+            for positions, part in parts:
+                for p, v in zip(positions, part[key], strict=True):
+                    items[p] = v
+            out[key] = items
+    return out
+
+
+def _mixture_batch(mix: Mixture, indices: list[int], device: torch.device) -> dict[str, Any]:
+    """:func:`device_batch` of a :class:`Mixture`: what ``mix[i]`` reads, source by source."""
+    at = torch.tensor(indices)
+    which, local, passes = mix.which[at].tolist(), mix.index[at].tolist(), mix.passes[at].tolist()
+    epoch = [mix.epoch * (mix.count + 1) + p for p in passes]  # as Mixture.__getitem__ sets it
+    parts = []
+    for k, positions in _groups(which).items():
+        source = mix.sources[k]
+        # A source with epochs (Des18's crops) is read pass by pass, each under its epoch;
+        # one without, all at once.
+        key = (lambda p: epoch[p]) if _has_epochs(source) else (lambda p: None)
+        for e, group in _groups([key(p) for p in positions]).items():
+            members = [positions[g] for g in group]
+            if e is not None:
+                set_epoch(source, e)
+            parts.append((members, _device_batch(source, [local[p] for p in members], device)))
+    # Leave every source at the epoch a loop over the positions would have left it at.
+    last = {k: p for p, k in enumerate(which)}
+    for k, p in sorted(last.items(), key=lambda item: item[1]):
+        set_epoch(mix.sources[k], epoch[p])
+    return _gather(parts, len(indices))
+
+
+def _has_epochs(data: Dataset) -> bool:
+    while isinstance(data, Subset):
+        data = data.dataset
+    return hasattr(data, "set_epoch")
 
 
 class Resized(Dataset):

@@ -198,7 +198,17 @@ class DataSection:
     )
     seed: int = param(0, "procedural data seed; validation uses seed + 1, so the two never overlap")
     validation: int = param(64, "held-out samples for periodic validation")
-    workers: int = param(0, "DataLoader worker processes")
+    workers: int = param(0, "DataLoader worker processes (with generate: workers)")
+    generate: str = param(
+        "workers",
+        "where training batches are made: workers (a DataLoader over data.workers CPU processes; "
+        "0: in the training process) or device (in the training process, on the training device: "
+        "procedural materials and their photos are computed there, the whole batch at once, and "
+        "shards and Des18 strips are read on the CPU and moved). device suits a GPU, whose "
+        "training outruns CPU workers generating procedural data; on a CPU both give the same "
+        "bytes, on a GPU device gives the same materials with the GPU's own photo noise",
+        choices=("workers", "device"),
+    )
     real_validation: str | None = param(
         None,
         "a Des18 folder or .h5 shards of real materials to validate on as well, brought to the "

@@ -28,6 +28,7 @@ Example:
     >>> sample["maps"].shape, sample["name"]
     (torch.Size([10, 256, 256]), 'procedural:0:3')
     >>> batch = data.batch([3, 4])             # the same samples, stacked, faster
+    >>> batch = data.batch([3, 4], device="cuda")   # computed on a GPU (see below)  # doctest: +SKIP
 
 Reproducibility: the output for ``(seed, index, resolution)`` is the same bytes in any
 process, DataLoader worker, thread count and batch (``batch([3, 4])`` equals
@@ -37,6 +38,13 @@ compute each sample alike whatever the batch (see :mod:`.procedural_noise`). Acr
 machines the bytes agree where torch runs the same CPU kernels (AVX2 and AVX512 builds
 agree; torch's scalar fallback rounds ``grid_sample`` differently in the last bit).
 :data:`GENERATOR_VERSION` changes whenever the output on one machine does.
+
+On a training device (``batch(indices, device="cuda")``, what ``data.generate: device``
+uses): the per-sample draws are made on the CPU as above and copied over, the pixel grid,
+fields, normals and photos are computed on the device, the whole batch at once. A sample is
+the same material under the same camera, flash and exposure as on the CPU; its values
+differ in rounding, and its photo noise is the device generator's draw from the same seed.
+The same ``(seed, indices)`` gives the same bytes every time on the same device model.
 
 Maps: heights become normals by central differences in patch units (the patch spans
 ``[-1, 1]^2``; normal ``(-dh/dx, -dh/dy, 1)`` normalised, x right, y up, image row 0 at
@@ -57,6 +65,7 @@ from torch import Tensor
 from torch.utils.data import Dataset
 
 from svbrdf_render import DES18_EFFECTS, SVBRDF, Camera, Flash, Scene, render
+from svbrdf_render.renderer import _GAMMA_FLOOR
 
 from ..errors import DataError
 from .procedural_families import FAMILY_TABLE, Fields, pixel_grid, stack_choices
@@ -198,6 +207,88 @@ def photo_scene(seed: int, index: int, settings: PhotoSettings | None = None) ->
     return Scene(camera, (flash,), effects)
 
 
+#: The image stages of a photo scene that :func:`_photos` applies per sample, in the order
+#: the renderer runs them (the rest of a photo scene's effects is the shading).
+_IMAGE_STAGES = ("exposure", "noise", "clip", "gamma")
+
+
+def _batchable(scenes: Sequence[Scene]) -> bool:
+    """Whether :func:`_photos` can render ``scenes`` together: photo scenes (one flash, a
+    camera at a finite position) with the same shading and no image stage but its own."""
+    fx = scenes[0].effects
+    shading = {k: v for k, v in fx.items() if k not in _IMAGE_STAGES}
+    return all(
+        len(s.lights) == 1
+        and isinstance(s.lights[0], Flash)
+        and s.camera.directional is False
+        and s.camera.position.shape == (3,)
+        and s.lights[0].intensity.dim() == 0
+        and {"exposure", "noise", "clip"} <= set(s.effects)
+        and {k: v for k, v in s.effects.items() if k not in _IMAGE_STAGES} == shading
+        for s in scenes
+    )
+
+
+def _per_sample(values: Sequence[float], device: torch.device) -> Tensor:
+    """Python floats -> a float32 ``(B, 1, 1, 1)`` tensor (each value rounded to float32, as
+    the renderer's stages round a Python float that multiplies a float32 image)."""
+    return torch.tensor(values, dtype=torch.float32).view(-1, 1, 1, 1).to(device)
+
+
+def _photos(packed: Tensor, scenes: Sequence[Scene]) -> Tensor:
+    """The photos ``(B, 3, R, R)`` of the materials ``packed`` ``(B, 10, R, R)``, sample ``k``
+    under ``scenes[k]`` (from :func:`photo_scene`), in one render on the maps' device.
+
+    The cameras and flashes become per-sample configurations of one scene (shape ``(B, 1)``),
+    and exposure, noise, clip and gamma are applied with per-sample tensors, op for op as the
+    renderer's image stages apply them. Photo ``k``'s noise is drawn as :func:`render` draws
+    it: ``randn`` of its own shape from a generator on the device seeded with the scene's
+    noise seed. So each photo is what ``render(maps[k], scenes[k])`` makes on that device
+    (on the CPU the very bytes: tested). Used on accelerators, where one render of ``B``
+    samples replaces ``B`` renders of small kernels; :meth:`ProceduralMaterials.batch` keeps
+    one render per sample on the CPU, where that is faster (8 photos at 256 px on one
+    thread: 46 ms one by one, 75 ms batched, which spills the caches).
+    """
+    b, device = packed.shape[0], packed.device
+    svbrdf = SVBRDF.unpack(packed, validate=False)
+    if not _batchable(scenes):  # not photo scenes: one render each
+        return torch.cat([render(svbrdf[k : k + 1], s) for k, s in enumerate(scenes)])
+    flashes = [s.lights[0] for s in scenes]
+    # The field of view only matters to vignetting, which photo scenes do not declare.
+    camera = Camera(torch.stack([s.camera.position for s in scenes]).view(b, 1, 3), scenes[0].camera.fov)
+    flash = Flash(
+        torch.stack([f.intensity for f in flashes]).view(b, 1),
+        torch.stack([f.offset for f in flashes]).view(b, 1, 3),
+        flashes[0].color,
+    )
+    shading = {k: v for k, v in scenes[0].effects.items() if k not in _IMAGE_STAGES}
+    x = render(svbrdf, Scene(camera, (flash,), shading))[:, 0]
+    fx = [s.effects for s in scenes]
+    x = x * _per_sample([2.0 ** f["exposure"]["ev"] for f in fx], device)
+    noise = [f["noise"] for f in fx]
+    z = torch.cat(
+        [
+            torch.randn(
+                (1, *x.shape[1:]),
+                generator=torch.Generator(device=device).manual_seed(n["seed"]),
+                dtype=x.dtype,
+                device=device,
+            )
+            for n in noise
+        ]
+    )
+    sigma = _per_sample([n["sigma"] for n in noise], device)
+    shot = _per_sample([n["shot"] for n in noise], device)
+    variance = _per_sample([n["sigma"] * n["sigma"] for n in noise], device)
+    # The renderer's noise stage: sqrt(sigma^2 + shot x) with shot noise, sigma without.
+    x = x + z * torch.where(shot > 0, torch.sqrt(variance + shot * x.clamp_min(0)), sigma)
+    x = torch.minimum(x.clamp_min(0), _per_sample([f["clip"]["max"] for f in fx], device))
+    for k, f in enumerate(fx):
+        if "gamma" in f:  # rare (PhotoSettings.gamma_probability): one sample at a time
+            x[k : k + 1] = x[k : k + 1].clamp_min(_GAMMA_FLOOR).pow(1.0 / f["gamma"]["gamma"])
+    return x
+
+
 # -- materials -----------------------------------------------------------------------------
 
 
@@ -252,7 +343,8 @@ def _recipe(seed: int, index: int, families: tuple[str, ...], mix_p: float, fami
 
 
 def _mask(seeds: list[int], x: Tensor, y: Tensor) -> tuple[Tensor, Tensor]:
-    """Soft masks ``(B, 1, H, W)`` in [0, 1] that blend two materials: thresholded fBm.
+    """Soft masks ``(B, 1, H, W)`` in [0, 1] that blend two materials: thresholded fBm, on
+    the device of ``x`` and ``y``.
 
     Returns the mask of the albedos and roughness, and a wider one for the heights: two
     families' surfaces lie at different levels, and a sharp step between them would be a
@@ -272,7 +364,7 @@ def _mask(seeds: list[int], x: Tensor, y: Tensor) -> tuple[Tensor, Tensor]:
                 "lattice": d.lattice(1),
             }
         )
-    p = stack_choices(choices)
+    p = stack_choices(choices, x.device)
     u = (x * p["cos"] - y * p["sin"]) * p["freq"]
     v = (x * p["sin"] + y * p["cos"]) * p["freq"]
     n = fbm(p["lattice"], u, v, 4)
@@ -280,9 +372,10 @@ def _mask(seeds: list[int], x: Tensor, y: Tensor) -> tuple[Tensor, Tensor]:
     return smoothstep(t - soft, t + soft, n), smoothstep(t - soft - 0.1, t + soft + 0.1, n)
 
 
-def _fields(recipes: list[_Recipe], resolution: int) -> Fields:
-    """The (mixed) fields of every recipe on the grid with a one-pixel margin."""
-    x, y = pixel_grid(resolution, margin=1)
+def _fields(recipes: list[_Recipe], resolution: int, device: torch.device | None = None) -> Fields:
+    """The (mixed) fields of every recipe on the grid with a one-pixel margin, computed on
+    ``device`` (default the CPU); the draws are made on the CPU and copied there."""
+    x, y = pixel_grid(resolution, margin=1, device=device)
     b = len(recipes)
     # Jobs: every sample's first component, then the second of the mixed ones.
     jobs = [r.components[0] for r in recipes]
@@ -294,18 +387,19 @@ def _fields(recipes: list[_Recipe], resolution: int) -> Fields:
     for name in dict.fromkeys(f for f, _ in jobs):
         members = [j for j, (f, _) in enumerate(jobs) if f == name]
         family = FAMILY_TABLE[name]
-        choices = stack_choices([family.draw(Draw(jobs[j][1])) for j in members])
+        choices = stack_choices([family.draw(Draw(jobs[j][1])) for j in members], device)
         parts.append(family.fields(choices, x, y))
         order += members
     inverse = torch.empty(len(jobs), dtype=torch.long)
     inverse[torch.tensor(order)] = torch.arange(len(jobs))
+    inverse = inverse.to(x.device)
     maps = []
     for k in range(4):
         t = torch.cat([p[k].expand(-1, -1, resolution + 2, resolution + 2) for p in parts])
         maps.append(t.index_select(0, inverse))
     if mixed:
         mask, height_mask = _mask([recipes[i].mask_seed for i in mixed], x, y)
-        idx = torch.tensor(mixed)
+        idx = torch.tensor(mixed, device=x.device)
         for k in range(4):
             first, second = maps[k][idx], maps[k][b:]
             m = height_mask if k == 0 else mask
@@ -323,6 +417,11 @@ def _normals(height: Tensor) -> Tensor:
     dhdy = (height[..., :-2, 1:-1] - height[..., 2:, 1:-1]) * (h / 4)
     length = torch.sqrt(dhdx * dhdx + dhdy * dhdy + 1)
     return torch.cat([-dhdx / length, -dhdy / length, 1 / length], dim=1)
+
+
+def _device(device: torch.device | str | None) -> torch.device:
+    """``device`` as a ``torch.device``; ``None`` is the CPU."""
+    return torch.device("cpu") if device is None else torch.device(device)
 
 
 def _check_index(index, count: int | None = None) -> int:
@@ -349,8 +448,10 @@ def _packed(
     families: Sequence[str] | None,
     mix: float,
     family: str | None,
+    device: torch.device | str | None = None,
 ) -> tuple[Tensor, list[str]]:
-    """:func:`materials` as one ``(B, 10, R, R)`` tensor in the ``SVBRDF.pack`` layout."""
+    """:func:`materials` as one ``(B, 10, R, R)`` tensor in the ``SVBRDF.pack`` layout, on
+    ``device`` (default the CPU)."""
     families = _check_families(families)
     resolution = _check_resolution(resolution)
     if not 0 <= mix <= 1:
@@ -359,17 +460,19 @@ def _packed(
     if not indices:
         raise DataError("materials: expected at least one sample index")
     recipes = [_recipe(seed, i, families, mix, family) for i in indices]
-    # Chunks of about _CHUNK_PIXELS: larger batches spill the noise octaves out of the
-    # caches and run slower (measured: 2 samples at 256 x 256 are fastest on 2 cores).
-    chunk = max(1, _CHUNK_PIXELS // (resolution * resolution))
+    device = _device(device)
+    # On the CPU, chunks of about _CHUNK_PIXELS: larger batches spill the noise octaves out
+    # of the caches and run slower (measured: 2 samples at 256 x 256 are fastest on 2 cores).
+    # On an accelerator the whole batch at once: fewer, larger kernels.
+    chunk = max(1, _CHUNK_PIXELS // (resolution * resolution)) if device.type == "cpu" else len(recipes)
     crop = (..., slice(1, -1), slice(1, -1))
     parts = []
     with torch.no_grad():
         for first in range(0, len(recipes), chunk):
             part = recipes[first : first + chunk]
-            f = _fields(part, resolution)
+            f = _fields(part, resolution, device)
             bump, value, chroma = (
-                torch.tensor([getattr(r, k) for r in part], dtype=torch.float32).view(-1, 1, 1, 1)
+                torch.tensor([getattr(r, k) for r in part], dtype=torch.float32).view(-1, 1, 1, 1).to(device)
                 for k in ("bump", "value", "chroma")
             )
             diffuse = f.diffuse[crop]
@@ -393,6 +496,7 @@ def materials(
     families: Sequence[str] | None = None,
     mix: float = 0.3,
     family: str | None = None,
+    device: torch.device | str | None = None,
 ) -> tuple[SVBRDF, list[str]]:
     """The maps of samples ``indices`` of ``seed``, batched, and their family names.
 
@@ -400,11 +504,13 @@ def materials(
         families: the families to draw from (default: all of :data:`FAMILIES`).
         mix: probability that a sample blends two materials (named ``"a+b"``).
         family: force this family (or ``"a+b"``) for every sample instead of drawing one.
+        device: where the maps are computed and returned (default the CPU); the random
+            draws are made on the CPU either way.
 
     Returns:
         ``(SVBRDF of (B, C, R, R), names)``; float32, values in range, unit normals.
     """
-    packed, names = _packed(seed, indices, resolution, families, mix, family)
+    packed, names = _packed(seed, indices, resolution, families, mix, family, device)
     maps = SVBRDF.unpack(packed, validate=False)
     return SVBRDF(*(t.contiguous() for t in maps.maps().values()), validate=False), names
 
@@ -492,20 +598,35 @@ class ProceduralMaterials(Dataset):
             {"input": b["input"][k], "maps": b["maps"][k], "name": b["name"][k]} for k in range(len(indices))
         ]
 
-    def batch(self, indices: Sequence[int]) -> dict[str, Any]:
+    def batch(self, indices: Sequence[int], device: torch.device | str | None = None) -> dict[str, Any]:
         """Samples ``indices`` stacked: ``input`` ``(B, 3, R, R)``, ``maps`` ``(B, 10, R, R)``,
-        ``name`` a list. The same values as one by one, in less time."""
+        ``name`` a list. The same values as one by one, in less time.
+
+        ``device``: where the maps and photos are computed and returned (default the CPU,
+        whose bytes are the reference :data:`GENERATOR_VERSION` tracks). The random draws
+        stay on the CPU (they define the distribution), so on any device a sample is the
+        same material under the same camera, flash and exposure; an accelerator computes it
+        in one pass over the whole batch and one render, with values that differ from the
+        CPU's in rounding, and photo noise drawn by the device's own generator from the
+        same seed: other noise than the CPU's, the same bytes every time on that device.
+        """
         indices = [_check_index(i, self.count) for i in indices]
-        packed, _ = _packed(self.seed, indices, self.resolution, self.families, self.mix, None)
+        device = _device(device)
+        packed, _ = _packed(self.seed, indices, self.resolution, self.families, self.mix, None, device)
+        scenes = [self.scene(i) for i in indices]
         with torch.no_grad():
-            # One render per sample: each photo has its own exposure and noise seed (scene
-            # parameters, not per-sample tensors), and costs no more than a batched render.
-            photos = [
-                render(SVBRDF.unpack(packed[k : k + 1], validate=False), self.scene(i))
-                for k, i in enumerate(indices)
-            ]
+            if device.type == "cpu":
+                # One render per sample: on the CPU faster than one batched render (_photos).
+                photos = torch.cat(
+                    [
+                        render(SVBRDF.unpack(packed[k : k + 1], validate=False), s)
+                        for k, s in enumerate(scenes)
+                    ]
+                )
+            else:
+                photos = _photos(packed, scenes)
         return {
-            "input": torch.cat(photos),
+            "input": photos,
             "maps": packed,
             "name": [f"procedural:{self.seed}:{i}" for i in indices],
         }

@@ -7,7 +7,8 @@ A family is two functions (see :class:`Family`):
   of Python floats, RGB tuples and tensors;
 - ``fields(p, x, y)`` computes the maps of a *batch* of materials of that family from the
   stacked choices ``p`` (floats become ``(B, 1, 1, 1)``, RGB tuples ``(B, 3, 1, 1)``,
-  tensors gain a leading ``B``) at pixel positions ``x, y`` in patch units.
+  tensors gain a leading ``B``) at pixel positions ``x, y`` in patch units, on the device
+  where ``x``, ``y`` and ``p`` lie (:func:`pixel_grid` and :func:`stack_choices` take one).
 
 Fields are the maps before normals: a height in patch units (the patch spans
 ``[-1, 1]^2``; normals come from its slopes; about zero on average, so that two families
@@ -79,9 +80,12 @@ def grey(value: float) -> tuple[float, float, float]:
     return (value, value, value)
 
 
-def stack_choices(choices: list[dict[str, Any]]) -> dict[str, Tensor]:
+def stack_choices(
+    choices: list[dict[str, Any]], device: torch.device | str | None = None
+) -> dict[str, Tensor]:
     """Per-material choices -> batched tensors: floats ``(B, 1, 1, 1)``, RGB ``(B, 3, 1, 1)``,
-    tensors ``(B, ...)``."""
+    tensors ``(B, ...)``; on ``device`` when given (stacked on the CPU, then copied over
+    together: one transfer of every float32 table instead of one per key)."""
     out = {}
     for key in choices[0]:
         values = [c[key] for c in choices]
@@ -90,7 +94,22 @@ def stack_choices(choices: list[dict[str, Any]]) -> dict[str, Tensor]:
         else:
             t = torch.tensor(values, dtype=torch.float32)
             out[key] = t.view(len(values), -1, 1, 1)
-    return out
+    if device is None or torch.device(device).type == "cpu":
+        return out
+    return _to_device(out, torch.device(device))
+
+
+def _to_device(tensors: dict[str, Tensor], device: torch.device) -> dict[str, Tensor]:
+    """``tensors`` on ``device``: the float32 ones packed into one buffer and copied at once
+    (a copy per tensor costs a transfer's latency each), the others one by one."""
+    floats = [k for k, t in tensors.items() if t.dtype == torch.float32]
+    out = {k: t.to(device) for k, t in tensors.items() if t.dtype != torch.float32}
+    if floats:
+        flat = torch.cat([tensors[k].reshape(-1) for k in floats]).to(device)
+        sizes = [tensors[k].numel() for k in floats]
+        for k, part in zip(floats, torch.split(flat, sizes), strict=True):
+            out[k] = part.view(tensors[k].shape)
+    return {k: out[k] for k in tensors}
 
 
 # -- shared pieces -------------------------------------------------------------------------
@@ -750,21 +769,28 @@ FAMILY_TABLE: dict[str, Family] = {
 }
 
 
-def pixel_grid(resolution: int, margin: int = 0) -> tuple[Tensor, Tensor]:
+def pixel_grid(
+    resolution: int, margin: int = 0, device: torch.device | str | None = None
+) -> tuple[Tensor, Tensor]:
     """Pixel centres in patch units, with ``margin`` extra pixels on every side.
 
     ``x`` ``(1, 1, 1, R + 2m)`` left to right, ``y`` ``(1, 1, R + 2m, 1)`` top (``+1``) to
-    bottom, as :func:`svbrdf_render.surface_positions` places them.
+    bottom, as :func:`svbrdf_render.surface_positions` places them; made on ``device``
+    (default the CPU), so that the fields computed from them are computed there.
     """
-    t = ((torch.arange(resolution + 2 * margin, dtype=torch.float32) - margin) * 2 + 1) / resolution - 1
+    n = resolution + 2 * margin
+    t = ((torch.arange(n, dtype=torch.float32, device=device) - margin) * 2 + 1) / resolution - 1
     return t.view(1, 1, 1, -1), (-t).view(1, 1, -1, 1)
 
 
-def family_fields(name: str, seeds: list[int], resolution: int) -> Fields:
-    """The fields of materials of one family drawn from ``seeds`` (for tests and inspection)."""
+def family_fields(
+    name: str, seeds: list[int], resolution: int, device: torch.device | str | None = None
+) -> Fields:
+    """The fields of materials of one family drawn from ``seeds`` (for tests and inspection),
+    computed on ``device`` (default the CPU)."""
     family = FAMILY_TABLE[name]
-    x, y = pixel_grid(resolution)
+    x, y = pixel_grid(resolution, device=device)
     with torch.no_grad():
-        f = family.fields(stack_choices([family.draw(Draw(s)) for s in seeds]), x, y)
+        f = family.fields(stack_choices([family.draw(Draw(s)) for s in seeds], device), x, y)
     size = (-1, -1, resolution, resolution)
     return Fields(*(t.expand(*size) for t in f[:4]), {k: m.expand(*size) for k, m in f.parts.items()})

@@ -250,7 +250,7 @@ def worley(points: Tensor, u: Tensor, v: Tensor) -> tuple[Tensor, Tensor, Tensor
     fu, fv = u - iu, v - iv
     big = torch.full_like(u, 1e4)
     f1, f2 = big, big
-    cell = torch.zeros(u.shape, dtype=torch.long)
+    cell = torch.zeros(u.shape, dtype=torch.long, device=u.device)
     px, py = points[:, 0], points[:, 1]
     for dv in (-1.0, 0.0, 1.0):
         row = wrap(iv + dv, period) * period
