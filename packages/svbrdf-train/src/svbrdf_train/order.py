@@ -99,7 +99,7 @@ class BatchOrder:
 
     def _make(self, indices: From, epoch: int) -> Iterator[dict]:
         batch = self.recipe.train.batch
-        if getattr(self.recipe.data, "generate", "workers") == "device":  # TODO(merge)
+        if self.recipe.data.generate == "device":
             from .fitdata import device_batch
 
             chosen = list(indices)
