@@ -94,7 +94,9 @@ class MultiScaleAttention(AttentionModule):
             size = (max(1, h // s), max(1, w // s))
             pooled = x if size == (h, w) else F.adaptive_avg_pool2d(x, size)
             y = self.conv(pooled)
-            if y.shape[-2:] != (h, w):
+            # A 1x1 map upsampled bilinearly is a constant: broadcasting it is the same sum, and
+            # spares torch.compile's CPU backend a scatter it fails to compile (torch 2.13).
+            if y.shape[-2:] != (h, w) and y.shape[-2:] != (1, 1):
                 y = F.interpolate(y, size=(h, w), mode="bilinear", align_corners=False)
             logits = y if logits is None else logits + y
         return torch.cat([x, torch.sigmoid(logits) * x], dim=1)
