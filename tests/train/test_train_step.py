@@ -165,3 +165,15 @@ def test_the_weights_file_is_the_checkpoint_without_what_resuming_needs(tmp_path
         assert weights[net].keys() == full[net].keys()
         assert all(torch.equal(weights[net][k], full[net][k]) for k in full[net])
     assert (tmp_path / "weights.pt").stat().st_size * 2.5 < (tmp_path / "last.pt").stat().st_size
+
+
+def test_a_fit_with_batches_made_in_the_training_process_is_the_same_fit(tmp_path):
+    """data.generate: device on the CPU makes the very batches the DataLoader makes, so the fit
+    reaches the same weights bit for bit (on a GPU the values differ by rounding and photo noise)."""
+    weights = {}
+    for generate in ("workers", "device"):
+        recipe = _recipe("radn", **{"train.max_steps": 3, "data.generate": generate})
+        fit(recipe, FitOptions(out=tmp_path / generate, progress=False, track=False))
+        weights[generate] = load_checkpoint(tmp_path / generate / "last.pt")["generator"]
+    assert weights["workers"].keys() == weights["device"].keys()
+    assert all(torch.equal(weights["workers"][k], weights["device"][k]) for k in weights["workers"])
