@@ -4,7 +4,7 @@
 Each round makes a new SQLite store (a path that does not exist yet), starts ``--fits`` smoke
 fits on it at the same instant, waits for them, and counts a run as kept when the fit exited 0
 and its run is FINISHED in the store with its metrics (``train/loss``, ``val/rmse/render``) and
-its ``checkpoints/last.pt`` artifact. MLflow creates a new store's tables without a lock; before
+its ``checkpoints/weights.pt`` artifact. MLflow creates a new store's tables without a lock; before
 ``svbrdf_train.tracking`` took one, two of three such fits died and once left the store
 unopenable (issue 14).
 
@@ -35,7 +35,7 @@ def _kept(client, experiment: str, outs: list[Path]) -> tuple[int, list[str]]:
     for run in runs:
         missing = [m for m in ("train/loss", "val/rmse/render") if m not in run.data.metrics]
         names = {a.path for a in client.list_artifacts(run.info.run_id, "checkpoints")}
-        if run.info.status != "FINISHED" or missing or "checkpoints/last.pt" not in names:
+        if run.info.status != "FINISHED" or missing or "checkpoints/weights.pt" not in names:
             state = f"{run.info.status}, missing {missing or '-'}, artifacts {sorted(names)}"
             problems.append(f"run {run.info.run_id}: {state}")
         else:

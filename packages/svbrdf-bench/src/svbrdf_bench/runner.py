@@ -168,13 +168,15 @@ def _train(model: str, options: BenchOptions, parent: str, work: Path) -> tuple[
     return summary["run_id"], wall, out / "last.pt"
 
 
-def _checkpoint(run_id: str, work: Path, local: Path | None) -> dict:
-    """The fit's checkpoint: the file it wrote here, else the one logged in its run."""
+def _checkpoint(run_id: str, local: Path | None) -> dict:
+    """The fit's checkpoint: the file it wrote here, else the weights logged in its run (or an
+    older run's whole checkpoint)."""
     from svbrdf_train.checkpoint import load_checkpoint
-    from svbrdf_train.predict import RUN_CHECKPOINT
 
     if local is None:
-        local = Path(_client().download_artifacts(run_id, RUN_CHECKPOINT, str(work)))
+        from svbrdf_train.init import download_run_checkpoint
+
+        return download_run_checkpoint(run_id)
     return load_checkpoint(local, source=f"the checkpoint of MLflow run {run_id}")
 
 
@@ -436,7 +438,7 @@ def run_bench(options: BenchOptions) -> str:
                 return figures, per_sample
 
             for label, run_id, wall, source, local in jobs:
-                state = _checkpoint(source or run_id, work, local)
+                state = _checkpoint(source or run_id, local)
                 from svbrdf_train.inference import load_generator
 
                 generator, recipe = load_generator(state, device)
