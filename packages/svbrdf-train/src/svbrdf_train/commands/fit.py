@@ -99,7 +99,8 @@ def _data_overrides(items: tuple[str, ...]) -> dict:
 @click.option(
     "--out",
     type=click.Path(path_type=Path, file_okay=False),
-    help="Folder of the checkpoint, resolved recipe and sample grids [default: runs/RECIPE-SIZE].",
+    help="Folder of the checkpoint (last.pt), the weights alone (weights.pt: for predict and --init), "
+    "the resolved recipe and sample grids [default: runs/RECIPE-SIZE].",
 )
 @click.option(
     "--resume", is_flag=True, help="Continue the fit in --out from its checkpoint, in the same MLflow run."
