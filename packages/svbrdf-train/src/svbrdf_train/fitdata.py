@@ -33,7 +33,6 @@ training device, the rest is read on the CPU and moved there.
 
 from __future__ import annotations
 
-import bisect
 import dataclasses
 import math
 import operator
@@ -208,10 +207,15 @@ class Mixture(Dataset):
                 self.index[where] = torch.cat(order)[: len(where)]
                 self.passes[where] = torch.arange(len(where)) // n
 
+    def locate(self, index: int) -> tuple[int, int, int]:
+        """Where position ``index`` reads: ``(source, sample of it, the source's epoch)``."""
+        epoch = self.epoch * (self.count + 1) + int(self.passes[index])
+        return int(self.which[index]), int(self.index[index]), epoch
+
     def __getitem__(self, index: int) -> dict:
-        source = self.sources[int(self.which[index])]
-        set_epoch(source, self.epoch * (self.count + 1) + int(self.passes[index]))
-        return source[int(self.index[index])]
+        k, local, epoch = self.locate(index)
+        set_epoch(self.sources[k], epoch)
+        return self.sources[k][local]
 
 
 def device_batch(dataset: Dataset, indices: Sequence[int], device: torch.device | str) -> dict[str, Any]:
@@ -223,7 +227,7 @@ def device_batch(dataset: Dataset, indices: Sequence[int], device: torch.device 
     :func:`build_datasets` makes: a ``Subset`` maps the indices, a :class:`Mixture` reads
     each of its sources for the positions that come from it (under the epoch
     ``Mixture.__getitem__`` would set, and leaving the sources' epochs as a loop over the
-    positions would) and puts the batch back in order, a ``ConcatDataset`` likewise.
+    positions would) and puts the batch back in order.
     :class:`ProceduralMaterials` are computed on ``device`` (:meth:`ProceduralMaterials.batch`:
     on the CPU the very bytes of the DataLoader, elsewhere the same materials up to rounding,
     with the device's photo noise); anything else (shards, Des18 folders, :class:`Resized`)
@@ -242,23 +246,6 @@ def _device_batch(data: Dataset, indices: list[int], device: torch.device) -> di
         return data.batch(indices, device=device)
     if isinstance(data, Mixture):
         return _mixture_batch(data, indices, device)
-    if isinstance(data, ConcatDataset):
-        n = len(data)
-        where = []
-        for i in indices:
-            if i < 0:
-                if -i > n:
-                    raise ValueError("absolute value of index should not exceed dataset length")
-                i += n
-            k = bisect.bisect_right(data.cumulative_sizes, i)
-            where.append((k, i - (data.cumulative_sizes[k - 1] if k else 0)))
-        return _gather(
-            [
-                (positions, _device_batch(data.datasets[k], [where[p][1] for p in positions], device))
-                for k, positions in _groups([k for k, _ in where]).items()
-            ],
-            len(indices),
-        )
     # What a DataLoader's fetcher does, then its default collate; then to the device.
     getitems = getattr(data, "__getitems__", None)
     items = getitems(indices) if getitems else [data[i] for i in indices]
@@ -300,9 +287,7 @@ def _gather(parts: list[tuple[list[int], dict[str, Any]]], size: int) -> dict[st
 
 def _mixture_batch(mix: Mixture, indices: list[int], device: torch.device) -> dict[str, Any]:
     """:func:`device_batch` of a :class:`Mixture`: what ``mix[i]`` reads, source by source."""
-    at = torch.tensor(indices)
-    which, local, passes = mix.which[at].tolist(), mix.index[at].tolist(), mix.passes[at].tolist()
-    epoch = [mix.epoch * (mix.count + 1) + p for p in passes]  # as Mixture.__getitem__ sets it
+    which, local, epoch = (list(column) for column in zip(*map(mix.locate, indices), strict=True))
     parts = []
     for k, positions in _groups(which).items():
         source = mix.sources[k]
