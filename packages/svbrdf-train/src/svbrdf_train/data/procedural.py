@@ -65,7 +65,7 @@ from torch import Tensor
 from torch.utils.data import Dataset
 
 from svbrdf_render import DES18_EFFECTS, SVBRDF, Camera, Flash, Scene, render
-from svbrdf_render.renderer import _GAMMA_FLOOR
+from svbrdf_render.renderer import build_plan
 
 from ..errors import DataError
 from .procedural_families import FAMILY_TABLE, Fields, pixel_grid, stack_choices
@@ -229,27 +229,21 @@ def _batchable(scenes: Sequence[Scene]) -> bool:
     )
 
 
-def _per_sample(values: Sequence[float], device: torch.device) -> Tensor:
-    """Python floats -> a float32 ``(B, 1, 1, 1)`` tensor (each value rounded to float32, as
-    the renderer's stages round a Python float that multiplies a float32 image)."""
-    return torch.tensor(values, dtype=torch.float32).view(-1, 1, 1, 1).to(device)
-
-
 def _photos(packed: Tensor, scenes: Sequence[Scene]) -> Tensor:
     """The photos ``(B, 3, R, R)`` of the materials ``packed`` ``(B, 10, R, R)``, sample ``k``
     under ``scenes[k]`` (from :func:`photo_scene`), in one render on the maps' device.
 
-    The cameras and flashes become per-sample configurations of one scene (shape ``(B, 1)``),
-    and exposure, noise, clip and gamma are applied with per-sample tensors, op for op as the
-    renderer's image stages apply them. Photo ``k``'s noise is drawn as :func:`render` draws
-    it: ``randn`` of its own shape from a generator on the device seeded with the scene's
-    noise seed. So each photo is what ``render(maps[k], scenes[k])`` makes on that device
-    (on the CPU the very bytes: tested). Used on accelerators, where one render of ``B``
-    samples replaces ``B`` renders of small kernels; :meth:`ProceduralMaterials.batch` keeps
+    The cameras and flashes become per-sample configurations of one scene (shape ``(B, 1)``)
+    for the shading, the costly part; each photo's exposure, noise, clip and gamma then run
+    through the renderer's own image stages (:func:`svbrdf_render.renderer.build_plan`), noise
+    seeded from its scene as :func:`render` seeds it. So each photo is what
+    ``render(maps[k], scenes[k])`` makes on that device (on the CPU the very bytes: tested).
+    Used on accelerators, where one render of ``B`` samples replaces ``B`` renders of small
+    kernels; :meth:`ProceduralMaterials.batch` keeps
     one render per sample on the CPU, where that is faster (8 photos at 256 px on one
     thread: 46 ms one by one, 75 ms batched, which spills the caches).
     """
-    b, device = packed.shape[0], packed.device
+    b = packed.shape[0]
     svbrdf = SVBRDF.unpack(packed, validate=False)
     if not _batchable(scenes):  # not photo scenes: one render each
         return torch.cat([render(svbrdf[k : k + 1], s) for k, s in enumerate(scenes)])
@@ -262,31 +256,13 @@ def _photos(packed: Tensor, scenes: Sequence[Scene]) -> Tensor:
         flashes[0].color,
     )
     shading = {k: v for k, v in scenes[0].effects.items() if k not in _IMAGE_STAGES}
-    x = render(svbrdf, Scene(camera, (flash,), shading))[:, 0]
-    fx = [s.effects for s in scenes]
-    x = x * _per_sample([2.0 ** f["exposure"]["ev"] for f in fx], device)
-    noise = [f["noise"] for f in fx]
-    z = torch.cat(
-        [
-            torch.randn(
-                (1, *x.shape[1:]),
-                generator=torch.Generator(device=device).manual_seed(n["seed"]),
-                dtype=x.dtype,
-                device=device,
-            )
-            for n in noise
-        ]
-    )
-    sigma = _per_sample([n["sigma"] for n in noise], device)
-    shot = _per_sample([n["shot"] for n in noise], device)
-    variance = _per_sample([n["sigma"] * n["sigma"] for n in noise], device)
-    # The renderer's noise stage: sqrt(sigma^2 + shot x) with shot noise, sigma without.
-    x = x + z * torch.where(shot > 0, torch.sqrt(variance + shot * x.clamp_min(0)), sigma)
-    x = torch.minimum(x.clamp_min(0), _per_sample([f["clip"]["max"] for f in fx], device))
-    for k, f in enumerate(fx):
-        if "gamma" in f:  # rare (PhotoSettings.gamma_probability): one sample at a time
-            x[k : k + 1] = x[k : k + 1].clamp_min(_GAMMA_FLOOR).pow(1.0 / f["gamma"]["gamma"])
-    return x
+    x = render(svbrdf, Scene(camera, (flash,), shading))
+    # Each photo's own image stages, by the renderer's own code (they need no geometry).
+    photos = []
+    for k, s in enumerate(scenes):
+        stages = {name: v for name, v in s.effects.items() if name in _IMAGE_STAGES}
+        photos.append(build_plan(stages).finish(x[k : k + 1], None, None, None))
+    return torch.cat(photos)[:, 0]
 
 
 # -- materials -----------------------------------------------------------------------------
