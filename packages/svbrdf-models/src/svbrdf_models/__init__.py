@@ -7,6 +7,8 @@ Public API (timm style: list, describe, create)::
     sm.describe("generator", "ours").fields     # config fields with defaults and docs
     g = sm.create_generator("ours", {"preset": "small", "attention": "cbam"})
     maps = g(photo)                             # photo (B, 3, H, W) -> svbrdf_render.SVBRDF
+    model = sm.load_model("pretrained")         # trained weights (a file, URL or MLflow URI)
+    maps = model.predict(photo)                 # linear photo (3, H, W) -> maps at its resolution
     d = sm.create_discriminator("patchgan", {"renderings": 9})
     logits = d(maps=maps, renderings=svbrdf_render.render(maps, scene))
 
@@ -35,7 +37,14 @@ from ._registry import (
     list_models,
     resolve_config,
 )
-from .errors import ConfigError, DuplicateNameError, PluginLoadError, RegistryError, UnknownNameError
+from .errors import (
+    ConfigError,
+    DuplicateNameError,
+    ModelFileError,
+    PluginLoadError,
+    RegistryError,
+    UnknownNameError,
+)
 
 #: The package's version, its one source: pyproject.toml reads it (setuptools dynamic version).
 __version__ = "0.1.0"
@@ -50,6 +59,13 @@ _LAZY = {
     "MultiScaleAttention": "attention",
     "PatchGAN": "discriminators",
     "PatchGANDiscriminator": "discriminators",
+    "TrainedModel": "modelfile",
+    "load_model": "modelfile",
+    "save_model": "modelfile",
+    "model_dict": "modelfile",
+    "pretrained_path": "modelfile",
+    "square_photo": "modelfile",
+    "PRETRAINED": "modelfile",
     "MultiGANDiscriminator": "discriminators",
 }
 
@@ -65,6 +81,7 @@ __all__ = [
     "ConfigError",
     "DuplicateNameError",
     "FieldInfo",
+    "ModelFileError",
     "ModelInfo",
     "ModelSpec",
     "PluginLoadError",

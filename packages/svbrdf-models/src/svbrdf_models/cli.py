@@ -1,4 +1,5 @@
-"""``svbrdf-models``: what generators, attention modules and discriminators are installed."""
+"""``svbrdf-models``: what generators, attention modules and discriminators are installed, and
+what a trained model file holds."""
 
 from __future__ import annotations
 
@@ -37,6 +38,18 @@ examples:
   svbrdf-models describe multiscale --kind attention
 
 Fields can be set from Python (create_generator("ours", {"depth": 6})) or a recipe's YAML.
+"""
+
+
+EPILOG_SHOW = """\
+examples:
+  svbrdf-models show                        # the model shipped with svbrdf-models
+  svbrdf-models show ours.pt                # a file svbrdf-train export wrote
+  svbrdf-models show models:/svbrdf-ours/2  # from the MLflow model registry (needs mlflow)
+
+Prints the generator and its config, the training resolution, steps, time, hardware and data
+(with the real files it learnt), the code revision, the figures recorded with it and the
+file's SHA-256. Loading checks the file fully (weights finite and fitting the generator).
 """
 
 
@@ -90,6 +103,21 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("name")
     p.add_argument("--kind", choices=list(KINDS), help="needed only when the name exists in several kinds")
+
+    p = sub.add_parser(
+        "show",
+        help="what a trained model file holds: generator, training, data, figures",
+        description="Load a trained model file and say what it is and how it was made.",
+        epilog=EPILOG_SHOW,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument(
+        "source",
+        nargs="?",
+        default="pretrained",
+        help="a model file, an https URL (NAME-HEX.pt), models:/NAME/VERSION, runs:/ID/PATH, or "
+        "pretrained[:NAME] (default: the model shipped with this package)",
+    )
     return parser
 
 
@@ -215,6 +243,34 @@ def _cmd_describe(args, registry: Registry, out) -> None:
     print(registry.describe(kinds[0], args.name).format(), file=out)
 
 
+def _cmd_show(args, registry: Registry, out) -> None:
+    from .modelfile import PRETRAINED, card_path, load_model
+
+    model = load_model(args.source)
+    info = model.provenance
+    lines = [model.describe(), f"  SHA-256     {model.sha256}"]
+    lines.append("  config      " + ", ".join(f"{k}={v}" for k, v in model.config.items()))
+    lines.append(
+        f"  recipe      {info.get('recipe')} ({info.get('size')}), code {info.get('git_sha', 'unknown')}"
+    )
+    lines.append(
+        f"  training    {model.steps} steps, {info.get('samples', '?')} samples, "
+        f"{float(info.get('train_seconds', 0)) / 3600:.2f} h on {info.get('hardware', 'unknown')}"
+    )
+    for source in (info.get("data") or {}).get("sources", []):
+        files = source.get("files") or []
+        where = f" {', '.join(source.get('path', []))} ({len(files)} files)" if "path" in source else ""
+        weight = f" weight {source['weight']}" if "weight" in source else ""
+        lines.append(f"  data        {source['source']}{weight}{where}")
+    for key, value in sorted(model.metrics.items()):
+        lines.append(f"  metric      {key} = {value:.4g}")
+    for name, effect in (info.get("half_effect") or {}).items():
+        lines.append(f"  fp16 effect {name}: RMSE {effect['rmse']:.1e}, max {effect['max']:.1e}")
+    if model.source == f"pretrained:{PRETRAINED}":
+        lines.append(f"  card        {card_path()}")
+    print("\n".join(lines), file=out)
+
+
 def main(argv: list[str] | None = None, registry: Registry | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
@@ -222,7 +278,8 @@ def main(argv: list[str] | None = None, registry: Registry | None = None) -> int
         return int(e.code or 0)
     registry = registry or default_registry()
     try:
-        {"list": _cmd_list, "describe": _cmd_describe}[args.command](args, registry, sys.stdout)
+        commands = {"list": _cmd_list, "describe": _cmd_describe, "show": _cmd_show}
+        commands[args.command](args, registry, sys.stdout)
     except RegistryError as e:
         print(f"svbrdf-models: error: {e}", file=sys.stderr)
         return 2

@@ -5,7 +5,14 @@ from __future__ import annotations
 
 from svbrdf_render import SVBRDFError
 
-__all__ = ["RegistryError", "UnknownNameError", "DuplicateNameError", "PluginLoadError", "ConfigError"]
+__all__ = [
+    "RegistryError",
+    "UnknownNameError",
+    "DuplicateNameError",
+    "PluginLoadError",
+    "ConfigError",
+    "ModelFileError",
+]
 
 
 class RegistryError(SVBRDFError):
@@ -26,3 +33,7 @@ class PluginLoadError(RegistryError):
 
 class ConfigError(RegistryError):
     """A config dict names an unknown field or gives a value of the wrong type."""
+
+
+class ModelFileError(RegistryError):
+    """A trained model file cannot be found, fetched, read or rebuilt into its generator."""

@@ -41,6 +41,7 @@ from typing import Any
 
 import torch
 
+from svbrdf_models.modelfile import nonfinite_tensors, unreadable_reason, weights_mismatch
 from svbrdf_render.files import atomic_output, remove_stale_temporaries, write_text
 
 from .errors import CheckpointError
@@ -113,7 +114,7 @@ def load_checkpoint(
         state = torch.load(path, map_location=map_location, weights_only=True, mmap=mmap)
     except Exception as e:  # torch raises many kinds for a damaged or foreign file
         raise CheckpointError(
-            f"{source}: not a readable svbrdf-train checkpoint ({_why_unreadable(e)})"
+            f"{source}: not a readable svbrdf-train checkpoint ({unreadable_reason(e)})"
         ) from None
     if not isinstance(state, dict) or state.get("format") != FORMAT:
         got = state.get("format") if isinstance(state, dict) else type(state).__name__
@@ -127,27 +128,9 @@ def load_checkpoint(
     return state
 
 
-def _why_unreadable(error: Exception) -> str:
-    """torch's reason in a few words; never its advice to unpickle the file unsafely."""
-    text = str(error)
-    if "weights_only" in text or "Weights only load failed" in text:
-        return (
-            "it holds Python objects besides tensors, which are never unpickled here since they "
-            "could run code: a file from another tool, or one that was tampered with"
-        )
-    first = text.strip().splitlines()[0][:160] if text.strip() else ""
-    return f"{type(error).__name__}: {first}" if first else type(error).__name__
-
-
 def check_finite(weights: dict[str, Any] | None, what: str) -> None:
     """Refuse a state dict holding NaN or infinite values; ``what`` starts the message."""
-    if not weights:
-        return
-    bad = [
-        name
-        for name, t in weights.items()
-        if isinstance(t, torch.Tensor) and t.is_floating_point() and not bool(torch.isfinite(t).all())
-    ]
+    bad = nonfinite_tensors(weights)
     if bad:
         raise CheckpointError(
             f"{what} hold NaN or infinite values ({len(bad)} of {len(weights)} tensors, first "
@@ -160,22 +143,10 @@ def load_weights(module: torch.nn.Module, weights: dict[str, Any], what: str) ->
 
     ``what`` names the weights and the network, e.g. ``"run/last.pt: generator 'ours'"``.
     """
-    own = module.state_dict()
-    missing = [k for k in own if k not in weights]
-    extra = [k for k in weights if k not in own]
-    reshaped = [
-        k
-        for k in own
-        if k in weights and isinstance(weights[k], torch.Tensor) and weights[k].shape != own[k].shape
-    ]
-    if missing or extra or reshaped:
-        parts = [
-            f"{len(keys)} {word}" + (f" (e.g. {keys[0]!r})" if keys else "")
-            for keys, word in ((missing, "missing"), (extra, "unexpected"), (reshaped, "of another shape"))
-            if keys
-        ]
+    why = weights_mismatch(module, weights)
+    if why:
         raise CheckpointError(
-            f"{what}: the weights do not fit the network ({', '.join(parts)} of {len(own)} tensors); "
+            f"{what}: the weights do not fit the network ({why}); "
             "they were trained with another network or config"
         )
     module.load_state_dict(weights)

@@ -12,10 +12,10 @@ import fnmatch
 from pathlib import Path
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 from torch.utils.data import Dataset
 
+from svbrdf_models.modelfile import square_photo
 from svbrdf_render import read_image
 from svbrdf_render.mapfiles import srgb_to_linear
 
@@ -56,23 +56,6 @@ def orient(image: Tensor, orientation: int) -> Tensor:
         8: lambda t: torch.rot90(t, 1, (-2, -1)),
     }
     return ops.get(int(orientation), ops[1])(image).contiguous()
-
-
-def square_photo(photo: Tensor, size: int | None) -> Tensor:
-    """Centre-crop ``(C, H, W)`` to its shorter side, then resample to ``size`` if given.
-
-    Resampling is bilinear with antialiasing (a triangle filter: no overshoot, so values stay
-    in range) and happens on linear values, where averaging is physically meaningful.
-    """
-    _, h, w = photo.shape
-    s = min(h, w)
-    top, left = (h - s) // 2, (w - s) // 2
-    photo = photo[:, top : top + s, left : left + s]
-    if size is not None and s != size:
-        photo = F.interpolate(
-            photo[None], size=(size, size), mode="bilinear", align_corners=False, antialias=True
-        )[0]
-    return photo.contiguous()
 
 
 def _file_orientation(path: Path) -> int:
