@@ -166,14 +166,18 @@ def test_unreadable_photos_are_reported_and_the_others_done(tmp_path, checkpoint
     )
 
 
-@pytest.mark.parametrize("how", ["neither", "both"])
-def test_checkpoint_xor_run(tmp_path, checkpoint, run_id, photos, how):
-    """Exactly one of --checkpoint and --run: otherwise a one-line error, exit 2, nothing written."""
-    given = [] if how == "neither" else ["--checkpoint", checkpoint, "--run", run_id]
+@pytest.mark.parametrize("how", ["checkpoint and run", "model and checkpoint", "all three"])
+def test_one_model_at_most(tmp_path, checkpoint, run_id, photos, how):
+    """At most one of --model, --checkpoint and --run: otherwise a one-line error, exit 2, nothing written."""
+    given = {
+        "checkpoint and run": ["--checkpoint", checkpoint, "--run", run_id],
+        "model and checkpoint": ["--model", "pretrained", "--checkpoint", checkpoint],
+        "all three": ["--model", "pretrained", "--checkpoint", checkpoint, "--run", run_id],
+    }[how]
     result = _refused(photos[0], *given, "-o", tmp_path / "maps")
     assert result.exit_code == 2
     assert result.stderr.startswith("svbrdf-train: error: ") and result.stderr.count("\n") == 1
-    assert "--checkpoint" in result.stderr and "--run" in result.stderr
+    assert all(flag in result.stderr for flag in ("--model", "--checkpoint", "--run"))
     assert not (tmp_path / "maps").exists()
 
 
@@ -226,3 +230,21 @@ def test_unknown_run_id(tmp_path, photos):
     assert result.stderr.startswith("svbrdf-train: error: ") and result.stderr.count("\n") == 1
     assert run_id in result.stderr and "MLFLOW_TRACKING_URI" in result.stderr
     assert not (tmp_path / "maps").exists()
+
+
+def test_without_a_model_the_shipped_one_is_used_and_named(tmp_path, photos):
+    """No --model, --checkpoint or --run: the model inside svbrdf-models predicts, and stderr says
+    which and where its card is; the maps are the shipped model's own."""
+    import svbrdf_models as sm
+    from svbrdf_models.modelfile import card_path
+
+    out = tmp_path / "maps"
+    result = run_cli("predict", str(photos[0]), "-o", str(out), "--relit", "none")
+    assert result.returncode == 0, result.stderr
+    assert "using the model shipped with svbrdf-models" in result.stderr and str(card_path()) in result.stderr
+    model = sm.load_model("pretrained")
+    assert json.loads((out / "summary.json").read_text())["model"] == model.source
+    stored = _read_maps(out / photos[0].stem)
+    want = _encoded(model.predict(srgb_to_linear(read_image(photos[0]))))
+    for name in MAPS:
+        assert _max_diff(stored[name], want[name]) <= EIGHT_BIT, name

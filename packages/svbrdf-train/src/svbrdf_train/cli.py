@@ -70,12 +70,12 @@ def data():
 
 
 def _register() -> None:
-    from .commands import data_compare, data_shards, data_sheet, fit, predict, recipes
+    from .commands import data_compare, data_shards, data_sheet, export, fit, predict, recipes
 
     for module in (data_sheet, data_shards, data_compare):
         for command in module.COMMANDS:
             data.add_command(command)
-    for module in (recipes, fit, predict):
+    for module in (recipes, fit, predict, export):
         for command in module.COMMANDS:
             cli.add_command(command)
 

@@ -37,7 +37,7 @@ __all__ = ["Run", "StepEnd", "Hook", "BudgetWarning", "Logging", "Validation", "
 #: Checkpoint fields a user of the weights needs (predict, --init); the rest is for resuming.
 WEIGHT_FIELDS = (
     "recipe", "step", "epoch", "generator", "discriminator", "run_id", "init",
-    "train_seconds", "wall_seconds", "world_size",
+    "train_seconds", "wall_seconds", "world_size", "made_with",
 )  # fmt: skip
 
 
@@ -58,6 +58,7 @@ class Run:
     init: dict[str, str] | None = None  # where the starting weights came from (MLflow tags)
     start_step: int = 0
     saved_at: int = 0  # the step of the last checkpoint written
+    made_with: dict[str, str] = field(default_factory=dict)  # code revision and machine (tracking.made_with)
 
     @property
     def ckpt_path(self) -> Path:
@@ -75,6 +76,7 @@ class Run:
             "train_seconds": self.watch.seconds,
             "wall_seconds": self.watch.wall_seconds,
             "world_size": self.dist.world,
+            "made_with": self.made_with,
         }
 
 

@@ -24,12 +24,23 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import unquote, urlparse
 
+import torch
+
 from svbrdf_render.errors import OutputError
 from svbrdf_render.files import atomic_output
 
 from .errors import CheckpointError, TrackingError
 
-__all__ = ["Tracker", "MlflowTracker", "flatten_params", "run_tags", "tracking_uri", "git_revision"]
+__all__ = [
+    "Tracker",
+    "MlflowTracker",
+    "flatten_params",
+    "run_tags",
+    "tracking_uri",
+    "git_revision",
+    "made_with",
+    "hardware",
+]
 
 #: The distributions whose versions every run records.
 PACKAGES = ("svbrdf-render", "svbrdf-models", "svbrdf-train", "torch", "numpy", "mlflow")
@@ -198,6 +209,35 @@ def git_revision(folder: str | Path | None = None) -> tuple[str, bool]:
         return sha.stdout.strip(), bool(status.stdout.strip())
     except (OSError, subprocess.SubprocessError):
         return "unknown", False
+
+
+def hardware(device: str | torch.device) -> str:
+    """The machine a fit ran on, in words: the GPU's name, or the CPU's model and core count."""
+    device = torch.device(device)
+    if device.type == "cuda":
+        return f"{torch.cuda.device_count()} x {torch.cuda.get_device_name(device)}"
+    name = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                name = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{os.cpu_count()} cores of {name}, torch {torch.get_num_threads()} threads"
+
+
+def made_with(device: str | torch.device) -> dict[str, str]:
+    """What a checkpoint records about how it was made: code revision, versions, machine."""
+    sha, dirty = git_revision()
+    return {
+        "git_sha": sha,
+        "git_dirty": str(dirty).lower(),
+        "torch": str(torch.__version__),
+        "svbrdf_train": importlib.metadata.version("svbrdf-train"),
+        "device": str(device),
+        "hardware": hardware(device),
+    }
 
 
 def run_tags(*, recipe: str, size: str, seed: int, device: str, world_size: int) -> dict[str, str]:

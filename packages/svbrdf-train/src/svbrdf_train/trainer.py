@@ -145,6 +145,7 @@ def _setup(
 ) -> tuple[Run, str | None]:
     """The run of a fit: data, the step (weights from ``--init`` or the checkpoint), hooks' state."""
     from .fitdata import build_datasets, real_validation_set
+    from .tracking import made_with
 
     t, out = recipe.train, Path(options.out)
     train_set, val_set = build_datasets(recipe)
@@ -174,7 +175,7 @@ def _setup(
     validator = Validator(val_set, real[0] if real else None, t.batch, dist.device)
     run = Run(
         recipe, dist, gan, order, validator, out, watch, progress,
-        run_id=run_id, init=init, start_step=gan.step, saved_at=gan.step,
+        run_id=run_id, init=init, start_step=gan.step, saved_at=gan.step, made_with=made_with(dist.device),
     )  # fmt: skip
     return run, real[1] if real else None
 

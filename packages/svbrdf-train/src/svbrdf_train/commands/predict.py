@@ -12,10 +12,19 @@ MAX_MAP_SIZE = 8192
 
 EPILOG = """\b
 Examples:
+  svbrdf-train predict photo.jpg -o maps/                  # the model shipped with svbrdf-models
   svbrdf-train predict photo.jpg --checkpoint runs/ours-cpu/last.pt -o maps/
+  svbrdf-train predict photo.jpg --model models:/svbrdf-ours/2 -o maps/
   svbrdf-train predict shots/*.png --run 3f2a... -o maps/ --linear --bits 16
   svbrdf-train predict big.jpg --checkpoint last.pt -o maps/ --tiles --map-size 1024
   svbrdf-train predict IMG_0042.jpg --checkpoint last.pt -o maps/ --crop 600,200,1800
+
+\b
+The model: --model (a file of svbrdf-train export, an https URL whose name carries its
+SHA-256 prefix, models:/NAME/VERSION or runs:/ID/PATH of MLflow, pretrained[:NAME]),
+--checkpoint (a training checkpoint or a model file) or --run (a fit's MLflow run). With
+none of them, the model shipped inside svbrdf-models (pretrained) is used and named on stderr;
+its model card says what it was trained on and how well it does on real materials.
 
 \b
 Photos: JPEG or PNG, in colour, the flash roughly at the centre. The EXIF orientation is
@@ -69,7 +78,16 @@ def _parse_crop(ctx, param, value):
 @click.command("predict", epilog=EPILOG)
 @click.argument("photos", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option(
-    "--checkpoint", type=click.Path(path_type=Path, dir_okay=False), help="A checkpoint file (last.pt)."
+    "--model",
+    "model_source",
+    metavar="SOURCE",
+    help="A model file, URL, MLflow model URI (models:/NAME/VERSION, runs:/ID/PATH) or pretrained[:NAME] "
+    "[default: pretrained, the model shipped with svbrdf-models].",
+)
+@click.option(
+    "--checkpoint",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="A training checkpoint (last.pt, weights.pt) or a model file.",
 )
 @click.option(
     "--run", "run_id", metavar="RUN_ID", help="An MLflow run of svbrdf-train fit (its logged checkpoint)."
@@ -120,6 +138,7 @@ def _parse_crop(ctx, param, value):
 @click.option("--device", default="cpu", show_default=True, help="cpu, cuda or cuda:K.")
 def predict(
     photos,
+    model_source,
     checkpoint,
     run_id,
     out,
@@ -144,8 +163,8 @@ def predict(
     from ..distributed import pick_device
     from ..errors import CheckpointError
 
-    if (checkpoint is None) == (run_id is None):
-        raise CheckpointError("give the generator with --checkpoint FILE or --run RUN_ID (one of them)")
+    if sum(x is not None for x in (model_source, checkpoint, run_id)) > 1:
+        raise CheckpointError("give the generator with one of --model, --checkpoint and --run, not several")
     if map_size is not None and not tiles:
         raise click.UsageError("--map-size goes with --tiles")
     device = pick_device(device)  # a GPU that is not there is named as such, not blamed on the checkpoint
@@ -153,24 +172,37 @@ def predict(
         linear, crop, tiles, map_size, int(bits), normal_convention, relit, albedo_encoding=albedo_encoding
     )
     check_output_folder(out, "-o")  # before the model is loaded and the first photo is done
-    model = _load_model(checkpoint, run_id, device, map_size)
+    model = _load_model(model_source, checkpoint, run_id, device, map_size)
     entries, stopped = _capture_all(model, photos, out, options)
     _finish(model, photos, out, entries, stopped)
 
 
-def _load_model(checkpoint, run_id, device, map_size):
-    """The :class:`~svbrdf_train.predict.Predictor` of --checkpoint or --run, announced on stderr."""
+def _load_model(model_source, checkpoint, run_id, device, map_size):
+    """The :class:`~svbrdf_train.predict.Predictor` of --model, --checkpoint or --run (the shipped
+    model when none is given), announced on stderr."""
     from ..predict import Predictor
 
-    model = (
-        Predictor.from_checkpoint(checkpoint, device) if checkpoint else Predictor.from_run(run_id, device)
-    )
+    if checkpoint is not None:
+        model = Predictor.from_checkpoint(checkpoint, device)
+    elif run_id is not None:
+        model = Predictor.from_run(run_id, device)
+    else:
+        if model_source is None:
+            from svbrdf_models.modelfile import PRETRAINED, card_path
+
+            click.echo(
+                f"no --model, --checkpoint or --run: using the model shipped with svbrdf-models "
+                f"(pretrained:{PRETRAINED}; its card: {card_path()})",
+                err=True,
+            )
+        model = Predictor.from_model(model_source or "pretrained", device)
     if map_size is not None and map_size < model.resolution:
         raise click.BadParameter(
             f"{map_size} is smaller than the model's resolution ({model.resolution})", param_hint="--map-size"
         )
     click.echo(
-        f"generator {model.recipe.generator.name} from {model.source} (step {model.step}), "
+        model.card
+        or f"generator {model.name} from {model.source} (step {model.step}), "
         f"{model.resolution}x{model.resolution}",
         err=True,
     )
