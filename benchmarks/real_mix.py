@@ -214,11 +214,8 @@ def pooled_table(scores: dict[str, dict[str, list[float]]], n_images: int) -> st
     for name in VARIANTS:
         cells = []
         for c in COLUMNS:
-            d = paired_difference(scores[name][c], scores["mean"][c])
             base = sum(scores["mean"][c]) / len(scores["mean"][c])
-            verdict = "within noise" if d.within_noise else ("beats" if d.high < 0 else "worse")
-            low, high = 100 * d.low / base, 100 * d.high / base
-            cells.append(f"{100 * d.mean / base:+.0f}% [{low:+.0f}, {high:+.0f}] {verdict}")
+            cells.append(paired_difference(scores[name][c], scores["mean"][c]).percent_of(base))
         rows.append(f"| {LABELS[name]} | " + " | ".join(cells) + " |")
     render = {v: sum(scores[v]["render"]) for v in VARIANTS}
     best = min(VARIANTS, key=render.get)
@@ -229,11 +226,8 @@ def pooled_table(scores: dict[str, dict[str, list[float]]], n_images: int) -> st
             continue
         cells = []
         for c in COLUMNS:
-            d = paired_difference(scores[best][c], scores[name][c])
             base = sum(scores[name][c]) / len(scores[name][c])
-            verdict = "within noise" if d.within_noise else ("better" if d.high < 0 else "worse")
-            low, high = 100 * d.low / base, 100 * d.high / base
-            cells.append(f"{100 * d.mean / base:+.0f}% [{low:+.0f}, {high:+.0f}] {verdict}")
+            cells.append(paired_difference(scores[best][c], scores[name][c]).percent_of(base, "better"))
         rows.append(f"| against {LABELS[name]} | " + " | ".join(cells) + " |")
     title = f"RMSE over the {n_images} strips of both judging folds (95% bootstrap intervals):"
     return title + "\n\n" + "\n".join(rows)

@@ -257,6 +257,20 @@ def test_paired_difference_of_a_clear_offset_is_not_within_noise():
     assert lo_a < lo_b
 
 
+def test_a_difference_reads_as_percent_of_the_baseline_with_its_verdict():
+    rng = np.random.default_rng(5)
+    base = rng.uniform(0.05, 0.3, 60)
+    b = base + rng.normal(0, 0.005, 60)
+    lower = paired_difference(base - 0.02 + rng.normal(0, 0.005, 60), b)
+    text = lower.percent_of(float(np.mean(b)), "better")
+    assert text.endswith("better") and text.startswith("-")
+    shown = 100 * lower.mean / float(np.mean(b))
+    assert text.split("%")[0] == f"{shown:+.0f}"
+    assert paired_difference(b, base - 0.02).verdict() == "worse"
+    noisy = paired_difference(base + rng.normal(0, 0.005, 60), b)
+    assert noisy.verdict() == "within noise" and noisy.percent_of(1.0).endswith("within noise")
+
+
 def test_paired_difference_needs_one_value_per_image_for_both():
     with pytest.raises(BenchError, match="3 values against 2"):
         paired_difference([1, 2, 3], [1, 2])

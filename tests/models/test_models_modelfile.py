@@ -166,7 +166,9 @@ def test_bad_files_get_one_line(tmp_path, trained, model_file, kind, says):
     text = _one_line(e)
     assert text.startswith(str(path)) and says in text
     # files of our format with bad contents are still told apart from checkpoints and foreign files
-    ours = kind in ("newer format", "generator not installed", "config of another version") or "weights" in kind
+    ours = (
+        kind in ("newer format", "generator not installed", "config of another version") or "weights" in kind
+    )
     assert is_model_file(path) == ours
 
 

@@ -254,6 +254,16 @@ class Difference:
     #: The interval contains 0: the two cannot be told apart on these test images.
     within_noise: bool
 
+    def verdict(self, better: str = "beats") -> str:
+        """``"within noise"`` when the interval contains 0, else ``better`` (below 0) or ``"worse"``."""
+        return "within noise" if self.within_noise else (better if self.high < 0 else "worse")
+
+    def percent_of(self, base: float, better: str = "beats") -> str:
+        """The difference and its interval in % of ``base`` (the mean of ``b``), with the verdict,
+        as tables print it: ``-12% [-20, -4] beats``."""
+        mean, low, high = (100 * v / base for v in (self.mean, self.low, self.high))
+        return f"{mean:+.0f}% [{low:+.0f}, {high:+.0f}] {self.verdict(better)}"
+
 
 def paired_difference(a, b, *, n_boot: int = 2000, level: float = 0.95, seed: int = 0) -> Difference:
     """Bootstrap of ``mean(a - b)``, resampling test images (the same ones for ``a`` and ``b``)."""
