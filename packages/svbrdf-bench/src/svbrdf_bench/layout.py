@@ -8,6 +8,10 @@ One invocation of ``svbrdf-bench run``::
       child run  per model: the model's training run itself (svbrdf-train fit --parent-run), or,
                  for a reused run (--from-runs), a new run tagged svbrdf.train_run=<that run>
                  with that run's params
+      child run  per reference model (``--from-models FILE``, ``--models pretrained``): a model
+                 file trained elsewhere on its own budget, tagged svbrdf.reference=<short name>,
+                 its SHA-256 and source; params ``model.*`` and ``budget.*`` say what the file
+                 records (steps, training time, device, hardware, data)
       child run  per baseline (``mean``, ``photo``; none with --no-baselines): a generator with
                  no trained parameters built from the registry, tagged svbrdf.baseline=true and
                  evaluated exactly like the models (same test images, same figures, params 0)
@@ -20,8 +24,10 @@ tag ``svbrdf.kind``                 parent  ``bench``: the run is the parent of 
 tag ``lpips``                       parent  how LPIPS was computed, or why it was not
                                             (:data:`LPIPS_TAG`)
 params ``preset``, ``test_set``,    parent  the preset, the test set's description, the training
-``train_minutes_per_model``,                budget per model in words, the real photos and the
-``real_data``, ``baselines``                baselines evaluated ("-": none) (``*_PARAM``)
+``train_minutes_per_model``,                budget per model in words, the real photos, the
+``real_data``, ``baselines``,               baselines evaluated and the reference models'
+``reference_models``                        sources with their SHA-256 prefixes ("-": none)
+                                            (``*_PARAM``)
 artifacts ``report/``               parent  the written report: ``report.md``, CSV, JSON, plots
                                             (:data:`REPORT_ARTIFACTS`)
 tag ``mlflow.parentRunId``          child   the benchmark's parent run (MLflow's own nesting tag,
@@ -34,6 +40,13 @@ tag ``svbrdf.train_run``            child   of a reused fit only: the run that t
                                             (:data:`TRAIN_RUN_TAG`, :func:`train_run_id`)
 tag ``svbrdf.baseline``             child   ``true``: an untrained baseline, not a trained model
                                             (:data:`BASELINE_TAG`, :func:`is_baseline`)
+tag ``svbrdf.reference``            child   a reference model (a model file, not trained here nor
+                                            at this benchmark's budget): its short name
+                                            (:data:`REFERENCE_TAG`, :func:`reference_name`);
+                                            tags ``svbrdf.model_sha256``, ``svbrdf.model_source``
+params ``model.*``, ``budget.*``    child   of a reference model: the file's generator, source,
+                                            SHA-256, and the budget its provenance records
+                                            (:data:`BUDGET_PREFIX`)
 artifact ``eval/per_sample.json``   child   each figure per test sample, ``{name: [values]}``
                                             (:data:`PER_SAMPLE`, :func:`per_sample_json`,
                                             :func:`read_per_sample`)
@@ -69,12 +82,17 @@ __all__ = [
     "MODEL_TAG",
     "TRAIN_RUN_TAG",
     "BASELINE_TAG",
+    "REFERENCE_TAG",
+    "MODEL_SHA_TAG",
+    "MODEL_SOURCE_TAG",
+    "BUDGET_PREFIX",
     "LPIPS_TAG",
     "PRESET_PARAM",
     "TEST_SET_PARAM",
     "MINUTES_PARAM",
     "REAL_DATA_PARAM",
     "BASELINES_PARAM",
+    "REFERENCES_PARAM",
     "PER_SAMPLE",
     "REPORT_ARTIFACTS",
     "TEST_PREFIX",
@@ -86,6 +104,7 @@ __all__ = [
     "TRAINER_PREFIXES",
     "baseline_tags",
     "is_baseline",
+    "reference_name",
     "train_run_id",
     "per_sample_json",
     "read_per_sample",
@@ -102,6 +121,13 @@ MODEL_TAG = "svbrdf.model"
 TRAIN_RUN_TAG = "svbrdf.train_run"
 #: Tag of the child runs of baselines (generators with no trained parameters): "true".
 BASELINE_TAG = "svbrdf.baseline"
+#: Tag of the child runs of reference models (model files trained elsewhere): their short name.
+REFERENCE_TAG = "svbrdf.reference"
+#: Tags of a reference model's child run: the SHA-256 of its file and where it was loaded from.
+MODEL_SHA_TAG = "svbrdf.model_sha256"
+MODEL_SOURCE_TAG = "svbrdf.model_source"
+#: Params of a reference model's child run: the training budget its file records.
+BUDGET_PREFIX = "budget."
 #: Tag of the parent run: how LPIPS was computed (or why not).
 LPIPS_TAG = "lpips"
 #: Params of the parent run that the report shows.
@@ -110,6 +136,7 @@ TEST_SET_PARAM = "test_set"
 MINUTES_PARAM = "train_minutes_per_model"
 REAL_DATA_PARAM = "real_data"
 BASELINES_PARAM = "baselines"
+REFERENCES_PARAM = "reference_models"
 #: Artifact of each evaluated child run: every per-sample figure (:func:`per_sample_json`).
 PER_SAMPLE = "eval/per_sample.json"
 #: Artifact folder of the parent run holding the written report.
@@ -139,6 +166,11 @@ def baseline_tags(parent_id: str, name: str) -> dict[str, str]:
 def is_baseline(tags: Mapping[str, str]) -> bool:
     """Whether a child run's tags mark an untrained baseline."""
     return tags.get(BASELINE_TAG) == "true"
+
+
+def reference_name(tags: Mapping[str, str]) -> str | None:
+    """The short name of a reference model's child run (see :data:`REFERENCE_TAG`); None for others."""
+    return tags.get(REFERENCE_TAG) or None
 
 
 def train_run_id(run_id: str, tags: Mapping[str, str]) -> str:

@@ -8,6 +8,12 @@ headline repeats in words; the time table (training time on the budget clock and
 throughput, latency, parameters, memory); and what each trained model's extra accuracy costs
 against each other one, saying when the difference lies within noise.
 
+Reference rows (model files trained elsewhere: ``--from-models``, ``--models pretrained``) stand in
+every table under a label that gives their budget and says they are not equal-budget; where the
+report speaks of budgets and costs (the header, the clock, the time table, what accuracy costs,
+the plots) they are named ``NAME (reference)`` and a note says their training figures are what
+their files record.
+
 The runs are read as :mod:`svbrdf_bench.layout` describes them; this module never imports the
 runner that writes them.
 """
@@ -31,10 +37,13 @@ from .errors import BenchError
 from .layout import (
     BASELINES_PARAM,
     BENCH_KIND,
+    BUDGET_PREFIX,
     FIT_WALL_METRIC,
     KIND_TAG,
     LPIPS_TAG,
     MINUTES_PARAM,
+    MODEL_SHA_TAG,
+    MODEL_SOURCE_TAG,
     MODEL_TAG,
     PARENT_TAG,
     PER_SAMPLE,
@@ -47,6 +56,7 @@ from .layout import (
     TRAINER_PREFIXES,
     is_baseline,
     read_per_sample,
+    reference_name,
     train_run_id,
 )
 
@@ -100,11 +110,25 @@ class ModelEntry:
     #: Where a fine-tuned fit's starting weights came from (``fit --init``), and the training
     #: time behind them (its curves are shifted by it); None: trained from scratch.
     init: tuple[str, float] | None = None
+    #: A reference row (a model file trained elsewhere, not at the benchmark's budget): its short
+    #: name (tag svbrdf.reference); None for models trained or reused here and for baselines.
+    reference_name: str | None = None
+    #: Of a reference row: its source, SHA-256 and the budget its file records (``budget.*`` params).
+    budget: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def is_reference(self) -> bool:
+        return self.reference_name is not None
 
     @property
     def name(self) -> str:
-        """The row label of the tables: baselines are marked."""
+        """The row label of the tables: baselines are marked; a reference row's label says its budget."""
         return f"{self.label} (baseline)" if self.baseline else self.label
+
+    @property
+    def short(self) -> str:
+        """The name where budgets and costs are compared, and in the plots: ``NAME (reference)``."""
+        return f"{self.reference_name} (reference)" if self.is_reference else self.name
 
 
 @dataclass
@@ -123,7 +147,38 @@ class Report:
 
     @property
     def trained(self) -> list[ModelEntry]:
+        """Every row that is not an untrained baseline (reference rows included)."""
         return [e for e in self.models if not e.baseline]
+
+    @property
+    def competitors(self) -> list[ModelEntry]:
+        """The models trained (or reused) at this benchmark's budget: no baselines, no reference rows."""
+        return [e for e in self.trained if not e.is_reference]
+
+    @property
+    def reference_rows(self) -> list[ModelEntry]:
+        """Model files trained elsewhere (``--from-models``, ``--models pretrained``)."""
+        return [e for e in self.models if e.is_reference]
+
+    def budget_words(self) -> str:
+        """The training budget in words; says that reference rows keep their own."""
+        if self.reference_rows and self.competitors:
+            return f"{self.minutes}; reference rows: their own budgets, not equal"
+        return self.minutes
+
+    def reference_note(self) -> str | None:
+        """What the reference rows are: trained elsewhere, figures from their files, not competitors."""
+        if not self.reference_rows:
+            return None
+        files = "; ".join(
+            f"{e.short} = {e.budget.get('source', '?')} (SHA-256 {e.budget.get('sha256', '?')[:12]})"
+            for e in self.reference_rows
+        )
+        return (
+            "reference rows are model files trained elsewhere, scored on the same test images: their "
+            "training time and steps are what each file records (its own budget and hardware), not "
+            f"this benchmark's, so they are no equal-budget competitors: {files}"
+        )
 
     def reference(self) -> ModelEntry | None:
         """The ``mean`` baseline's entry, if it was evaluated."""
@@ -197,10 +252,10 @@ class Report:
         return lines
 
     def clock_note(self) -> str:
-        """Which clock budgeted the trained models' training time."""
-        trained = self.trained
+        """Which clock budgeted the trained models' training time (reference rows: not this budget)."""
+        trained = self.competitors
         if not trained:
-            return "no trained model"
+            return "no model trained at this benchmark's budget" if self.trained else "no trained model"
         words = {
             e.label: CLOCK_WORDS.get(e.clock, f"{e.clock} clock") if e.clock else "wall clock (none recorded)"
             for e in trained
@@ -217,7 +272,7 @@ class Report:
             f"{e.label} was fine-tuned from {e.init[0]} (fit --init), which had trained {e.init[1]:.0f} s "
             "on the same clock: its learning curve starts there, and its whole training time is that "
             "plus the time table's"
-            for e in self.trained
+            for e in self.competitors
             if e.init is not None
         ]
 
@@ -254,6 +309,7 @@ class Report:
                     {
                         "model": a.label,
                         "versus": b.label,
+                        "reference": a.is_reference or b.is_reference,
                         "render_rmse_difference": d.mean,
                         "low": d.low,
                         "high": d.high,
@@ -298,14 +354,22 @@ class Report:
         cols = [c for c in TIME_COLUMNS if any(c[0] in e.figures for e in self.models)]
         rows = []
         for e in self.models:
-            cells = [e.name]
+            cells = [e.short]
             for key, _, fmt in cols:
                 v = e.figures.get(key, math.nan)
                 if key == "model/params":
                     v = v / 1e6
                 cells.append("-" if v is None or math.isnan(v) else fmt.format(v))
             rows.append(cells)
-        return _table("Time and memory", ["model", *(c[1] for c in cols)], rows, markdown)
+        table = _table("Time and memory", ["model", *(c[1] for c in cols)], rows, markdown)
+        if self.reference_rows:
+            table += [
+                "",
+                "Rows marked (reference): training time and steps as their model files record them, "
+                "on their own budget and hardware; not this benchmark's budget, and not comparable "
+                "with it.",
+            ]
+        return table
 
     def _real_table(self, markdown: bool) -> list[str]:
         """Real photos have no ground truth: the re-rendering under the fitted flash is the figure."""
@@ -331,11 +395,13 @@ class Report:
     def _cost_lines(self, markdown: bool) -> list[str]:
         rows, notes = [], []
         costs = self.costs()
+        short = {e.label: e.short for e in self.trained}
         for c in costs:
             noise = "within noise" if c["within_noise"] else "beyond noise"
+            a, b = short[c["model"]], short[c["versus"]]
             rows.append(
                 [
-                    f"{c['model']} vs {c['versus']}",
+                    f"{a} vs {b}",
                     f"{c['render_rmse_difference']:+.4f} [{c['low']:+.4f}, {c['high']:+.4f}]",
                     noise,
                     _ratio(c["train_time_per_step_ratio"]),
@@ -343,7 +409,18 @@ class Report:
                     _ratio(c["params_ratio"]),
                 ]
             )
-            if c["within_noise"]:
+            if c["reference"]:
+                difference = (
+                    "a render RMSE difference within the noise of this test set"
+                    if c["within_noise"]
+                    else f"{-c['render_rmse_difference']:.4f} render RMSE better"
+                )
+                notes.append(
+                    f"{a} against {b}: {difference}, at {_ratio(c['latency_ratio'])} the latency and "
+                    f"{_ratio(c['params_ratio'])} the parameters; a reference row trained on its own "
+                    "budget, so this is no comparison at equal training cost."
+                )
+            elif c["within_noise"]:
                 notes.append(
                     f"{c['model']} and {c['versus']}: the render RMSE difference lies within the noise of "
                     f"this test set (its interval contains 0); the extra cost buys no measurable accuracy."
@@ -356,7 +433,7 @@ class Report:
                 )
         failing = {m for m, rows in self.not_beating().items() if any(r["column"] == "render" for r in rows)}
         pairs = dict.fromkeys(x for c in costs for x in (c["model"], c["versus"]))
-        compared = [m for m in pairs if m in failing]
+        compared = [short[m] for m in pairs if m in failing]
         if compared:
             notes.append(
                 f"{', '.join(compared)} {'does' if len(compared) == 1 else 'do'} not beat the constant-map "
@@ -364,7 +441,8 @@ class Report:
                 "a constant map already has."
             )
         head = ["pair", "render RMSE difference [95%]", "noise", "train time/step", "latency", "params"]
-        title = "What accuracy costs (trained models)"
+        title = "What accuracy costs (trained models" + ("; reference rows: not equal-budget)" if any(
+            c["reference"] for c in costs) else ")")  # fmt: skip
         return [*_table(title, head, rows, markdown), *notes]
 
     def _tables(self, markdown: bool) -> list[str]:
@@ -381,12 +459,14 @@ class Report:
         return lines
 
     def terminal(self) -> str:
+        note = self.reference_note()
         lines = [
-            f"svbrdf-bench: {', '.join(e.name for e in self.models)} ({self.preset}; {self.minutes})",
+            f"svbrdf-bench: {', '.join(e.name for e in self.models)} ({self.preset}; {self.budget_words()})",
             *self.headline(),
             f"test set: {self.test_set}; {self.lpips_note}",
             self.clock_note(),
             *self.init_notes(),
+            *([note] if note else []),
             "",
             *self._tables(False),
         ]
@@ -397,9 +477,10 @@ class Report:
             f"# Benchmark: {', '.join(e.name for e in self.models)}",
             "",
             *(line for h in self.headline() for line in (f"**{h}**", "")),
-            f"- preset: {self.preset} ({self.minutes})",
+            f"- preset: {self.preset} ({self.budget_words()})",
             f"- {self.clock_note()}",
             *(f"- {line}" for line in self.init_notes()),
+            *(f"- {line}" for line in [self.reference_note()] if line),
             f"- test set: {self.test_set}",
             f"- {self.lpips_note}",
             f"- MLflow parent run: `{self.parent_id}`; rebuild with `svbrdf-bench report {self.parent_id}`",
@@ -418,9 +499,13 @@ class Report:
     def records(self) -> list[dict]:
         out = []
         for e in self.models:
-            rec = {"model": e.label, "baseline": e.baseline, "run_id": e.run_id}
-            rec["train_run_id"] = "-" if e.baseline else e.train_run_id
-            if not e.baseline:
+            rec = {"model": e.label, "baseline": e.baseline, "reference": e.is_reference, "run_id": e.run_id}
+            rec["train_run_id"] = "-" if e.baseline or e.is_reference else e.train_run_id
+            if e.is_reference:  # trained elsewhere: its file, and the budget the file records
+                rec["clock"] = "its own (not this benchmark's budget)"
+                rec["reference_name"] = e.reference_name
+                rec |= {f"reference_{k}": v for k, v in e.budget.items()}
+            elif not e.baseline:
                 rec["clock"] = e.clock or "wall (not recorded)"
             for metric, _, _ in self.metrics_present():
                 for c in COLUMNS:
@@ -507,6 +592,25 @@ def build_report(parent_id: str) -> Report:
                 models.append(entry)
                 continue
             figures[STEPS_METRIC] = metrics.get(STEPS_METRIC, math.nan)
+            short = reference_name(child.data.tags)
+            if short is not None:  # a model file trained elsewhere: no fit, no learning curve here
+                tags, params = child.data.tags, child.data.params
+                budget = {"source": tags.get(MODEL_SOURCE_TAG, "?"), "sha256": tags.get(MODEL_SHA_TAG, "?")}
+                budget |= {
+                    k[len(BUDGET_PREFIX) :]: v for k, v in params.items() if k.startswith(BUDGET_PREFIX)
+                }
+                models.append(
+                    ModelEntry(
+                        label,
+                        child.info.run_id,
+                        train_run,
+                        per_sample,
+                        figures,
+                        reference_name=short,
+                        budget=budget,
+                    )
+                )
+                continue
             if STEPS_WALL_METRIC not in figures and FIT_WALL_METRIC in metrics:
                 figures[STEPS_WALL_METRIC] = metrics[FIT_WALL_METRIC]
             tags = child.data.tags if train_run == child.info.run_id else client.get_run(train_run).data.tags
@@ -576,7 +680,7 @@ def write_report(report: Report, out: str | Path, *, grid: Path | None = None) -
         ci = report.interval(e, "rmse", "render")
         latency = e.figures.get("time/latency_ms", math.nan)
         if ci is not None and not math.isnan(latency):
-            points[e.label] = (latency, *ci)
+            points[e.short if e.is_reference else e.label] = (latency, *ci)
     if points:
         written.append(pareto(points, out / "pareto.png"))
         files["pareto"] = "pareto.png"

@@ -1,5 +1,9 @@
 """``svbrdf-bench run``: train (or reuse) each model, evaluate all on one test set, log and report.
 
+Model files trained elsewhere (``--from-models``, ``--models pretrained``) are scored beside them
+as reference rows (:mod:`svbrdf_bench.references`): same test images, same figures, a label that
+says they are not equal-budget competitors.
+
 Each invocation is one MLflow parent run with a child run per model and per baseline, laid out
 as :mod:`svbrdf_bench.layout` describes; :mod:`svbrdf_bench.report` builds every table and plot
 from those runs alone, so ``svbrdf-bench report PARENT`` rebuilds them later.
@@ -37,6 +41,7 @@ from .layout import (
     REAL_DATA_PARAM,
     REAL_PREFIX,
     REAL_RERENDER,
+    REFERENCES_PARAM,
     REPORT_ARTIFACTS,
     STEPS_METRIC,
     STEPS_WALL_METRIC,
@@ -47,6 +52,14 @@ from .layout import (
     per_sample_json,
 )
 from .presets import Preset
+from .references import (
+    check_resolution,
+    check_trained_strips,
+    load_references,
+    reference_child,
+    reference_figures,
+    split_pretrained,
+)
 from .testset import TestSet
 
 __all__ = ["BenchOptions", "run_bench", "BASELINES"]
@@ -64,8 +77,13 @@ LATENCY_SIZE = 256
 @dataclass
 class BenchOptions:
     models: list[str]
+    """Recipes to train; ``pretrained[:NAME]`` items are scored as reference rows instead."""
     preset: Preset
     from_runs: list[str] = field(default_factory=list)
+    from_models: list[str] = field(default_factory=list)
+    """Model files (any :func:`svbrdf_models.load_model` source) scored as reference rows."""
+    allow_trained_strips: bool = False
+    """Score a reference model even on test strips its provenance says it trained on."""
     test_data: str | None = None
     real_data: str | None = None
     """A folder of real flash photos (no ground truth): adds each model's self-consistency."""
@@ -314,10 +332,15 @@ def run_bench(options: BenchOptions) -> str:
     from .metrics import load_lpips
     from .report import build_report, write_report
 
-    _check_models(options.models)
+    recipes, shipped = split_pretrained(options.models)
+    _check_models(recipes)
     check_output_folder(options.out, "-o")  # before hours of training, not after
     p = options.preset
     size = options.size or p.size
+    device = torch.device(options.device)
+    refs = load_references(
+        [(s, "--models") for s in shipped] + [(s, "--from-models") for s in options.from_models], device
+    )
     from svbrdf_train.recipe import load_recipe, parse_overrides
 
     from .testset import test_set
@@ -330,34 +353,50 @@ def run_bench(options: BenchOptions) -> str:
 
     # Arguments are checked before MLflow is touched (a bad path should not wait for a store).
     test = None
-    if options.models:
-        test = make_test_set(
-            load_recipe(
-                options.models[0], size, parse_overrides([*p.overrides, *options.overrides])
-            ).train.resolution
-        )
+    if recipes:
+        resolution = load_recipe(
+            recipes[0], size, parse_overrides([*p.overrides, *options.overrides])
+        ).train.resolution
+        check_resolution(refs, resolution, f"the resolution of recipe {recipes[0]!r} at size {size!r}")
+        test = make_test_set(resolution)
     reuse = _resolve_reuse(options.from_runs)
     reused_labels = {label for label, _ in reuse}
-    to_train = [m for m in options.models if Path(m).stem not in reused_labels]
-    if not to_train and not reuse:
-        raise BenchError("no models to compare: give --models and/or --from-runs")
+    to_train = [m for m in recipes if Path(m).stem not in reused_labels]
+    if not to_train and not reuse and not refs:
+        raise BenchError("no models to compare: give --models, --from-runs and/or --from-models")
     _check_baselines(options.baselines, [Path(m).stem for m in to_train] + list(reused_labels))
     if test is None:
-        test = make_test_set(int(_client().get_run(reuse[0][1]).data.params.get("train.resolution", 256)))
+        if reuse:
+            resolution = int(_client().get_run(reuse[0][1]).data.params.get("train.resolution", 256))
+            why = f"the resolution of the reused fit {reuse[0][0]}"
+        else:
+            resolution, why = refs[0].model.resolution, f"the resolution of {refs[0].source}"
+        check_resolution(refs, resolution, why)
+        test = make_test_set(resolution)
+    check_trained_strips(refs, test, options.allow_trained_strips, options.say)
     photos = None
     if options.real_data is not None:
         from svbrdf_train.data import PhotoFolder
 
         photos = PhotoFolder(options.real_data, encoding=options.real_encoding, pattern=options.real_pattern)
     lpips, lpips_note = load_lpips()
-    device = torch.device(options.device)
 
     client = _client()
     from svbrdf_train.tracking import MlflowTracker
 
     sha, dirty = git_revision()
-    labels = [Path(m).stem for m in to_train] + [label for label, _ in reuse]
+    labels = [Path(m).stem for m in to_train] + [label for label, _ in reuse] + [r.short for r in refs]
     minutes = options.minutes if options.minutes is not None else p.minutes
+    if to_train:
+        budget = "recipe schedule" if minutes is None else str(minutes)
+        words = "each recipe's full schedule" if minutes is None else f"{minutes:g} min of training per model"
+    elif reuse:
+        budget = "reused fits, each with its own training budget (see the time table)"
+        words = "reused fits, each with its own training budget"
+    else:
+        budget = words = "reference models only, each with the training budget its file records"
+    if refs and (to_train or reuse):
+        words += "; reference rows: their own budgets, not equal"
     parent = MlflowTracker(
         experiment=options.experiment,
         run_name=f"bench-{','.join(labels)}-{p.name}",
@@ -374,13 +413,7 @@ def run_bench(options: BenchOptions) -> str:
         params={
             PRESET_PARAM: p.name,
             "recipe_size": size,
-            MINUTES_PARAM: (
-                "reused fits, each with its own training budget (see the time table)"
-                if not to_train
-                else "recipe schedule"
-                if minutes is None
-                else str(minutes)
-            ),
+            MINUTES_PARAM: budget,
             TEST_SET_PARAM: test.description,
             "test_count": str(len(test)),
             "overrides": " ".join([*p.overrides, *options.overrides]) or "-",
@@ -388,19 +421,13 @@ def run_bench(options: BenchOptions) -> str:
             if photos
             else "-",
             BASELINES_PARAM: ",".join(options.baselines) or "-",
+            REFERENCES_PARAM: " ".join(f"{r.source}@{r.model.sha256[:12]}" for r in refs) or "-",
         },
     )
     parent_id = parent.run_id
     options.say(
-        f"benchmark {', '.join(labels)} ({p.name}: "
-        + (
-            "reused fits, each with its own training budget"
-            if not to_train
-            else "each recipe's full schedule"
-            if minutes is None
-            else f"{minutes:g} min of training per model"
-        )
-        + f"); baselines: {', '.join(options.baselines) or 'none'}; test set: {test.description}; "
+        f"benchmark {', '.join(labels)} ({p.name}: {words}); "
+        + f"baselines: {', '.join(options.baselines) or 'none'}; test set: {test.description}; "
         + f"{lpips_note}\n  MLflow parent run: {parent_id}"
     )
     status = "FAILED"
@@ -418,8 +445,10 @@ def run_bench(options: BenchOptions) -> str:
                 jobs.append((label, child, None, source, None))
             shown_by_model = {}
 
-            def evaluate_one(label: str, generator) -> tuple[dict[str, float], dict[str, np.ndarray]]:
-                """Test images, latency, parameters and real photos: the same for models and baselines."""
+            def evaluate_one(
+                label: str, generator, shown_as: str | None = None
+            ) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+                """Test images, latency, parameters and real photos: the same for every row."""
                 options.say(f"evaluating {label} on {len(test)} test images")
                 per_sample, shown = _evaluate(generator, test, device, lpips)
                 figures = {
@@ -434,7 +463,7 @@ def run_bench(options: BenchOptions) -> str:
                 for key, values in per_sample.items():
                     if not key.startswith(REAL_PREFIX):
                         figures[f"{TEST_PREFIX}{key}"] = float(values.mean())
-                shown_by_model[label] = shown
+                shown_by_model[shown_as or label] = shown
                 return figures, per_sample
 
             for label, run_id, wall, source, local in jobs:
@@ -464,6 +493,11 @@ def run_bench(options: BenchOptions) -> str:
                 _log_child(run_id, figures, per_sample, work)
                 if source is not None:
                     client.set_terminated(run_id)
+            for ref in refs:  # trained elsewhere: scored, not trained; the label says so
+                run_id = reference_child(client, parent.experiment_id, parent_id, ref)
+                figures, per_sample = evaluate_one(ref.label, ref.model.generator, ref.short)
+                _log_child(run_id, figures | reference_figures(ref), per_sample, work)
+                client.set_terminated(run_id)
             for name in options.baselines:
                 run_id, generator = _baseline_child(client, parent.experiment_id, parent_id, name)
                 figures, per_sample = evaluate_one(name, generator.to(device))

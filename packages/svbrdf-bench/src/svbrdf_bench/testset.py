@@ -6,6 +6,10 @@
   resolution;
 - HDF5 shards (``.h5`` files or a folder of them): samples larger than the models resized.
 
+:attr:`TestSet.names` holds the names of the test files (Des18 strips, and for shards the shard
+files and the names their samples carry): a reference model whose provenance lists one of them
+among its training strips is refused (:mod:`svbrdf_bench.references`).
+
 Resizing, not cropping: an image always covers the surface ``[-1, 1]^2``, and a model must see
 test images at the field of view it was trained on. The centre 128 px of a 288 px Des18 tile
 show 44% of the surface's width and a flash highlight more than twice as large as any the model
@@ -33,6 +37,8 @@ class TestSet(Dataset):
 
     def __init__(self, data: Dataset, resolution: int, description: str):
         self.data, self.resolution, self.description = data, resolution, description
+        #: Names of the real files tested on (empty for the procedural test set).
+        self.names: set[str] = set()
 
     def __len__(self) -> int:
         return len(self.data)
@@ -76,10 +82,11 @@ def test_set(path: str | Path | None, resolution: int, count: int) -> TestSet:
     # that is not square or smaller than the models is refused up front, not after an hour.
     for i in range(len(test)):
         try:
-            test[i]
+            test.names.add(str(test[i]["name"]))
         except BenchError:
             raise
         except Exception as e:  # DataError, MapFileError, h5py's checksum errors: name the input
             first = str(e).strip().splitlines()[0][:200] if str(e).strip() else type(e).__name__
             raise BenchError(f"--test-data {path}: sample {i} cannot be read ({first})") from None
+    test.names |= {Path(p).name for p in getattr(data, "paths", ())}  # shard files
     return test

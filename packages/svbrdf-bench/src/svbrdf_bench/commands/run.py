@@ -19,6 +19,8 @@ Examples:
   svbrdf-bench run --models ours,no-attn --test-data ../shared/data/des18-dev
   svbrdf-bench run --models ours,no-attn --real-data ../shared/data/real-dev --real-pattern 'luo*'
   svbrdf-bench run --models ours --no-baselines              # without the mean/photo baselines
+  svbrdf-bench run --models ours --from-models fold0.pt --test-data DIR   # + fold0.pt, a reference row
+  svbrdf-bench run --models pretrained --test-data DIR       # the model shipped with svbrdf-models
 
 \b
 Presets (every model gets the same training-time budget, counted on the fit's train.clock:
@@ -34,16 +36,26 @@ fall-off divided out, as diffuse) need no training and are evaluated on the same
 the report says, map by map, whether each trained model beats `mean` (paired bootstrap).
 
 \b
+Reference rows: --from-models FILE,... (paths, pretrained[:NAME], hash-named URLs, MLflow
+models:/ or runs:/ URIs) and --models pretrained[:NAME] score model files trained elsewhere on
+the same test images with the same figures; nothing is trained for them and they do not replace
+the --models recipes. They were not trained at this benchmark's budget, so each row is labelled
+with what its file records, e.g. `fold0 (reference: ours, 128 px, 8.3k steps, 1.1 h CPU;
+not equal-budget)`. Refused before any training: a file that cannot be loaded, a model trained
+at another resolution than the test images, and a model whose provenance lists test strips
+among the real strips it trained on (unless --allow-trained-strips).
+
+\b
 Test data: Des18 tiles and shards larger than the models are resized to the models'
 resolution (area filter), never centre-cropped: models see the field of view they trained at.
 
 \b
 Output: the tables in the terminal (a headline per model on whether it beats `mean`; rows =
-models then baselines; RMSE and SSIM per map and on renderings under 6 fixed light/view pairs,
-each with a 95% bootstrap interval; the difference to `mean`; time and memory; what each
-trained model's extra accuracy costs against each other one), and in --out: report.md,
-results.csv, results.json, costs.csv, against_mean.csv, learning_curves.png, pareto.png,
-comparison.png. MLflow: one parent run, one child per model and per baseline;
+models, reference rows, then baselines; RMSE and SSIM per map and on renderings under 6 fixed
+light/view pairs, each with a 95% bootstrap interval; the difference to `mean`; time and
+memory; what each trained model's extra accuracy costs against each other one), and in --out:
+report.md, results.csv, results.json, costs.csv, against_mean.csv, learning_curves.png,
+pareto.png, comparison.png. MLflow: one parent run, one child per model, reference row and baseline;
 `svbrdf-bench report PARENT_RUN_ID` rebuilds the report later.
 """
 )
@@ -55,7 +67,12 @@ def _split(value: str | None) -> list[str]:
 
 @click.command("run", epilog=EPILOG)
 @click.option(
-    "--models", default="", metavar="A,B,...", help="Recipes to train and compare (svbrdf-train recipes)."
+    "--models",
+    default="",
+    metavar="A,B,...",
+    help="Recipes to train and compare (svbrdf-train recipes); `pretrained` or `pretrained:NAME` "
+    "scores the model shipped with svbrdf-models as a reference row instead of training. "
+    "Example: --models ours,pretrained.",
 )
 @click.option(
     "--preset",
@@ -66,6 +83,22 @@ def _split(value: str | None) -> list[str]:
 )
 @click.option(
     "--from-runs", default="", metavar="ID|RECIPE,...", help="Reuse finished fits instead of training."
+)
+@click.option(
+    "--from-models",
+    default="",
+    metavar="FILE|SOURCE,...",
+    help="Model files trained elsewhere, scored as reference rows (not equal-budget) beside the "
+    "trained models: paths, pretrained[:NAME], URLs or MLflow URIs (svbrdf_models.load_model). "
+    "Example: --models ours --from-models fold0.pt,pretrained. `--models pretrained[:NAME]` "
+    "adds the model shipped with svbrdf-models the same way.",
+)
+@click.option(
+    "--allow-trained-strips",
+    is_flag=True,
+    help="Score a reference model (--from-models, --models pretrained) even on test strips its "
+    "provenance lists among the real strips it trained on (refused otherwise); its row then says "
+    "how many. Example: --from-models fold0.pt --test-data des18-dev --allow-trained-strips.",
 )
 @click.option(
     "--test-data",
@@ -117,6 +150,8 @@ def run(
     models,
     preset,
     from_runs,
+    from_models,
+    allow_trained_strips,
     test_data,
     real_data,
     real_encoding,
@@ -130,7 +165,8 @@ def run(
     experiment,
     no_baselines,
 ):
-    """Train (or reuse) each model under one budget, test all on the same images, compare.
+    """Train (or reuse) each model under one budget, test all on the same images, compare;
+    score model files trained elsewhere beside them as reference rows (--from-models).
 
     Answers "which model, at what cost?": accuracy per map and on renderings with bootstrap
     intervals, next to training time, throughput, inference latency, size and memory, and
@@ -142,13 +178,19 @@ def run(
 
     chosen = _split(models)
     reused = _split(from_runs)
-    if not chosen and not reused:
-        raise BenchError("nothing to compare: give --models A,B (recipes) and/or --from-runs ID,...")
+    files = _split(from_models)
+    if not chosen and not reused and not files:
+        raise BenchError(
+            "nothing to compare: give --models A,B (recipes), --from-runs ID,... "
+            "and/or --from-models FILE,..."
+        )
     run_bench(
         BenchOptions(
             models=chosen,
             preset=get_preset(preset),
             from_runs=reused,
+            from_models=files,
+            allow_trained_strips=allow_trained_strips,
             test_data=str(test_data) if test_data else None,
             real_data=str(real_data) if real_data else None,
             real_encoding=real_encoding,
