@@ -224,7 +224,8 @@ def hardware(device: str | torch.device) -> str:
                 break
     except OSError:
         pass
-    return f"{os.cpu_count()} cores of {name}, torch {torch.get_num_threads()} threads"
+    threads = torch.get_num_threads()
+    return f"{os.cpu_count()} cores of {name}, torch on {threads} thread{'s' if threads > 1 else ''}"
 
 
 def made_with(device: str | torch.device) -> dict[str, str]:
