@@ -38,16 +38,12 @@ COLUMNS = ("normal", "diffuse", "roughness", "specular", "render")
 QUICK, MEAN, PHOTO = "ours", "mean", "photo"
 
 
-def trained_files(model: str) -> set[str]:
-    import svbrdf_models as sm
-
-    data = sm.load_model(model).provenance.get("data") or {}
-    return {name for source in data.get("sources", []) for name in source.get("files", [])}
-
-
 def judging_folder(data: Path, model: str, out: Path) -> Path:
     """A folder of links to the strips of ``data`` the model did not train on."""
-    seen = trained_files(model)
+    import svbrdf_models as sm
+    from svbrdf_bench.references import trained_files
+
+    seen = trained_files(sm.load_model(model))
     folder = out / "judge"
     folder.mkdir(parents=True, exist_ok=True)
     for old in folder.iterdir():
