@@ -59,8 +59,10 @@ def download_run_checkpoint(run_id: str) -> dict[str, Any]:
     """The checkpoint an MLflow run logged (``MLFLOW_TRACKING_URI`` or the default store)."""
     from mlflow import MlflowClient
 
-    client = MlflowClient()
-    with tempfile.TemporaryDirectory() as tmp:
+    from .tracking import quiet_store_logs
+
+    with tempfile.TemporaryDirectory() as tmp, quiet_store_logs():  # a new store's notices: not for predict
+        client = MlflowClient()
         try:
             try:
                 local = client.download_artifacts(run_id, RUN_CHECKPOINT, tmp)

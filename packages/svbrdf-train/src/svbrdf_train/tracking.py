@@ -40,6 +40,7 @@ __all__ = [
     "git_revision",
     "made_with",
     "hardware",
+    "quiet_store_logs",
 ]
 
 #: The distributions whose versions every run records.
@@ -155,8 +156,9 @@ def _store_error(what: str, uri: str, error: Exception) -> TrackingError:
 
 
 @contextlib.contextmanager
-def _quiet_store_logs():
-    """MLflow logs a database error with its traceback before raising it; the caller words it."""
+def quiet_store_logs():
+    """Silence MLflow's database logger: it logs an error with its traceback before raising it
+    (the caller words it) and a new store's table creation at INFO level."""
     import logging
 
     logger = logging.getLogger("mlflow.store.db.utils")
@@ -290,7 +292,7 @@ class MlflowTracker(Tracker):
 
         self.uri = mlflow.get_tracking_uri()
         try:
-            with _quiet_store_logs():
+            with quiet_store_logs():
                 self.client = open_client(self.uri)
         except Exception as e:  # database, connection and permission errors alike
             raise _store_error("open the MLflow store", self.uri, e) from None
@@ -309,7 +311,7 @@ class MlflowTracker(Tracker):
                 self.set_tags(tags)
             return
         try:
-            with _quiet_store_logs():
+            with quiet_store_logs():
                 self.experiment_id = self._experiment(experiment)
                 run = self.client.create_run(self.experiment_id, run_name=run_name, tags=dict(tags or {}))
         except Exception as e:  # MlflowException, connection and database errors alike
@@ -394,7 +396,7 @@ class MlflowTracker(Tracker):
     def _writing(self, what: str):
         """Store errors while the run is logged: one line (TrackingError), no MLflow traceback."""
         try:
-            with _quiet_store_logs():
+            with quiet_store_logs():
                 yield
         except Exception as e:
             raise _store_error(what, self.uri, e) from None
