@@ -587,9 +587,9 @@ def build_report(parent_id: str) -> Report:
             train_run = train_run_id(child.info.run_id, child.data.tags)
             metrics = child.data.metrics
             figures = {k: v for k, v in metrics.items() if not k.startswith(TRAINER_PREFIXES)}
+            row = (label, child.info.run_id, train_run, per_sample, figures)  # what every entry has
             if is_baseline(child.data.tags):
-                entry = ModelEntry(label, child.info.run_id, train_run, per_sample, figures, baseline=True)
-                models.append(entry)
+                models.append(ModelEntry(*row, baseline=True))
                 continue
             figures[STEPS_METRIC] = metrics.get(STEPS_METRIC, math.nan)
             short = reference_name(child.data.tags)
@@ -599,17 +599,7 @@ def build_report(parent_id: str) -> Report:
                 budget |= {
                     k[len(BUDGET_PREFIX) :]: v for k, v in params.items() if k.startswith(BUDGET_PREFIX)
                 }
-                models.append(
-                    ModelEntry(
-                        label,
-                        child.info.run_id,
-                        train_run,
-                        per_sample,
-                        figures,
-                        reference_name=short,
-                        budget=budget,
-                    )
-                )
+                models.append(ModelEntry(*row, reference_name=short, budget=budget))
                 continue
             if STEPS_WALL_METRIC not in figures and FIT_WALL_METRIC in metrics:
                 figures[STEPS_WALL_METRIC] = metrics[FIT_WALL_METRIC]
@@ -618,11 +608,7 @@ def build_report(parent_id: str) -> Report:
             init = (tags["svbrdf.init"], before) if "svbrdf.init" in tags else None
             models.append(
                 ModelEntry(
-                    label,
-                    child.info.run_id,
-                    train_run,
-                    per_sample,
-                    figures,
+                    *row,
                     _curve(client, train_run, offset=before),
                     _curve(client, train_run, "val_real/rmse/render", offset=before),
                     clock=tags.get(CLOCK_TAG),
