@@ -10,6 +10,7 @@ so their labels are known exactly; one is exported from a real smoke fit, to che
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -311,6 +312,20 @@ def test_a_model_that_cannot_be_loaded_is_a_one_line_error(flag, make, says, tmp
     assert len(err) == 1 and "Traceback" not in done.stderr, done.stderr
     assert err[0].startswith(f"svbrdf-bench: error: {flag}: ") and says in err[0] and source in err[0]
     assert not _trained(done.stdout + done.stderr)
+
+
+def test_a_new_store_is_made_without_mlflow_s_notices(tmp_path):
+    """The first run on a store that does not exist yet prints the benchmark's lines, not MLflow's
+    INFO lines about creating its tables."""
+    env = dict(os.environ, MLFLOW_TRACKING_URI=f"sqlite:///{tmp_path / 'new.db'}")
+    done = subprocess.run(
+        [sys.executable, "-m", "svbrdf_bench", "run", "--models", "pretrained", "--test-count", "2",
+         "--no-baselines", "-o", str(tmp_path / "r")],
+        capture_output=True, text=True, timeout=300, env=env,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "new.db").is_file() and (tmp_path / "r" / "results.json").is_file()
+    assert "mlflow.store" not in done.stdout + done.stderr, done.stderr
 
 
 def test_two_files_of_one_name_get_a_row_each(folders, tmp_path):

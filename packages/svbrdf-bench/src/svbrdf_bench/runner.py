@@ -103,9 +103,12 @@ class BenchOptions:
 
 
 def _client():
-    from mlflow import MlflowClient
+    """The client of the tracking store, which is created (quietly, one process at a time) if new."""
+    import mlflow
 
-    return MlflowClient()
+    from svbrdf_train.tracking import open_client
+
+    return open_client(mlflow.get_tracking_uri())
 
 
 # -- models -------------------------------------------------------------------------------------

@@ -174,7 +174,7 @@ def open_client(uri: str):
     """An MlflowClient on ``uri`` whose store is created (tables and all) by one process at a time."""
     from mlflow import MlflowClient
 
-    with _store_lock(uri):
+    with _store_lock(uri), quiet_store_logs():
         client = MlflowClient(uri)
         client.search_experiments(max_results=1)  # opens the store: creates or migrates its tables
     return client
