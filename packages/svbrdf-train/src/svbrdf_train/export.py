@@ -151,10 +151,13 @@ def register(
     the version carries the generator, its config and the metrics as tags. Returns
     ``(model URI, run id)``.
     """
-    from mlflow import MlflowClient
+    import mlflow
     from mlflow.exceptions import MlflowException
 
-    client = MlflowClient()
+    from .tracking import experiment_id, open_client
+
+    uri = mlflow.get_tracking_uri()
+    client = open_client(uri)
     run = None
     if run_id:
         try:
@@ -162,8 +165,7 @@ def register(
         except MlflowException:
             run = None
     if run is None:
-        experiment = client.get_experiment_by_name("svbrdf-models")
-        exp_id = experiment.experiment_id if experiment else client.create_experiment("svbrdf-models")
+        exp_id = experiment_id(client, uri, "svbrdf-models")
         run = client.create_run(exp_id, run_name=f"export-{contents['generator']['name']}")
         client.log_param(run.info.run_id, "generator", contents["generator"]["name"])
         for key, value in contents["metrics"].items():

@@ -41,6 +41,8 @@ __all__ = [
     "made_with",
     "hardware",
     "quiet_store_logs",
+    "open_client",
+    "experiment_id",
 ]
 
 #: The distributions whose versions every run records.
@@ -178,6 +180,28 @@ def open_client(uri: str):
         client = MlflowClient(uri)
         client.search_experiments(max_results=1)  # opens the store: creates or migrates its tables
     return client
+
+
+def experiment_id(client, uri: str, name: str) -> str:
+    """The id of experiment ``name`` in the store at ``uri``, made if missing: its artifacts
+    beside a local store, tagged as a model-training experiment."""
+    found = client.get_experiment_by_name(name)
+    if found is not None:
+        return found.experiment_id
+    folder = _local_store_folder(uri)
+    location = None
+    if folder is not None:
+        safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in name)
+        location = (folder / "mlartifacts" / safe).as_uri()
+    try:
+        return client.create_experiment(
+            name, artifact_location=location, tags={EXPERIMENT_KIND_TAG: EXPERIMENT_KIND}
+        )
+    except Exception:  # made by another process in the meantime
+        found = client.get_experiment_by_name(name)
+        if found is None:
+            raise
+        return found.experiment_id
 
 
 def flatten_params(config: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
@@ -323,23 +347,7 @@ class MlflowTracker(Tracker):
             self.client.log_batch(self.run_id, params=[Param(k, v) for k, v in chunk])
 
     def _experiment(self, name: str) -> str:
-        found = self.client.get_experiment_by_name(name)
-        if found is not None:
-            return found.experiment_id
-        folder = _local_store_folder(self.uri)
-        location = None
-        if folder is not None:
-            safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in name)
-            location = (folder / "mlartifacts" / safe).as_uri()
-        try:
-            return self.client.create_experiment(
-                name, artifact_location=location, tags={EXPERIMENT_KIND_TAG: EXPERIMENT_KIND}
-            )
-        except Exception:  # made by another process in the meantime
-            found = self.client.get_experiment_by_name(name)
-            if found is None:
-                raise
-            return found.experiment_id
+        return experiment_id(self.client, self.uri, name)
 
     def log_metrics(self, metrics: Mapping[str, float], step: int) -> None:
         from mlflow.entities import Metric
