@@ -3,7 +3,7 @@
 Public API (everything importable from here)::
 
     from svbrdf_render import SVBRDF, Scene, Camera, PointLight, Flash, render
-    from svbrdf_render import training_scene, evaluation_scene, fit_flash
+    from svbrdf_render import training_scene, evaluation_scene, fit_flash, refine_maps
     from svbrdf_render import read_des18, write_des18, read_map_folder, write_map_folder
 
 The core needs torch and numpy only; reading and writing image and YAML files needs the
@@ -27,6 +27,14 @@ from .mapfiles import (
 )
 from .maps import MAP_NAMES, SVBRDF
 from .reference import render_reference
+from .refine import (
+    DEFAULT_REFINE_STEPS,
+    MIN_REFINE_SIDE,
+    Refinement,
+    RefineSettings,
+    refine_maps,
+    refine_start,
+)
 from .renderer import BACKENDS, build_plan, log_radiance, render
 from .sampling import EVAL_CONFIGS, EVAL_SEED, evaluation_scene, training_scene
 from .scene import DES18_DISTANCE, Camera, Flash, PointLight, Scene
@@ -36,6 +44,12 @@ __version__ = "0.1.0"
 
 __all__ = [
     "BACKENDS",
+    "DEFAULT_REFINE_STEPS",
+    "MIN_REFINE_SIDE",
+    "RefineSettings",
+    "Refinement",
+    "refine_maps",
+    "refine_start",
     "DES18_DISTANCE",
     "DES18_EFFECTS",
     "EFFECTS",

@@ -1,0 +1,447 @@
+"""Refine maps until they explain a photo: inverse rendering by gradient descent.
+
+A network (or constant maps) gives a start; :func:`refine_maps` then moves the maps through
+the differentiable renderer until their rendering under the photo's flash matches the photo,
+at the photo's own resolution, while a prior term keeps them near the start::
+
+    from svbrdf_render import refine_maps
+    result = refine_maps(photo, start, steps=200)        # flash fitted to the start maps
+    result = refine_maps(photo, start, scene=Scene.flash(intensity=15.0), seconds=5.0)
+    result.svbrdf                                        # refined maps, photo-sized
+
+The loss, per material (``R`` the rendering clipped to [0, 1] as a camera saturates, ``P``
+the photo, ``x`` a map on its stored encoding, normal as ``(n + 1) / 2``)::
+
+    data   = mean | log(R + eps) - log(P + eps) |                  (the rendering loss' log)
+    prior  = sum_map w_map * mean | x - x_prior |                  (L1: edges kept, outliers cheap)
+
+The single photo cannot tell a bright diffuse from a highlight, so what may change is bounded
+by the parametrisation (see :class:`RefineSettings`): roughness and specular change only by
+smooth fields (a coarse grid upsampled), so the highlight must be explained by them or by the
+normals, and the diffuse changes at every pixel but pays the prior for it. Every map is reached
+through a function whose every value is valid, so no step leaves the valid range and no clamp
+stops a gradient:
+
+- normal ``n = normalize(u, v, 1)``: the slopes ``(u, v)`` are free; ``n.z > 0`` always;
+- diffuse, specular, roughness ``x = sigmoid(t)`` with ``t`` free (the start clamped into
+  ``[1e-4, 1 - 1e-4]`` first, so a start at 0 or 1 has a finite logit).
+
+The optimiser is Adam on the parameters of each map; ``steps`` or ``seconds`` bound it, a
+``callback(step, total, loss)`` reports progress. The result is deterministic: nothing in it
+is random, so the same inputs give the same maps (``seed`` seeds torch for callers' sake).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from .effects import DES18_EFFECTS
+from .errors import MapError, SceneError
+from .fit import fit_flash
+from .maps import MAP_NAMES, SVBRDF
+from .renderer import BACKENDS, log_radiance, render
+from .scene import DES18_DISTANCE, Camera, PointLight, Scene
+
+__all__ = [
+    "DEFAULT_REFINE_STEPS",
+    "FLASH_MODES",
+    "MIN_REFINE_SIDE",
+    "RefineLoss",
+    "RefineSettings",
+    "Refinement",
+    "axis_flash",
+    "refine_maps",
+    "refine_start",
+]
+
+#: The refinement budget the photo tools use when none is given (chosen from the accuracy
+#: curve of ``benchmarks/refine_curve.py``; see the README).
+DEFAULT_REFINE_STEPS = 150
+
+#: Photos with a shorter side below this are refused by the photo tools (the renderer itself
+#: refines any size; it is tested down to 1x1).
+MIN_REFINE_SIDE = 16
+#: Pixels at or above this are taken as clipped by the camera; below _DARK as too dark to
+#: tell anything (and kept away from log(0)).
+_SATURATED, _DARK = 0.98, 1e-3
+#: Cells per side of the low pass of ``RefineLoss.blob``.
+_BLOB_GRID = 8
+#: How far into (0, 1) a start value is moved before its logit is taken.
+_EDGE = 1e-4
+#: Slope bound of a start normal: ``n.z`` is raised to about 0.05 (87 degrees) at most.
+_MAX_SLOPE = 20.0
+
+
+@dataclass(frozen=True)
+class RefineSettings:
+    """How :func:`refine_maps` weighs the photo against the prior, and how it steps.
+
+    Attributes:
+        lr: Adam step size on the parameters (logits and slopes).
+        eps: the ``eps`` of ``log(x + eps)`` in the data term.
+        prior: weight of each map's L1 pull toward the prior (stored encodings).
+        coarse: side of the grid on which roughness and specular may change (their change is
+            that grid upsampled bilinearly); ``0`` lets them change per pixel.
+        normal_lr_scale: the normals' step relative to ``lr`` (they are the noisiest to fit).
+        levels: grids of the change of each map, halving in size from the finest (1: one grid);
+            a 1x1 grid (the material's mean) is always added.
+        lobe_first: share of the steps during which per-pixel normals and diffuse stay still
+            and only the smooth roughness and specular, and each map's mean, move: the
+            highlight is explained by the lobe before a pixel of diffuse can absorb it.
+        blob: weight of the penalty on smooth bumps in the diffuse change (``RefineLoss.blob``),
+            the shape a highlight baked into the diffuse takes.
+    """
+
+    lr: float = 0.05
+    eps: float = 0.01
+    prior: dict[str, float] = field(
+        default_factory=lambda: {"normal": 2.0, "diffuse": 0.3, "roughness": 0.05, "specular": 0.2}
+    )
+    coarse: int = 8
+    normal_lr_scale: float = 0.5
+    levels: int = 1
+    lobe_first: float = 0.3
+    blob: float = 5.0
+
+    def __post_init__(self):
+        if not (self.lr > 0 and math.isfinite(self.lr)):
+            raise ValueError(f"refine: lr must be a finite number > 0, got {self.lr}")
+        if not self.eps > 0:
+            raise ValueError(f"refine: eps must be > 0, got {self.eps}")
+        unknown = set(self.prior) - set(MAP_NAMES)
+        if unknown:
+            raise ValueError(f"refine: prior weights for unknown maps {sorted(unknown)}; maps: {MAP_NAMES}")
+        if any(not (w >= 0 and math.isfinite(w)) for w in self.prior.values()):
+            raise ValueError(f"refine: prior weights must be finite and >= 0, got {self.prior}")
+        if not (self.blob >= 0 and math.isfinite(self.blob)):
+            raise ValueError(f"refine: blob must be a finite number >= 0, got {self.blob}")
+        if not 0 <= self.lobe_first < 1:
+            raise ValueError(f"refine: lobe_first must be in [0, 1), got {self.lobe_first}")
+        if self.coarse < 0:
+            raise ValueError(f"refine: coarse must be >= 0, got {self.coarse}")
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """What :func:`refine_maps` returns.
+
+    Attributes:
+        svbrdf: the refined maps, at the photo's size (detached).
+        scene: the scene they were refined under (the fitted flash when none was given).
+        steps: Adam steps taken.
+        seconds: wall time of the refinement, the flash fit included.
+        losses: ``(steps,)`` total loss (mean over the batch) before each step.
+    """
+
+    svbrdf: SVBRDF
+    scene: Scene
+    steps: int
+    seconds: float
+    losses: Tensor
+
+
+def refine_start(start: SVBRDF, size: tuple[int, int]) -> SVBRDF:
+    """``start`` brought to ``size`` (bilinear, normals renormalised): where a network's maps
+    at its own resolution begin a refinement at the photo's."""
+    if tuple(start.size) == tuple(size):
+        return start
+    return start.resize(*size)
+
+
+def _logit(x: Tensor) -> Tensor:
+    x = x.clamp(_EDGE, 1 - _EDGE)
+    return torch.log(x) - torch.log1p(-x)
+
+
+def _slopes(normal: Tensor) -> Tensor:
+    """``(B, 2, H, W)`` slopes ``(x / z, y / z)`` of normals; grazing or back-facing ones are
+    raised to ``n.z`` of about ``1 / _MAX_SLOPE``."""
+    from .geometry import safe_normalize
+
+    n = safe_normalize(normal, dim=1)
+    z = n[:, 2:3].clamp_min(1.0 / _MAX_SLOPE)
+    return (n[:, 0:2] / z).clamp(-_MAX_SLOPE, _MAX_SLOPE)
+
+
+def _normal(slopes: Tensor) -> Tensor:
+    n = torch.cat([slopes, torch.ones_like(slopes[:, :1])], dim=1)
+    return n * torch.rsqrt((n * n).sum(1, keepdim=True))  # length >= 1: always finite
+
+
+def _view(rendering: Tensor) -> Tensor:
+    """``(B, 3, H, W)`` of a rendering of shape ``(B, 1, 3, H, W)`` (one view per material)."""
+    return rendering[:, 0] if rendering.dim() == 5 else rendering
+
+
+def _stored(name: str, t: Tensor) -> Tensor:
+    return (t + 1) / 2 if name == "normal" else t
+
+
+class _Parameters:
+    """The free tensors behind the four maps, and the maps they give.
+
+    Each map is ``activation(base + change)``: ``base`` is the start's (fixed), ``change`` a sum
+    of grids at ``levels`` sizes halving from the map's own (a Laplacian-pyramid change, so a
+    step moves large areas as readily as single pixels), upsampled bilinearly. Roughness and
+    specular change only on grids no finer than ``coarse``.
+    """
+
+    def __init__(self, start: SVBRDF, coarse: int, levels: int):
+        b, h, w = start.shape
+        self.size = (h, w)
+        self.base = {
+            "normal": _slopes(start.normal).detach(),
+            "diffuse": _logit(start.diffuse).detach(),
+            "roughness": _logit(start.roughness).detach(),
+            "specular": _logit(start.specular).detach(),
+        }
+        limit = {"normal": None, "diffuse": None, "roughness": coarse or None, "specular": coarse or None}
+        self.delta: dict[str, list[Tensor]] = {}
+        for name, base in self.base.items():
+            sizes = _grid_sizes(h, w, levels, limit[name])
+            if sizes[-1] != (1, 1):  # a change of the whole material (its mean), always free
+                sizes.append((1, 1))
+            self.delta[name] = [
+                torch.zeros(b, base.shape[1], gh, gw, device=start.device, requires_grad=True)
+                for gh, gw in sizes
+            ]
+
+    def groups(self, lr: float, normal_scale: float) -> list[dict]:
+        """Adam's parameter groups: ``detail`` (per-pixel normal and diffuse changes, which
+        :func:`refine_maps` holds still while the lobe settles) and ``lobe`` (the rest)."""
+        detail_n = [d for d in self.delta["normal"] if d.shape[-2:] != (1, 1)]
+        detail_d = [d for d in self.delta["diffuse"] if d.shape[-2:] != (1, 1)]
+        lobe = [d for name in MAP_NAMES for d in self.delta[name] if d.shape[-2:] == (1, 1)]
+        lobe += [d for name in ("roughness", "specular") for d in self.delta[name] if d.shape[-2:] != (1, 1)]
+        return [
+            {"params": detail_n, "lr": lr * normal_scale, "base_lr": lr * normal_scale, "detail": True},
+            {"params": detail_d, "lr": lr, "base_lr": lr, "detail": True},
+            {"params": lobe, "lr": lr, "base_lr": lr, "detail": False},
+        ]
+
+    def _free(self, name: str) -> Tensor:
+        x = self.base[name]
+        for d in self.delta[name]:
+            if tuple(d.shape[-2:]) != self.size:
+                d = F.interpolate(d, size=self.size, mode="bilinear", align_corners=False)
+            x = x + d
+        return x
+
+    def svbrdf(self) -> SVBRDF:
+        return SVBRDF(
+            _normal(self._free("normal")),
+            torch.sigmoid(self._free("diffuse")),
+            torch.sigmoid(self._free("roughness")),
+            torch.sigmoid(self._free("specular")),
+            validate=False,
+        )
+
+
+def _grid_sizes(h: int, w: int, levels: int, finest: int | None) -> list[tuple[int, int]]:
+    """``levels`` grid sizes halving from ``(h, w)`` (or from ``finest`` when smaller), at least 1."""
+    gh, gw = (h, w) if finest is None else (min(finest, h), min(finest, w))
+    sizes = []
+    for _ in range(max(1, levels)):
+        if sizes and sizes[-1] == (gh, gw):
+            break
+        sizes.append((gh, gw))
+        gh, gw = max(1, gh // 2), max(1, gw // 2)
+    return sizes
+
+
+def _check(photo: Tensor, start: SVBRDF, prior: SVBRDF | None) -> Tensor:
+    if not isinstance(photo, Tensor) or photo.dim() not in (3, 4):
+        shape = tuple(photo.shape) if isinstance(photo, Tensor) else type(photo).__name__
+        raise MapError(f"refine: expected a photo (B, 3, H, W) or (3, H, W), got {shape}")
+    if photo.dim() == 3:
+        photo = photo[None]
+    if photo.shape[1] != 3:
+        raise MapError(f"refine: expected 3 colour channels in the photo, got {photo.shape[1]}")
+    if photo.shape[0] != start.batch_size:
+        raise MapError(
+            f"refine: {photo.shape[0]} photo(s) but start maps of {start.batch_size} material(s)"
+        )
+    if not bool(torch.isfinite(photo).all()):
+        raise MapError("refine: the photo holds NaN or infinite values")
+    if prior is not None and prior.batch_size != start.batch_size:
+        raise MapError(f"refine: prior maps of {prior.batch_size} material(s), start of {start.batch_size}")
+    return photo.float().clamp(0, 1)
+
+
+#: How :func:`refine_maps` finds the flash when no scene is given.
+FLASH_MODES = ("axis", "fit")
+
+
+def axis_flash(start: SVBRDF, photo: Tensor, distance: float = DES18_DISTANCE) -> Scene:
+    """The Des18 capture (camera and flash on the axis at ``distance``) with the intensity that
+    makes ``start`` explain ``photo`` best in the log domain: the median over the pixels of
+    ``log(photo) - log(rendering at intensity 1)``, one intensity per material.
+
+    The median ignores what the start maps get most wrong (the highlight, where a network's
+    specular lobe is often off, and clipped pixels); a least-squares intensity is dominated
+    by exactly those pixels (on des18-dev it is off by a factor 2-15 even from the true maps).
+    """
+    b = photo.shape[0]
+    unit = _view(render(start, Scene.flash(distance, 1.0).to(photo.device)))
+    keep = (photo < _SATURATED) & (photo > _DARK) & (unit > _DARK)
+    ratio = torch.log(photo.clamp_min(_DARK)) - torch.log(unit.clamp_min(_DARK))
+    k = []
+    for i in range(b):
+        r = ratio[i][keep[i]]
+        k.append(torch.exp(r.median()) if r.numel() else photo.new_tensor(1.0))
+    intensity = torch.stack(k)
+    if b == 1:
+        return Scene.flash(distance, float(intensity[0])).to(photo.device)
+    pos = photo.new_tensor([0.0, 0.0, distance]).expand(b, 1, 3)
+    return Scene(Camera(pos), (PointLight(pos, intensity[:, None]),), DES18_EFFECTS)
+
+
+def _scene_for(photo: Tensor, start: SVBRDF, scene: Scene | None, flash: str) -> Scene:
+    """The scene given (checked), or a flash found from the start maps, one per material:
+    ``"axis"`` by :func:`axis_flash`, ``"fit"`` by :func:`fit_flash` (position too)."""
+    b = photo.shape[0]
+    if scene is None:
+        if flash not in FLASH_MODES:
+            raise ValueError(f"refine: flash must be one of {FLASH_MODES}, got {flash!r}")
+        if flash == "axis":
+            return axis_flash(start, photo)
+        fit = fit_flash(start, photo)
+        if b == 1:
+            return fit.scene(0)
+        pos = fit.position[:, None, :]  # (B, 1, 3): one configuration per material
+        return Scene(Camera(pos), (PointLight(pos, fit.intensity[:, None]),), DES18_EFFECTS)
+    if not isinstance(scene, Scene):
+        raise SceneError(f"refine: expected a Scene, got {type(scene).__name__}")
+    shape = scene.config_shape
+    if not (shape == () or (len(shape) == 2 and shape[0] in (1, b) and shape[1] == 1)):
+        raise SceneError(
+            f"refine: the scene has configurations of shape {tuple(shape)}; a photo is one view: "
+            f"give a scene of shape () or ({b}, 1)"
+        )
+    return scene
+
+
+class RefineLoss:
+    """The objective of :func:`refine_maps` for one photo batch: ``loss(maps) -> scalar``.
+
+    ``data + sum_map w_map * prior_map`` (see the module docstring), averaged over the batch.
+    Built once per refinement: the photo's log and the prior's stored encodings are computed
+    here, not at every step.
+    """
+
+    def __init__(self, photo: Tensor, prior: SVBRDF, scene: Scene, settings: RefineSettings, backend: str):
+        self.scene = scene
+        self.eps = settings.eps
+        self.backend = backend
+        self.target = log_radiance(photo.clamp(0, 1), settings.eps)
+        self.prior = {name: _stored(name, t) for name, t in prior.maps().items()}
+        self.weights = {name: float(settings.prior.get(name, 0.0)) for name in MAP_NAMES}
+        self.blob_weight = float(settings.blob)
+
+    def data(self, maps: SVBRDF) -> Tensor:
+        """``mean |log(clip(render) + eps) - log(photo + eps)|``."""
+        rendering = _view(render(maps, self.scene, backend=self.backend)).clamp(0, 1)
+        return (log_radiance(rendering, self.eps) - self.target).abs().mean()
+
+    def blob(self, maps: SVBRDF) -> Tensor:
+        """``mean |lowpass(change) - mean(change)|`` of the diffuse change from the prior, the
+        low pass a box of :data:`_BLOB_GRID` cells over the image: what a highlight baked into
+        the diffuse looks like (a smooth bump), while the material's mean colour and its
+        fine texture stay free."""
+        change = maps.diffuse - self.prior["diffuse"]
+        h, w = change.shape[-2:]
+        coarse = F.adaptive_avg_pool2d(change, (min(_BLOB_GRID, h), min(_BLOB_GRID, w)))
+        return (coarse - coarse.mean(dim=(-2, -1), keepdim=True)).abs().mean()
+
+    def __call__(self, maps: SVBRDF) -> Tensor:
+        loss = self.data(maps)
+        if self.blob_weight > 0:
+            loss = loss + self.blob_weight * self.blob(maps)
+        for name, t in maps.maps().items():
+            if self.weights[name] > 0:
+                loss = loss + self.weights[name] * (_stored(name, t) - self.prior[name]).abs().mean()
+        return loss
+
+
+def refine_maps(
+    photo: Tensor,
+    start: SVBRDF,
+    *,
+    scene: Scene | None = None,
+    flash: str = "axis",
+    prior: SVBRDF | None = None,
+    steps: int = 200,
+    seconds: float | None = None,
+    settings: RefineSettings | None = None,
+    backend: str = "compiled",
+    callback: Callable[[int, int, float], None] | None = None,
+    seed: int = 0,
+) -> Refinement:
+    """Optimise maps so that their rendering under ``scene`` matches ``photo``.
+
+    Args:
+        photo: ``(B, 3, H, W)`` (or ``(3, H, W)``) linear photos in [0, 1] (values outside are
+            clipped; a saturated pixel only asks the rendering to be at least as bright).
+        start: maps of B materials to start from, any size (resized to ``H x W``).
+        scene: the capture: camera, flash and Des18 effects, shape ``()`` or ``(B, 1)``.
+        flash: with no scene, how to find the flash from ``start``: ``"axis"`` (default: the
+            Des18 capture on the axis at distance 2.2, intensity solved by least squares) or
+            ``"fit"`` (position too, by :func:`fit_flash`).
+        prior: maps the prior term pulls toward (default: ``start``), resized likewise.
+        steps: at most this many Adam steps (0 returns the start, resized).
+        seconds: stop once this much wall time has passed (``None``: no time bound).
+        settings: weights and step sizes (:class:`RefineSettings`).
+        backend: the renderer's backend, ``"compiled"`` (default) or ``"eager"``.
+        callback: ``callback(step, total, loss)`` after each step (``total`` is ``steps``).
+        seed: seeds torch's generator for the call (the refinement itself draws nothing).
+
+    Returns:
+        A :class:`Refinement`. A ``KeyboardInterrupt`` from the callback or the user
+        propagates: nothing is returned half-done.
+    """
+    t0 = time.perf_counter()
+    settings = settings or RefineSettings()
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+        raise ValueError(f"refine: steps must be an integer >= 0, got {steps!r}")
+    if seconds is not None and not (seconds >= 0 and math.isfinite(seconds)):
+        raise ValueError(f"refine: seconds must be a finite number >= 0, got {seconds!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"refine: backend must be one of {BACKENDS}, got {backend!r}")
+    photo = _check(photo, start, prior)
+    size = tuple(photo.shape[-2:])
+    photo = photo.to(start.device)
+    start = refine_start(start.detach().to(torch.float32), size)
+    prior = start if prior is None else refine_start(prior.detach().to(torch.float32), size)
+    scene = _scene_for(photo, start, scene, flash)
+    if steps == 0 or seconds == 0:
+        return Refinement(start, scene, 0, time.perf_counter() - t0, torch.zeros(0))
+
+    torch.manual_seed(seed)
+    params = _Parameters(start, settings.coarse, settings.levels)
+    opt = torch.optim.Adam(params.groups(settings.lr, settings.normal_lr_scale))
+    loss_fn = RefineLoss(photo, prior, scene, settings, backend)
+    losses = []
+    hold = round(settings.lobe_first * steps)
+    for step in range(steps):
+        for group in opt.param_groups:  # details wait until the lobe has settled
+            group["lr"] = 0.0 if group["detail"] and step < hold else group["base_lr"]
+        opt.zero_grad(set_to_none=True)
+        loss = loss_fn(params.svbrdf())
+        loss.backward()
+        opt.step()
+        losses.append(float(loss.detach()))
+        if callback is not None:
+            callback(step + 1, steps, losses[-1])
+        if seconds is not None and time.perf_counter() - t0 >= seconds:
+            break
+    with torch.no_grad():
+        out = params.svbrdf().detach()
+    return Refinement(out, scene, len(losses), time.perf_counter() - t0, torch.tensor(losses))
+
