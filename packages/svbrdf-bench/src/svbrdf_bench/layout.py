@@ -15,6 +15,12 @@ One invocation of ``svbrdf-bench run``::
       child run  per baseline (``mean``, ``photo``; none with --no-baselines): a generator with
                  no trained parameters built from the registry, tagged svbrdf.baseline=true and
                  evaluated exactly like the models (same test images, same figures, params 0)
+      child run  per row above and refinement budget N > 0 (``--refine 0,N,...``): that row's
+                 maps refined for N steps against each test photo (svbrdf_render.refine_maps),
+                 tagged svbrdf.refine_steps=N and svbrdf.refined_from=<the row's child run>,
+                 label ``<row> +refine N``; it keeps the row's svbrdf.baseline and
+                 svbrdf.reference tags (``mean +refine N`` is the pure-optimisation baseline:
+                 refinement from constant maps). Budget 0 is the row itself, not a run of its own.
 
 ==================================  ======  ======================================================
 name                                run     meaning
@@ -28,6 +34,10 @@ params ``preset``, ``test_set``,    parent  the preset, the test set's descripti
 ``real_data``, ``baselines``,               baselines evaluated and the reference models'
 ``reference_models``                        sources with their SHA-256 prefixes ("-": none)
                                             (``*_PARAM``)
+params ``refine_budgets``,          parent  the refinement budgets (``0``: none; absent in older
+``refine_backend``,                         runs), the renderer backend and how the flash was
+``refine_flash``                            found (:data:`REFINE_PARAM`, :data:`REFINE_BACKEND_PARAM`,
+                                            :data:`REFINE_FLASH_PARAM`)
 artifacts ``report/``               parent  the written report: ``report.md``, CSV, JSON, plots
                                             (:data:`REPORT_ARTIFACTS`)
 tag ``mlflow.parentRunId``          child   the benchmark's parent run (MLflow's own nesting tag,
@@ -59,6 +69,24 @@ metrics ``real/*``                  child   self-consistency on real photos (no 
                                             per-sample ``real/rerender_rmse``, metric
                                             ``real/rerender_rmse_median`` (:data:`REAL_PREFIX`,
                                             :data:`REAL_RERENDER`)
+tag ``svbrdf.refine_steps``         child   of a refined row: its budget N, the Adam steps of
+                                            the refinement (:data:`REFINE_TAG`, :func:`refine_steps`)
+tag ``svbrdf.refined_from``         child   of a refined row: the child run of the row it refined
+                                            (:data:`REFINED_FROM_TAG`)
+params ``refine.*``                 child   of a refined row: the budget, backend, flash and the
+                                            :class:`svbrdf_render.RefineSettings` it ran with
+metric ``refine/steps``             child   of a refined row: its budget; ``refine/steps_taken``
+                                            the mean number of steps actually taken
+metric ``time/seconds_per_image``   child   with ``--refine`` on (every row, budget 0 too): mean
+                                            wall seconds per test image, one image at a time:
+                                            network forward plus refinement (flash finding
+                                            included); its parts ``time/network_seconds_per_image``
+                                            and ``time/refine_seconds_per_image``
+                                            (:data:`SECONDS_PER_IMAGE`)
+per-sample ``photo/rerender_rmse``  child   with ``--refine`` on: RMSE of the maps re-rendered
+                                            under the refinement's flash against the test photo
+                                            (display encoding), logged as
+                                            ``test/photo/rerender_rmse`` (:data:`INPUT_RERENDER`)
 metrics ``val/*``, ``val_real/*``,  child   the trainer's own (learning curves,
 ``train/*``                                 :data:`FIT_WALL_METRIC`); never figures of the
                                             report's tables (:data:`TRAINER_PREFIXES`)
@@ -102,7 +130,19 @@ __all__ = [
     "STEPS_WALL_METRIC",
     "FIT_WALL_METRIC",
     "TRAINER_PREFIXES",
+    "REFINE_TAG",
+    "REFINED_FROM_TAG",
+    "REFINE_PARAM",
+    "REFINE_BACKEND_PARAM",
+    "REFINE_FLASH_PARAM",
+    "REFINE_STEPS_METRIC",
+    "REFINE_TAKEN_METRIC",
+    "SECONDS_PER_IMAGE",
+    "NETWORK_SECONDS_PER_IMAGE",
+    "REFINE_SECONDS_PER_IMAGE",
+    "INPUT_RERENDER",
     "baseline_tags",
+    "refine_steps",
     "is_baseline",
     "reference_name",
     "train_run_id",
@@ -156,6 +196,23 @@ STEPS_WALL_METRIC = "time/train_steps_wall_s"
 FIT_WALL_METRIC = "train/total_wall_seconds"
 #: Prefixes of the trainer's own metrics: never figures of the report's tables.
 TRAINER_PREFIXES = ("val/", "val_real/", "train/")
+#: Tags of a refined row's child run: its budget (Adam steps), and the child run of the row refined.
+REFINE_TAG = "svbrdf.refine_steps"
+REFINED_FROM_TAG = "svbrdf.refined_from"
+#: Params of the parent run: the refinement budgets ("0,50,200"), backend and flash.
+REFINE_PARAM = "refine_budgets"
+REFINE_BACKEND_PARAM = "refine_backend"
+REFINE_FLASH_PARAM = "refine_flash"
+#: Metrics of a refined row's child run: its budget, and the mean steps taken per image.
+REFINE_STEPS_METRIC = "refine/steps"
+REFINE_TAKEN_METRIC = "refine/steps_taken"
+#: Metrics with refinement on: mean wall seconds per test image (network + refinement), and its parts.
+SECONDS_PER_IMAGE = "time/seconds_per_image"
+NETWORK_SECONDS_PER_IMAGE = "time/network_seconds_per_image"
+REFINE_SECONDS_PER_IMAGE = "time/refine_seconds_per_image"
+#: Per-sample figure with refinement on: the maps re-rendered under the refinement's flash
+#: against the test photo itself (RMSE, display encoding): what refinement optimises.
+INPUT_RERENDER = "photo/rerender_rmse"
 
 
 def baseline_tags(parent_id: str, name: str) -> dict[str, str]:
@@ -166,6 +223,11 @@ def baseline_tags(parent_id: str, name: str) -> dict[str, str]:
 def is_baseline(tags: Mapping[str, str]) -> bool:
     """Whether a child run's tags mark an untrained baseline."""
     return tags.get(BASELINE_TAG) == "true"
+
+
+def refine_steps(tags: Mapping[str, str]) -> int:
+    """The refinement budget of a child run (see :data:`REFINE_TAG`); 0 for an unrefined row."""
+    return int(tags.get(REFINE_TAG, 0) or 0)
 
 
 def reference_name(tags: Mapping[str, str]) -> str | None:

@@ -7,14 +7,21 @@ global backend state); matplotlib is imported on first use, not at import time.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from pathlib import Path
 
 from torch import Tensor
 
 from .errors import BenchError
 
-__all__ = ["learning_curves", "learning_curves_figure", "pareto", "pareto_front", "comparison_grid"]
+__all__ = [
+    "learning_curves",
+    "learning_curves_figure",
+    "pareto",
+    "pareto_front",
+    "comparison_grid",
+    "accuracy_vs_capture_time",
+]
 
 _DPI = 120
 
@@ -172,6 +179,64 @@ def pareto(
     ax.set_title(f"{ylabel} against {xlabel}")
     ax.grid(True, alpha=0.35)
     ax.legend(fontsize="small")
+    return _save(fig, path)
+
+
+#: The panels of :func:`accuracy_vs_capture_time`: (column, axis label).
+CAPTURE_PANELS = (("render", "render RMSE (6 evaluation views)"), ("diffuse", "diffuse RMSE"))
+
+
+def accuracy_vs_capture_time(
+    series: Mapping[str, Sequence[tuple[float, int, Mapping[str, tuple[float, float, float]]]]],
+    path,
+    *,
+    baselines: Collection[str] = (),
+    panels: Sequence[tuple[str, str]] = CAPTURE_PANELS,
+    xlabel: str = "seconds per image (network + refinement)",
+) -> Path:
+    """Accuracy against capture time, one panel per ``panels`` column, as a PNG at ``path``.
+
+    ``series`` maps a row to its points through the refinement budgets,
+    ``[(seconds per image, refinement steps, {column: (mean, low, high)}), ...]``: one line per row,
+    each point labelled with its steps and given its interval as an error bar. Rows named in
+    ``baselines`` (constant-map baselines: refinement from them is optimisation alone) are drawn
+    dashed, with square markers, beside the models. x is on a log scale (a network's
+    milliseconds and a refinement's seconds on one axis).
+    """
+    drawn = {}
+    for name, points in series.items():
+        pts = sorted((float(t), int(k), dict(v)) for t, k, v in points)
+        for t, k, v in pts:
+            if not (math.isfinite(t) and t > 0):
+                raise BenchError(f"capture time plot: {name!r} at {k} steps has {t} seconds per image")
+            missing = [c for c, _ in panels if c not in v]
+            if missing:
+                raise BenchError(f"capture time plot: {name!r} at {k} steps has no {', '.join(missing)}")
+        if pts:
+            drawn[name] = pts
+    if not drawn:
+        raise BenchError("capture time plot: no rows to draw")
+    fig = _figure((6.0 * len(panels), 4.5))
+    axes = [fig.add_subplot(1, len(panels), i + 1) for i in range(len(panels))]
+    for ax, (column, ylabel) in zip(axes, panels, strict=True):
+        for name, pts in drawn.items():
+            xs = [t for t, _, _ in pts]
+            ys = [v[column][0] for _, _, v in pts]
+            err = [[max(v[column][0] - v[column][1], 0.0) for _, _, v in pts],
+                   [max(v[column][2] - v[column][0], 0.0) for _, _, v in pts]]  # fmt: skip
+            style = {"linestyle": "--", "marker": "s", "alpha": 0.8} if name in baselines else {"marker": "o"}
+            ax.errorbar(xs, ys, yerr=err, capsize=2.5, markersize=4.5, linewidth=1.4, label=name, **style)
+            for t, k, v in pts:
+                ax.annotate(str(k), (t, v[column][0]), xytext=(4, 3), textcoords="offset points",
+                            fontsize="x-small")  # fmt: skip
+        ax.set_xscale("log")
+        ax.margins(x=0.1, y=0.08)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.set_title(f"{ylabel} against capture time\n(labels: refinement steps; dashed: baselines)",
+                     fontsize="medium")  # fmt: skip
+        ax.grid(True, alpha=0.35, which="both")
+    axes[0].legend(fontsize="small")
     return _save(fig, path)
 
 

@@ -14,6 +14,12 @@ report speaks of budgets and costs (the header, the clock, the time table, what 
 the plots) they are named ``NAME (reference)`` and a note says their training figures are what
 their files record.
 
+With ``--refine 0,N,...`` each row is followed by its refined rows, ``<row> +refine N`` (its maps
+refined for N steps against each test photo); ``mean +refine N`` is named the pure-optimisation
+baseline, and each refined model is held against it (not against the unrefined ``mean``): what
+the network adds over optimisation alone at the same budget. A table and a plot
+(``accuracy_vs_capture_time.png``) set accuracy against seconds per image.
+
 The runs are read as :mod:`svbrdf_bench.layout` describes them; this module never imports the
 runner that writes them.
 """
@@ -39,6 +45,7 @@ from .layout import (
     BENCH_KIND,
     BUDGET_PREFIX,
     FIT_WALL_METRIC,
+    INPUT_RERENDER,
     KIND_TAG,
     LPIPS_TAG,
     MINUTES_PARAM,
@@ -50,6 +57,11 @@ from .layout import (
     PRESET_PARAM,
     REAL_DATA_PARAM,
     REAL_RERENDER,
+    REFINE_BACKEND_PARAM,
+    REFINE_FLASH_PARAM,
+    REFINE_PARAM,
+    REFINED_FROM_TAG,
+    SECONDS_PER_IMAGE,
     STEPS_METRIC,
     STEPS_WALL_METRIC,
     TEST_SET_PARAM,
@@ -57,10 +69,19 @@ from .layout import (
     is_baseline,
     read_per_sample,
     reference_name,
+    refine_steps,
     train_run_id,
 )
 
-__all__ = ["Report", "ModelEntry", "build_report", "write_report", "COLUMNS", "REFERENCE"]
+__all__ = [
+    "Report",
+    "ModelEntry",
+    "build_report",
+    "write_report",
+    "COLUMNS",
+    "REFERENCE",
+    "PURE_OPTIMISATION",
+]
 
 COLUMNS = ("normal", "diffuse", "roughness", "specular", "render")
 METRICS = (
@@ -74,6 +95,8 @@ METRICS = (
 )
 #: The baseline every trained model is held against, map by map.
 REFERENCE = "mean"
+#: How the report names ``mean`` refined: refinement from constant maps, optimisation alone.
+PURE_OPTIMISATION = "pure-optimisation baseline"
 #: How the report names the clock a fit's training time was budgeted on (tag svbrdf.clock).
 CLOCK_WORDS = {
     "cpu": "CPU clock (process CPU time divided by torch threads)",
@@ -90,7 +113,11 @@ TIME_COLUMNS = (
     ("model/params", "params (M)", "{:.2f}"),
     ("memory/peak_rss_mb", "peak RSS (MB)", "{:.0f}"),
     ("memory/peak_cuda_mb", "peak GPU (MB)", "{:.0f}"),
+    (SECONDS_PER_IMAGE, "s/image (net + refine)", "{:.3g}"),
 )
+#: Figures a refined row shows from the row it refined (the same model, the same training).
+_INHERITED = ("time/train_s", STEPS_WALL_METRIC, STEPS_METRIC, "time/train_samples_per_s",
+              "time/train_ms_per_step", "memory/peak_rss_mb", "memory/peak_cuda_mb")  # fmt: skip
 
 
 @dataclass
@@ -115,20 +142,41 @@ class ModelEntry:
     reference_name: str | None = None
     #: Of a reference row: its source, SHA-256 and the budget its file records (``budget.*`` params).
     budget: dict[str, str] = field(default_factory=dict)
+    #: Of a refined row (``--refine``): its budget in Adam steps; 0 for the row as scored.
+    refine_steps: int = 0
+    #: Of a refined row: the child run of the row it refined, and that row's label.
+    refined_from: str | None = None
+    base_label: str | None = None
 
     @property
     def is_reference(self) -> bool:
         return self.reference_name is not None
 
     @property
+    def family(self) -> str:
+        """The label of the unrefined row this one is (or is refined from)."""
+        return self.base_label or self.label
+
+    @property
+    def pure_optimisation(self) -> bool:
+        """``mean`` refined: refinement from constant maps, optimisation alone."""
+        return self.baseline and self.refine_steps > 0 and self.family == REFERENCE
+
+    @property
     def name(self) -> str:
-        """The row label of the tables: baselines are marked; a reference row's label says its budget."""
+        """The row label of the tables: baselines are marked (``mean`` refined as the
+        pure-optimisation baseline); a reference row's label says its budget."""
+        if self.pure_optimisation:
+            return f"{self.label} ({PURE_OPTIMISATION})"
         return f"{self.label} (baseline)" if self.baseline else self.label
 
     @property
     def short(self) -> str:
         """The name where budgets and costs are compared, and in the plots: ``NAME (reference)``."""
-        return f"{self.reference_name} (reference)" if self.is_reference else self.name
+        if not self.is_reference:
+            return self.name
+        refined = f" +refine {self.refine_steps}" if self.refine_steps else ""
+        return f"{self.reference_name}{refined} (reference)"
 
 
 @dataclass
@@ -142,6 +190,8 @@ class Report:
     real_data: str = "-"
     #: The baselines the benchmark was asked for ("-": none, --no-baselines; None: not recorded).
     baselines: str | None = None
+    #: The refinement budgets, backend and flash (parent params); budgets "0": no refinement.
+    refine: dict[str, str] = field(default_factory=dict)
 
     # -- figures ----------------------------------------------------------------------------
 
@@ -152,13 +202,43 @@ class Report:
 
     @property
     def competitors(self) -> list[ModelEntry]:
-        """The models trained (or reused) at this benchmark's budget: no baselines, no reference rows."""
-        return [e for e in self.trained if not e.is_reference]
+        """The models trained (or reused) at this benchmark's budget: no baselines, no reference rows,
+        no refined rows."""
+        return [e for e in self.trained if not e.is_reference and not e.refine_steps]
 
     @property
     def reference_rows(self) -> list[ModelEntry]:
-        """Model files trained elsewhere (``--from-models``, ``--models pretrained``)."""
-        return [e for e in self.models if e.is_reference]
+        """Model files trained elsewhere (``--from-models``, ``--models pretrained``), unrefined."""
+        return [e for e in self.models if e.is_reference and not e.refine_steps]
+
+    @property
+    def refined(self) -> list[ModelEntry]:
+        """The refined rows (``--refine``), baselines' included."""
+        return [e for e in self.models if e.refine_steps]
+
+    def refine_note(self) -> str | None:
+        """What the refined rows are, and which row is the pure-optimisation baseline."""
+        if not self.refined:
+            return None
+        budgets = sorted({e.refine_steps for e in self.refined})
+        how = ", ".join(
+            f"{what} {self.refine[key]}"
+            for key, what in ((REFINE_BACKEND_PARAM, "backend"), (REFINE_FLASH_PARAM, "flash"))
+            if key in self.refine
+        )
+        pure = (
+            f"; `{REFERENCE} +refine N` refines constant maps: the {PURE_OPTIMISATION}, optimisation alone, "
+            "and each refined model is held against it at the same N (what the network adds over it)"
+            if any(e.pure_optimisation for e in self.refined)
+            else ""
+        )
+        return (
+            f"refined rows (`+refine N`): each row's maps refined by svbrdf_render.refine_maps for N Adam "
+            f"steps against each test photo (N = {', '.join(map(str, budgets))}"
+            + (f"; {how}" if how else "")
+            + f"), then scored alike{pure}; s/image: network forward plus refinement (flash finding "
+            "included), one image at a time"
+        )
 
     def budget_words(self) -> str:
         """The training budget in words; says that reference rows keep their own."""
@@ -180,23 +260,29 @@ class Report:
             f"this benchmark's, so they are no equal-budget competitors: {files}"
         )
 
-    def reference(self) -> ModelEntry | None:
-        """The ``mean`` baseline's entry, if it was evaluated."""
-        return next((e for e in self.models if e.baseline and e.label == REFERENCE), None)
+    def reference(self, steps: int = 0) -> ModelEntry | None:
+        """The ``mean`` baseline's entry, if it was evaluated; ``steps`` > 0: ``mean`` refined for as
+        many steps (the pure-optimisation baseline)."""
+        return next(
+            (e for e in self.models if e.baseline and e.family == REFERENCE and e.refine_steps == steps), None
+        )
 
     def against_reference(self) -> list[dict]:
         """Per trained model and column: its RMSE minus ``mean``'s over the same images, and the verdict.
 
         ``verdict`` is ``"beats"`` when the whole 95% paired bootstrap interval lies below 0,
-        ``"worse"`` when it lies above, ``"within noise"`` when it contains 0.
+        ``"worse"`` when it lies above, ``"within noise"`` when it contains 0. A row refined for N
+        steps is held against ``mean`` refined for N steps (the pure-optimisation baseline).
         """
         from .metrics import paired_difference
 
-        ref = self.reference()
-        if ref is None:
+        if self.reference() is None:
             return []
         out = []
         for e in self.trained:
+            ref = self.reference(e.refine_steps)
+            if ref is None:
+                continue
             for c in COLUMNS:
                 a, b = e.per_sample.get(f"rmse/{c}"), ref.per_sample.get(f"rmse/{c}")
                 if a is None or b is None:
@@ -228,7 +314,14 @@ class Report:
             return []
         synthetic = "procedural" in self.test_set
         lines = []
-        for label, rows in self.not_beating().items():
+        failing = self.not_beating()
+        for e in self.trained:
+            label, rows, ref = e.label, failing[e.label], self.reference(e.refine_steps)
+            if ref is None:
+                continue
+            if e.refine_steps:
+                lines.append(self._refined_headline(e, ref, rows))
+                continue
             if not rows:
                 lines.append(f"{label} beats the constant-map baseline `{REFERENCE}` on every map and on "
                              "renderings (RMSE, 95% paired bootstrap).")  # fmt: skip
@@ -250,6 +343,23 @@ class Report:
                 f"learned nothing {where} ({why})."
             )
         return lines
+
+    @staticmethod
+    def _refined_headline(e: ModelEntry, ref: ModelEntry, rows: list[dict]) -> str:
+        what = f"the {PURE_OPTIMISATION} `{ref.label}`"
+        if not rows:
+            return f"{e.label} beats {what} on every map and on renderings (RMSE, 95% paired bootstrap)."
+        worse = [r["column"] for r in rows if r["verdict"] == "worse"]
+        noise = [r["column"] for r in rows if r["verdict"] == "within noise"]
+        parts = (
+            f"worse on {', '.join(worse)}" if worse else "",
+            f"within noise on {', '.join(noise)}" if noise else "",
+        )
+        why = "; ".join(part for part in parts if part)
+        return (
+            f"{e.label} does NOT beat {what} on {', '.join(r['column'] for r in rows)}: refining constant "
+            f"maps for as many steps does as well there, the network adds nothing ({why})."
+        )
 
     def clock_note(self) -> str:
         """Which clock budgeted the trained models' training time (reference rows: not this budget)."""
@@ -285,13 +395,19 @@ class Report:
     def metrics_present(self) -> list[tuple[str, str, str]]:
         return [m for m in METRICS if any(f"{m[0]}/render" in e.per_sample for e in self.models)]
 
+    @property
+    def costed(self) -> list[ModelEntry]:
+        """The rows "what accuracy costs" pairs: trained and reference rows, unrefined (refined rows'
+        cost is their seconds per image, in the refinement table)."""
+        return [e for e in self.trained if not e.refine_steps]
+
     def costs(self) -> list[dict]:
         """Every ordered pair (A, B), A more accurate on renderings: what A's accuracy costs."""
         from .metrics import paired_difference
 
         out = []
-        for a in self.trained:
-            for b in self.trained:
+        for a in self.costed:
+            for b in self.costed:
                 if a is b:
                     continue
                 ra, rb = a.per_sample["rmse/render"], b.per_sample["rmse/render"]
@@ -343,10 +459,15 @@ class Report:
         if not rows_by_model:
             return []
         rows = [[m, *(cells.get(c, "-") for c in COLUMNS)] for m, cells in rows_by_model.items()]
+        refined = (
+            f"; a row refined for N steps against `{REFERENCE} +refine N`, the {PURE_OPTIMISATION}"
+            if any(e.refine_steps for e in self.trained)
+            else ""
+        )
         title = (
             f"Against the {REFERENCE} baseline (RMSE of the model minus RMSE of `{REFERENCE}` on the same "
             f"images, in % of `{REFERENCE}`'s RMSE, 95% paired bootstrap interval; beats: the whole "
-            "interval below 0)"
+            f"interval below 0{refined})"
         )
         return _table(title, ["model", *COLUMNS], rows, markdown)
 
@@ -370,6 +491,28 @@ class Report:
                 "with it.",
             ]
         return table
+
+    def _refine_table(self, markdown: bool) -> list[str]:
+        """Accuracy against capture time: every row with refinement on, at every budget."""
+        if not self.refined:
+            return []
+        rows = []
+        for e in self.models:
+            cells = [e.name, str(e.refine_steps)]
+            seconds = e.figures.get(SECONDS_PER_IMAGE, math.nan)
+            cells.append("-" if math.isnan(seconds) else f"{seconds:.3g}")
+            for key in (INPUT_RERENDER, "rmse/render", "rmse/diffuse"):
+                ci = self.interval(e, *key.split("/", 1))
+                cells.append("-" if ci is None else f"{ci[0]:.4f} [{ci[1]:.4f}, {ci[2]:.4f}]")
+            rows.append(cells)
+        head = ["model", "refine steps", "s/image (net + refine)", "photo re-render RMSE", "render RMSE",
+                "diffuse RMSE"]  # fmt: skip
+        title = (
+            "Refinement: accuracy against capture time (photo re-render: the maps under the refinement's "
+            "flash against the test photo, what refinement optimises; render: the 6 evaluation views "
+            "against the true maps'; 95% bootstrap intervals)"
+        )
+        return _table(title, head, rows, markdown)
 
     def _real_table(self, markdown: bool) -> list[str]:
         """Real photos have no ground truth: the re-rendering under the fitted flash is the figure."""
@@ -395,7 +538,7 @@ class Report:
     def _cost_lines(self, markdown: bool) -> list[str]:
         rows, notes = [], []
         costs = self.costs()
-        short = {e.label: e.short for e in self.trained}
+        short = {e.label: e.short for e in self.costed}
         for c in costs:
             noise = "within noise" if c["within_noise"] else "beyond noise"
             a, b = short[c["model"]], short[c["versus"]]
@@ -453,13 +596,15 @@ class Report:
         lines += [*against, ""] if against else []
         real = self._real_table(markdown)
         lines += [*real, ""] if real else []
+        refine = self._refine_table(markdown)
+        lines += [*refine, ""] if refine else []
         lines += [*self._time_table(markdown), ""]
-        if len(self.trained) > 1:
+        if len(self.costed) > 1:
             lines += [*self._cost_lines(markdown), ""]
         return lines
 
     def terminal(self) -> str:
-        note = self.reference_note()
+        note, refine = self.reference_note(), self.refine_note()
         lines = [
             f"svbrdf-bench: {', '.join(e.name for e in self.models)} ({self.preset}; {self.budget_words()})",
             *self.headline(),
@@ -467,6 +612,7 @@ class Report:
             self.clock_note(),
             *self.init_notes(),
             *([note] if note else []),
+            *([refine] if refine else []),
             "",
             *self._tables(False),
         ]
@@ -481,6 +627,7 @@ class Report:
             f"- {self.clock_note()}",
             *(f"- {line}" for line in self.init_notes()),
             *(f"- {line}" for line in [self.reference_note()] if line),
+            *(f"- {line}" for line in [self.refine_note()] if line),
             f"- test set: {self.test_set}",
             f"- {self.lpips_note}",
             f"- MLflow parent run: `{self.parent_id}`; rebuild with `svbrdf-bench report {self.parent_id}`",
@@ -490,6 +637,7 @@ class Report:
         for name, caption in (
             ("learning_curves", "Validation render RMSE against training time"),  # dashed: real materials
             ("pareto", "Inference latency against render RMSE"),
+            ("capture_time", "Render and diffuse RMSE against seconds per image (network + refinement)"),
             ("comparison", "Input, true maps and each model's maps, with flash re-renderings"),
         ):
             if name in files:
@@ -500,6 +648,9 @@ class Report:
         out = []
         for e in self.models:
             rec = {"model": e.label, "baseline": e.baseline, "reference": e.is_reference, "run_id": e.run_id}
+            if self.refined:
+                rec |= {"refine_steps": e.refine_steps, "refined_from": e.base_label or "-",
+                        "pure_optimisation": e.pure_optimisation}  # fmt: skip
             rec["train_run_id"] = "-" if e.baseline or e.is_reference else e.train_run_id
             if e.is_reference:  # trained elsewhere: its file, and the budget the file records
                 rec["clock"] = "its own (not this benchmark's budget)"
@@ -518,6 +669,13 @@ class Report:
             real = e.per_sample.get(REAL_RERENDER)
             if real is not None and len(real):
                 rec["real_rerender_rmse_median"] = float(np.median(real))
+            ci = self.interval(e, *INPUT_RERENDER.split("/", 1))
+            if ci is not None:
+                (
+                    rec["photo_rerender_rmse"],
+                    rec["photo_rerender_rmse_low"],
+                    rec["photo_rerender_rmse_high"],
+                ) = ci
             out.append(rec)
         return out
 
@@ -588,6 +746,12 @@ def build_report(parent_id: str) -> Report:
             metrics = child.data.metrics
             figures = {k: v for k, v in metrics.items() if not k.startswith(TRAINER_PREFIXES)}
             row = (label, child.info.run_id, train_run, per_sample, figures)  # what every entry has
+            steps = refine_steps(child.data.tags)
+            if steps:  # a row refined for `steps`: linked to the row it refined below
+                models.append(ModelEntry(*row, baseline=is_baseline(child.data.tags),
+                                         reference_name=reference_name(child.data.tags), refine_steps=steps,
+                                         refined_from=child.data.tags.get(REFINED_FROM_TAG)))  # fmt: skip
+                continue
             if is_baseline(child.data.tags):
                 models.append(ModelEntry(*row, baseline=True))
                 continue
@@ -617,6 +781,7 @@ def build_report(parent_id: str) -> Report:
             )
     if not models:
         raise BenchError(f"run {parent_id} has no evaluated models yet")
+    models = _link_refined(models)
     params = parent.data.params
     minutes = params.get(MINUTES_PARAM, "?")
     return Report(
@@ -628,7 +793,38 @@ def build_report(parent_id: str) -> Report:
         models=models,
         real_data=params.get(REAL_DATA_PARAM, "-"),
         baselines=params.get(BASELINES_PARAM),
+        refine={
+            k: params[k] for k in (REFINE_PARAM, REFINE_BACKEND_PARAM, REFINE_FLASH_PARAM) if k in params
+        },
     )
+
+
+def _link_refined(models: list[ModelEntry]) -> list[ModelEntry]:
+    """Each refined row after the row it refined (by budget), with that row's label, training run,
+    clock, budget and training figures (the same model); a refined row whose row is missing last."""
+    by_run = {e.run_id: e for e in models if not e.refine_steps}
+    children: dict[str, list[ModelEntry]] = {}
+    orphans = []
+    for e in models:
+        if not e.refine_steps:
+            continue
+        base = by_run.get(e.refined_from or "")
+        if base is None:
+            orphans.append(e)
+            continue
+        e.base_label, e.train_run_id, e.clock, e.budget = (
+            base.label,
+            base.train_run_id,
+            base.clock,
+            base.budget,
+        )
+        e.figures = {k: base.figures[k] for k in _INHERITED if k in base.figures} | e.figures
+        children.setdefault(base.run_id, []).append(e)
+    out = []
+    for e in models:
+        if not e.refine_steps:
+            out += [e, *sorted(children.get(e.run_id, []), key=lambda r: r.refine_steps)]
+    return out + orphans
 
 
 def csv_text(rows: list[dict], columns: list[str] | None = None) -> str:
@@ -641,9 +837,34 @@ def csv_text(rows: list[dict], columns: list[str] | None = None) -> str:
     return buffer.getvalue()
 
 
+def _capture_series(report: Report) -> tuple[dict[str, list], set[str]]:
+    """``{row: [(seconds per image, steps, {column: (mean, low, high)})]}`` through its budgets,
+    for :func:`~svbrdf_bench.plots.accuracy_vs_capture_time`, and the names of the baselines'
+    lines (``mean``'s is named the pure-optimisation baseline); empty without refined rows."""
+    if not report.refined:
+        return {}, set()
+    series: dict[str, list] = {}
+    baselines = set()
+    for e in report.models:
+        seconds = e.figures.get(SECONDS_PER_IMAGE, math.nan)
+        cis = {c: report.interval(e, "rmse", c) for c in ("render", "diffuse")}
+        if math.isnan(seconds) or any(ci is None for ci in cis.values()):
+            continue
+        base = next((m for m in report.models if m.label == e.family and not m.refine_steps), e)
+        name = (
+            f"{base.label} ({PURE_OPTIMISATION} when refined)"
+            if base.label == REFERENCE and e.baseline
+            else base.short
+        )
+        if e.baseline:
+            baselines.add(name)
+        series.setdefault(name, []).append((seconds, e.refine_steps, cis))
+    return series, baselines
+
+
 def write_report(report: Report, out: str | Path, *, grid: Path | None = None) -> list[Path]:
     """``report.md``, ``results.csv``, ``results.json``, ``costs.csv``, the plots and the grid."""
-    from .plots import learning_curves, pareto
+    from .plots import accuracy_vs_capture_time, learning_curves, pareto
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -670,6 +891,12 @@ def write_report(report: Report, out: str | Path, *, grid: Path | None = None) -
     if points:
         written.append(pareto(points, out / "pareto.png"))
         files["pareto"] = "pareto.png"
+    series, baselines = _capture_series(report)
+    if series:
+        written.append(
+            accuracy_vs_capture_time(series, out / "accuracy_vs_capture_time.png", baselines=baselines)
+        )
+        files["capture_time"] = "accuracy_vs_capture_time.png"
     if grid is not None:
         target = out / "comparison.png"
         if Path(grid) != target:
@@ -678,7 +905,7 @@ def write_report(report: Report, out: str | Path, *, grid: Path | None = None) -
         written.append(target)
         files["comparison"] = "comparison.png"
     records = report.records()
-    costs = report.costs() if len(report.trained) > 1 else []
+    costs = report.costs() if len(report.costed) > 1 else []
     against = report.against_reference()
     write_text(
         out / "results.json",

@@ -4,6 +4,9 @@ Model files trained elsewhere (``--from-models``, ``--models pretrained``) are s
 as reference rows (:mod:`svbrdf_bench.references`): same test images, same figures, a label that
 says they are not equal-budget competitors.
 
+``--refine 0,50,200`` adds, per scored row and budget, a row of its maps refined against each
+test photo (:mod:`svbrdf_bench.refinement`), each a child run of its own.
+
 Each invocation is one MLflow parent run with a child run per model and per baseline, laid out
 as :mod:`svbrdf_bench.layout` describes; :mod:`svbrdf_bench.report` builds every table and plot
 from those runs alone, so ``svbrdf-bench report PARENT`` rebuilds them later.
@@ -28,6 +31,7 @@ from svbrdf_render.files import check_output_folder
 
 from .errors import BenchError
 from .layout import (
+    BASELINE_TAG,
     BASELINES_PARAM,
     BENCH_KIND,
     FIT_WALL_METRIC,
@@ -41,7 +45,13 @@ from .layout import (
     REAL_DATA_PARAM,
     REAL_PREFIX,
     REAL_RERENDER,
+    REFERENCE_TAG,
     REFERENCES_PARAM,
+    REFINE_BACKEND_PARAM,
+    REFINE_FLASH_PARAM,
+    REFINE_PARAM,
+    REFINE_TAG,
+    REFINED_FROM_TAG,
     REPORT_ARTIFACTS,
     STEPS_METRIC,
     STEPS_WALL_METRIC,
@@ -60,6 +70,7 @@ from .references import (
     reference_figures,
     split_pretrained,
 )
+from .refinement import RefinedRow, RefinePlan, refine_rows, refined_label
 from .testset import TestSet
 
 __all__ = ["BenchOptions", "run_bench", "BASELINES"]
@@ -99,6 +110,8 @@ class BenchOptions:
     """Recipe size instead of the preset's (``smoke`` for a dry run)."""
     baselines: list[str] = field(default_factory=lambda: list(BASELINES))
     """Registered generators evaluated untrained beside the models (``[]``: none)."""
+    refine: RefinePlan = field(default_factory=RefinePlan)
+    """Refinement budgets: a row per scored row and budget > 0 (default: none)."""
     say: Callable[[str], None] = print
 
 
@@ -273,6 +286,34 @@ def _log_child(run_id: str, figures: dict[str, float], per_sample: dict[str, np.
     client.log_artifact(run_id, str(target), str(Path(PER_SAMPLE).parent))
 
 
+def _test_means(per_sample: dict[str, np.ndarray]) -> dict[str, float]:
+    """The ``test/`` metrics: the mean of each per-sample figure on the test images."""
+    return {
+        f"{TEST_PREFIX}{k}": float(v.mean()) for k, v in per_sample.items() if not k.startswith(REAL_PREFIX)
+    }
+
+
+def _refined_children(
+    client, experiment_id: str, parent_id: str, base: tuple[str, str, dict[str, str]],
+    rows: dict[int, RefinedRow], plan: RefinePlan, params: float, work: Path,
+) -> None:  # fmt: skip
+    """A child run per refined budget of the row ``base`` = ``(label, child run id, extra tags)``;
+    the extra tags (svbrdf.baseline, svbrdf.reference: a reference's short name) are the row's."""
+    from mlflow.entities import Param
+
+    label, base_run, extra = base
+    name = extra.get(REFERENCE_TAG)
+    for k, row in sorted(rows.items()):
+        tags = {PARENT_TAG: parent_id, MODEL_TAG: refined_label(label, k, name), REFINE_TAG: str(k),
+                REFINED_FROM_TAG: base_run, **extra}  # fmt: skip
+        run_name = refined_label(name, k) + " (reference)" if name else refined_label(label, k)
+        child = client.create_run(experiment_id, run_name=run_name, tags=tags).info.run_id
+        client.log_batch(child, params=[Param(a, b) for a, b in plan.params(k).items()])
+        figures = row.figures | _test_means(row.per_sample) | {"model/params": params}
+        _log_child(child, figures, row.per_sample, work)
+        client.set_terminated(child)
+
+
 def _check_baselines(baselines: Sequence[str], labels: Sequence[str]) -> None:
     import svbrdf_models as sm
 
@@ -425,13 +466,29 @@ def run_bench(options: BenchOptions) -> str:
             else "-",
             BASELINES_PARAM: ",".join(options.baselines) or "-",
             REFERENCES_PARAM: " ".join(f"{r.source}@{r.model.sha256[:12]}" for r in refs) or "-",
+            REFINE_PARAM: ",".join(map(str, options.refine.budgets)),
+            **(
+                {
+                    REFINE_BACKEND_PARAM: options.refine.backend,
+                    REFINE_FLASH_PARAM: options.refine.flash_words(),
+                }
+                if options.refine.active
+                else {}
+            ),
         },
     )
     parent_id = parent.run_id
     options.say(
         f"benchmark {', '.join(labels)} ({p.name}: {words}); "
         + f"baselines: {', '.join(options.baselines) or 'none'}; test set: {test.description}; "
-        + f"{lpips_note}\n  MLflow parent run: {parent_id}"
+        + f"{lpips_note}"
+        + (
+            f"; refinement budgets: {', '.join(map(str, options.refine.budgets))} steps "
+            f"({options.refine.backend}, flash: {options.refine.flash_words()})"
+            if options.refine.active
+            else ""
+        )
+        + f"\n  MLflow parent run: {parent_id}"
     )
     status = "FAILED"
     try:
@@ -450,8 +507,9 @@ def run_bench(options: BenchOptions) -> str:
 
             def evaluate_one(
                 label: str, generator, shown_as: str | None = None
-            ) -> tuple[dict[str, float], dict[str, np.ndarray]]:
-                """Test images, latency, parameters and real photos: the same for every row."""
+            ) -> tuple[dict[str, float], dict[str, np.ndarray], dict[int, RefinedRow]]:
+                """Test images, latency, parameters and real photos: the same for every row; and the
+                rows of its refinement budgets (``{steps: RefinedRow}``, empty without --refine)."""
                 options.say(f"evaluating {label} on {len(test)} test images")
                 per_sample, shown = _evaluate(generator, test, device, lpips)
                 figures = {
@@ -463,18 +521,29 @@ def run_bench(options: BenchOptions) -> str:
                     real = _self_consistency(generator, photos, test.resolution, device)
                     per_sample[REAL_RERENDER] = real
                     figures[f"{REAL_RERENDER}_median"] = float(np.median(real))
-                for key, values in per_sample.items():
-                    if not key.startswith(REAL_PREFIX):
-                        figures[f"{TEST_PREFIX}{key}"] = float(values.mean())
                 shown_by_model[shown_as or label] = shown
-                return figures, per_sample
+                refined: dict[int, RefinedRow] = {}
+                if options.refine.active:
+                    options.say(
+                        f"refining {label}'s maps of {len(test)} test images for "
+                        f"{', '.join(map(str, options.refine.refined))} steps"
+                    )
+                    refined = refine_rows(generator, test, device, lpips, options.refine, GRID_SAMPLES)
+                    unrefined = refined.pop(0)  # the row itself: its re-rendering of the photo, its time
+                    per_sample |= unrefined.per_sample
+                    figures |= unrefined.figures
+                    top, shown_label = max(refined), shown_as or label
+                    grid_label = refined_label(shown_label, top, shown_label.split(" (")[0])
+                    shown_by_model[grid_label] = refined[top].shown
+                figures |= _test_means(per_sample)
+                return figures, per_sample, refined
 
             for label, run_id, wall, source, local in jobs:
                 state = _checkpoint(source or run_id, local)
                 from svbrdf_train.inference import load_generator
 
                 generator, recipe = load_generator(state, device)
-                figures, per_sample = evaluate_one(label, generator)
+                figures, per_sample, refined = evaluate_one(label, generator)
                 train_run = client.get_run(source or run_id)
                 m = train_run.data.metrics
                 if wall is None and train_run.info.end_time and train_run.info.start_time:
@@ -496,16 +565,24 @@ def run_bench(options: BenchOptions) -> str:
                 _log_child(run_id, figures, per_sample, work)
                 if source is not None:
                     client.set_terminated(run_id)
+                _refined_children(client, parent.experiment_id, parent_id, (label, run_id, {}), refined,
+                                  options.refine, figures["model/params"], work)  # fmt: skip
             for ref in refs:  # trained elsewhere: scored, not trained; the label says so
                 run_id = reference_child(client, parent.experiment_id, parent_id, ref)
-                figures, per_sample = evaluate_one(ref.label, ref.model.generator, ref.short)
+                figures, per_sample, refined = evaluate_one(ref.label, ref.model.generator, ref.short)
                 _log_child(run_id, figures | reference_figures(ref), per_sample, work)
                 client.set_terminated(run_id)
+                _refined_children(client, parent.experiment_id, parent_id,
+                                  (ref.label, run_id, {REFERENCE_TAG: ref.name}), refined, options.refine,
+                                  figures["model/params"], work)  # fmt: skip
             for name in options.baselines:
                 run_id, generator = _baseline_child(client, parent.experiment_id, parent_id, name)
-                figures, per_sample = evaluate_one(name, generator.to(device))
+                figures, per_sample, refined = evaluate_one(name, generator.to(device))
                 _log_child(run_id, figures, per_sample, work)
                 client.set_terminated(run_id)
+                base = (name, run_id, {BASELINE_TAG: "true"})
+                _refined_children(client, parent.experiment_id, parent_id, base, refined, options.refine,
+                                  figures["model/params"], work)  # fmt: skip
             report = build_report(parent_id)
             grid = _comparison_grid(shown_by_model, work / "comparison.png") if shown_by_model else None
             files = write_report(report, options.out, grid=grid)

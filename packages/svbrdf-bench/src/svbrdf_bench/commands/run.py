@@ -21,6 +21,7 @@ Examples:
   svbrdf-bench run --models ours --no-baselines              # without the mean/photo baselines
   svbrdf-bench run --models ours --from-models fold0.pt --test-data DIR   # + fold0.pt, a reference row
   svbrdf-bench run --models pretrained --test-data DIR       # the model shipped with svbrdf-models
+  svbrdf-bench run --models ours --refine 0,50,200           # + each row's maps refined 50 and 200 steps
 
 \b
 Presets (every model gets the same training-time budget, counted on the fit's train.clock:
@@ -46,6 +47,14 @@ at another resolution than the test images, and a model whose provenance lists t
 among the real strips it trained on (unless --allow-trained-strips).
 
 \b
+Refinement budgets: --refine 0,50,200 gives every row (trained models, reference rows, the
+baselines) one more row per budget N > 0, `NAME +refine N`: its maps of each test photo refined
+by svbrdf_render.refine_maps for N Adam steps against that photo, scored with the same figures,
+with the seconds per image (network + refinement, one image at a time). `mean +refine N` refines
+constant maps: the pure-optimisation baseline, against which each refined model is held at the
+same N. Plot: accuracy_vs_capture_time.png. Default 0: no refinement.
+
+\b
 Test data: Des18 tiles and shards larger than the models are resized to the models'
 resolution (area filter), never centre-cropped: models see the field of view they trained at.
 
@@ -55,8 +64,9 @@ models, reference rows, then baselines; RMSE and SSIM per map and on renderings 
 light/view pairs, each with a 95% bootstrap interval; the difference to `mean`; time and
 memory; what each trained model's extra accuracy costs against each other one), and in --out:
 report.md, results.csv, results.json, costs.csv, against_mean.csv, learning_curves.png,
-pareto.png, comparison.png. MLflow: one parent run, one child per model, reference row and baseline;
-`svbrdf-bench report PARENT_RUN_ID` rebuilds the report later.
+pareto.png, comparison.png (and accuracy_vs_capture_time.png with --refine). MLflow: one parent
+run, one child per model, reference row, baseline and refined row; `svbrdf-bench report
+PARENT_RUN_ID` rebuilds the report later.
 """
 )
 
@@ -142,6 +152,29 @@ def _split(value: str | None) -> list[str]:
 )
 @experiment_option("svbrdf-bench")
 @click.option(
+    "--refine",
+    default="0",
+    show_default=True,
+    metavar="N,N,...",
+    help="Refinement budgets in Adam steps (integers >= 0; 0, the row as it is, is always in): each row "
+    "gets a row per budget N > 0, its maps refined against each test photo. Example: --refine 0,50,200.",
+)
+@click.option(
+    "--refine-backend",
+    type=click.Choice(["compiled", "eager"]),
+    default="compiled",
+    show_default=True,
+    help="Renderer backend of the refinement (compiled: torch.compile, warmed up before timing).",
+)
+@click.option(
+    "--refine-flash",
+    default="axis",
+    show_default=True,
+    metavar="axis|fit|INTENSITY",
+    help="How the refinement finds each photo's flash: axis (on-axis, intensity from the maps), fit "
+    "(position too), or the intensity of the on-axis flash the photos were taken with (e.g. 15).",
+)
+@click.option(
     "--no-baselines",
     is_flag=True,
     help="Leave out the untrained baselines `mean` and `photo` (and the comparison with `mean`).",
@@ -163,6 +196,9 @@ def run(
     device,
     size,
     experiment,
+    refine,
+    refine_backend,
+    refine_flash,
     no_baselines,
 ):
     """Train (or reuse) each model under one budget, test all on the same images, compare;
@@ -174,8 +210,10 @@ def run(
     """
     from ..errors import BenchError
     from ..presets import get_preset
+    from ..refinement import RefinePlan, parse_budgets, parse_flash
     from ..runner import BASELINES, BenchOptions, run_bench
 
+    plan = RefinePlan(parse_budgets(refine), refine_backend, parse_flash(refine_flash))
     chosen = _split(models)
     reused = _split(from_runs)
     files = _split(from_models)
@@ -203,6 +241,7 @@ def run(
             experiment=experiment,
             size=size,
             baselines=[] if no_baselines else list(BASELINES),
+            refine=plan,
             say=lambda s: click.echo(s, err=not s.startswith("svbrdf-bench:")),
         )
     )
