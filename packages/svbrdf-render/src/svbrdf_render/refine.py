@@ -47,7 +47,8 @@ from .errors import MapError, SceneError
 from .fit import fit_flash
 from .maps import MAP_NAMES, SVBRDF
 from .renderer import BACKENDS, log_radiance, render
-from .scene import DES18_DISTANCE, Camera, PointLight, Scene
+from .geometry import surface_positions
+from .scene import DES18_DISTANCE, Camera, Flash, PointLight, Scene
 
 __all__ = [
     "DEFAULT_REFINE_STEPS",
@@ -71,8 +72,8 @@ MIN_REFINE_SIDE = 16
 #: Pixels at or above this are taken as clipped by the camera; below _DARK as too dark to
 #: tell anything (and kept away from log(0)).
 _SATURATED, _DARK = 0.98, 1e-3
-#: Cells per side of the low pass of ``RefineLoss.blob``.
-_BLOB_GRID = 8
+#: Rings of ``RefineLoss.rings``, of equal width from the point under the flash to the far corner.
+_RINGS = 8
 #: How far into (0, 1) a start value is moved before its logit is taken.
 _EDGE = 1e-4
 #: Slope bound of a start normal: ``n.z`` is raised to about 0.05 (87 degrees) at most.
@@ -95,8 +96,9 @@ class RefineSettings:
         lobe_first: share of the steps during which per-pixel normals and diffuse stay still
             and only the smooth roughness and specular, and each map's mean, move: the
             highlight is explained by the lobe before a pixel of diffuse can absorb it.
-        blob: weight of the penalty on smooth bumps in the diffuse change (``RefineLoss.blob``),
-            the shape a highlight baked into the diffuse takes.
+        rings: weight of the penalty on a diffuse mean that changes with the distance to the
+            flash (``RefineLoss.rings``): a highlight baked into the diffuse, or a dark hole
+            where it was.
     """
 
     lr: float = 0.05
@@ -108,7 +110,7 @@ class RefineSettings:
     normal_lr_scale: float = 0.5
     levels: int = 1
     lobe_first: float = 0.3
-    blob: float = 5.0
+    rings: float = 1.0
 
     def __post_init__(self):
         if not (self.lr > 0 and math.isfinite(self.lr)):
@@ -120,8 +122,8 @@ class RefineSettings:
             raise ValueError(f"refine: prior weights for unknown maps {sorted(unknown)}; maps: {MAP_NAMES}")
         if any(not (w >= 0 and math.isfinite(w)) for w in self.prior.values()):
             raise ValueError(f"refine: prior weights must be finite and >= 0, got {self.prior}")
-        if not (self.blob >= 0 and math.isfinite(self.blob)):
-            raise ValueError(f"refine: blob must be a finite number >= 0, got {self.blob}")
+        if not (self.rings >= 0 and math.isfinite(self.rings)):
+            raise ValueError(f"refine: rings must be a finite number >= 0, got {self.rings}")
         if not 0 <= self.lobe_first < 1:
             raise ValueError(f"refine: lobe_first must be in [0, 1), got {self.lobe_first}")
         if self.coarse < 0:
@@ -328,6 +330,26 @@ def _scene_for(photo: Tensor, start: SVBRDF, scene: Scene | None, flash: str) ->
     return scene
 
 
+def _light_xy(scene: Scene, batch: int) -> Tensor:
+    """``(B, 2)``: the point of the patch under the (first) light of a one-view scene."""
+    light = scene.lights[0]
+    pos = light.resolve(scene.camera).position if isinstance(light, Flash) else light.position
+    return pos.reshape(-1, 3)[:, :2].expand(batch, 2)
+
+
+def _ring_bins(scene: Scene, shape, device) -> tuple[Tensor, Tensor, Tensor]:
+    """For :meth:`RefineLoss.rings`: each pixel's ring ``(B, 1, HW)``, the pixel count of each
+    ring ``(B, 1, K)`` (at least 1) and whether a ring holds pixels ``(B, 1, K)``."""
+    b, _, h, w = shape
+    p = surface_positions(h, w, device=device)[:2].flatten(1)  # (2, HW)
+    xy = _light_xy(scene, b).to(p)
+    r = (p[None] - xy[:, :, None]).norm(dim=1)  # (B, HW)
+    top = r.amax(1, keepdim=True).clamp_min(1e-6)
+    index = (r / top * _RINGS).long().clamp(max=_RINGS - 1)[:, None]
+    count = torch.zeros(b, 1, _RINGS, device=device).scatter_add_(2, index, torch.ones(b, 1, h * w, device=device))
+    return index, count.clamp_min(1), (count > 0).float()
+
+
 class RefineLoss:
     """The objective of :func:`refine_maps` for one photo batch: ``loss(maps) -> scalar``.
 
@@ -343,27 +365,32 @@ class RefineLoss:
         self.target = log_radiance(photo.clamp(0, 1), settings.eps)
         self.prior = {name: _stored(name, t) for name, t in prior.maps().items()}
         self.weights = {name: float(settings.prior.get(name, 0.0)) for name in MAP_NAMES}
-        self.blob_weight = float(settings.blob)
+        self.ring_weight = float(settings.rings)
+        self.ring_index, self.ring_count, self.ring_present = _ring_bins(scene, photo.shape, photo.device)
 
     def data(self, maps: SVBRDF) -> Tensor:
         """``mean |log(clip(render) + eps) - log(photo + eps)|``."""
         rendering = _view(render(maps, self.scene, backend=self.backend)).clamp(0, 1)
         return (log_radiance(rendering, self.eps) - self.target).abs().mean()
 
-    def blob(self, maps: SVBRDF) -> Tensor:
-        """``mean |lowpass(change) - mean(change)|`` of the diffuse change from the prior, the
-        low pass a box of :data:`_BLOB_GRID` cells over the image: what a highlight baked into
-        the diffuse looks like (a smooth bump), while the material's mean colour and its
-        fine texture stay free."""
-        change = maps.diffuse - self.prior["diffuse"]
-        h, w = change.shape[-2:]
-        coarse = F.adaptive_avg_pool2d(change, (min(_BLOB_GRID, h), min(_BLOB_GRID, w)))
-        return (coarse - coarse.mean(dim=(-2, -1), keepdim=True)).abs().mean()
+    def rings(self, maps: SVBRDF) -> Tensor:
+        """How much the diffuse map's mean depends on the distance to the flash: ``mean over
+        rings and channels |ring mean - map mean|``, rings of equal width around the point
+        under the flash. A material does not know where the flash was, so its mean albedo
+        should not change with that distance; a highlight baked into the diffuse (bright near
+        the flash) and a network's dark hole where the highlight was (dark near it) both do.
+        Texture and the mean colour stay free."""
+        d = maps.diffuse.flatten(2)  # (B, 3, HW)
+        b, c, _ = d.shape
+        sums = d.new_zeros(b, c, _RINGS).scatter_add_(2, self.ring_index.expand(b, c, -1), d)
+        means = sums / self.ring_count
+        overall = d.mean(2, keepdim=True)
+        return ((means - overall).abs() * self.ring_present).sum(2).mean() / self.ring_present.sum(2).mean()
 
     def __call__(self, maps: SVBRDF) -> Tensor:
         loss = self.data(maps)
-        if self.blob_weight > 0:
-            loss = loss + self.blob_weight * self.blob(maps)
+        if self.ring_weight > 0:
+            loss = loss + self.ring_weight * self.rings(maps)
         for name, t in maps.maps().items():
             if self.weights[name] > 0:
                 loss = loss + self.weights[name] * (_stored(name, t) - self.prior[name]).abs().mean()
