@@ -231,7 +231,7 @@ class _Parameters:
     def _free(self, name: str) -> Tensor:
         x = self.base[name]
         for d in self.delta[name]:
-            if tuple(d.shape[-2:]) != self.size:
+            if tuple(d.shape[-2:]) not in (self.size, (1, 1)):  # 1x1 broadcasts as it is
                 d = F.interpolate(d, size=self.size, mode="bilinear", align_corners=False)
             x = x + d
         return x
@@ -382,7 +382,7 @@ class RefineLoss:
         Texture and the mean colour stay free."""
         d = maps.diffuse.flatten(2)  # (B, 3, HW)
         b, c, _ = d.shape
-        sums = d.new_zeros(b, c, _RINGS).scatter_add_(2, self.ring_index.expand(b, c, -1), d)
+        sums = d.new_zeros(b, c, _RINGS).scatter_add_(2, self.ring_index.expand(b, c, -1).contiguous(), d)
         means = sums / self.ring_count
         overall = d.mean(2, keepdim=True)
         return ((means - overall).abs() * self.ring_present).sum(2).mean() / self.ring_present.sum(2).mean()
