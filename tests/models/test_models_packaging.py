@@ -24,3 +24,17 @@ def test_creating_networks_pulls_no_io_tracking_or_sibling():
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert r.stdout.strip() == ""
+
+
+def test_importing_the_photo_tool_pulls_no_trainer_tracking_io_or_compiler():
+    """The photo tool (capture, its command line) sits below the trainer: importing it loads
+    neither svbrdf-train, svbrdf-bench, mlflow, h5py nor click; Pillow and PyYAML only when a
+    photo or scene is read; torch._dynamo (0.8 s) not at all."""
+    code = (
+        "import sys, svbrdf_models.capture, svbrdf_models.batch, svbrdf_models.cli\n"
+        "bad = sorted(m for m in ('mlflow', 'h5py', 'PIL', 'yaml', 'click', 'svbrdf_train', 'svbrdf_bench',"
+        " 'torch._dynamo') if m in sys.modules)\n"
+        "print(','.join(bad))\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert r.stdout.strip() == ""

@@ -506,6 +506,10 @@ def test_command_albedos_in_srgb_for_texture_tools(tmp_path, checkpoint):
         (["--tiles", "--map-size", "16"], "smaller than the model's resolution"),
         (["--crop", "1,2"], "X,Y,SIZE"),
         (["--crop", "0,0,-5"], "SIZE > 0"),
+        (["--refine", "-1"], "--refine"),
+        (["--refine", "x"], "--refine"),
+        (["--refine-seconds", "2"], "--refine-seconds goes with --refine STEPS > 0"),
+        (["--refine", "2", "--map-size", "8"], "smaller than 16 px"),
     ],
 )
 def test_command_bad_options_exit_2_and_write_nothing(tmp_path, checkpoint, args, says):
@@ -513,6 +517,39 @@ def test_command_bad_options_exit_2_and_write_nothing(tmp_path, checkpoint, args
     result = _invoke(path, "--checkpoint", checkpoint, "-o", tmp_path / "maps", *args)
     assert result.exit_code == 2 and says in result.stderr, result.stderr
     assert not (tmp_path / "maps").exists()
+
+
+def test_command_refines_with_a_checkpoint(tmp_path, checkpoint):
+    """--refine 3: the smoke network's maps (32 px) refined at the square's own size (64 px);
+    the entry records the refinement; relit.png has a row per version."""
+    _, photo = _flash_photo(64)
+    path = write_image(tmp_path / "shot.png", linear_to_srgb(photo[0]))
+    result = _invoke(path, "--checkpoint", checkpoint, "-o", tmp_path / "maps", "--refine", 3, "--relit", "png")
+    assert result.exit_code == 0, result.stderr
+    assert read_image(tmp_path / "maps" / "shot" / "normal.png").shape == (3, 64, 64)
+    summary = json.loads((tmp_path / "maps" / "summary.json").read_text())
+    entry = summary["entries"][0]
+    assert summary["refine"] == 3 and entry["maps"] == 64 and entry["refine"]["steps"] == 3
+    assert entry["refine"]["rmse_refined"] == entry["rmse"]
+    assert not any("upsampled" in n for n in entry["notes"])  # 64 px square, 32 px network
+
+
+def test_the_photo_tool_has_one_home():
+    """svbrdf_train.capture, its photo and figure helpers and DataError are svbrdf-models' own
+    objects, not copies."""
+    import svbrdf_models.capture
+    import svbrdf_models.errors
+    import svbrdf_models.figures
+    import svbrdf_models.photos
+    import svbrdf_train.capture
+    from svbrdf_train.data import photos, sheet
+
+    for name in svbrdf_train.capture.__all__:
+        assert getattr(svbrdf_train.capture, name) is getattr(svbrdf_models.capture, name), name
+    assert photos.orient is svbrdf_models.photos.orient
+    assert photos.exif_orientation is svbrdf_models.photos.exif_orientation
+    assert sheet.image_grid is svbrdf_models.figures.image_grid
+    assert DataError is svbrdf_models.errors.DataError
 
 
 def test_help_states_the_limits_and_exit_codes():

@@ -9,12 +9,16 @@ Public API (timm style: list, describe, create)::
     maps = g(photo)                             # photo (B, 3, H, W) -> svbrdf_render.SVBRDF
     model = sm.load_model("pretrained")         # trained weights (a file, URL or MLflow URI)
     maps = model.predict(photo)                 # linear photo (3, H, W) -> maps at its resolution
+    maps = model.predict(photo, refine=100)     # + refined against the photo at the photo's size
     d = sm.create_discriminator("patchgan", {"renderings": 9})
     logits = d(maps=maps, renderings=svbrdf_render.render(maps, scene))
 
 A plugin registers a :class:`ModelSpec` under one of the entry-point groups
 ``svbrdf.generators``, ``svbrdf.attention`` or ``svbrdf.discriminators``; the built-ins use
 the same groups. Nothing is imported until a name is described or created.
+
+The photo tool (``svbrdf-models predict``, :mod:`svbrdf_models.capture`) needs the ``photo``
+extra (``pip install svbrdf-models[photo]``: Pillow, pypng and PyYAML through svbrdf-render).
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ from ._registry import (
 )
 from .errors import (
     ConfigError,
+    DataError,
     DuplicateNameError,
     ModelFileError,
     PluginLoadError,
@@ -79,6 +84,7 @@ def __getattr__(name: str):
 __all__ = [
     "KINDS",
     "ConfigError",
+    "DataError",
     "DuplicateNameError",
     "FieldInfo",
     "ModelFileError",

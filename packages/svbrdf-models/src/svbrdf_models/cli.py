@@ -1,5 +1,5 @@
-"""``svbrdf-models``: what generators, attention modules and discriminators are installed, and
-what a trained model file holds."""
+"""``svbrdf-models``: what generators, attention modules and discriminators are installed, what a
+trained model file holds, and maps from flash photos (``predict``)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,11 @@ import difflib
 import statistics
 import sys
 import time
+from pathlib import Path
 
-from svbrdf_render.cli import OneLineParser, int_range
+from svbrdf_render import DEFAULT_REFINE_STEPS, SVBRDFError
+from svbrdf_render.cli import OneLineParser, float_range, int_range
+from svbrdf_render.errors import exit_status
 
 from . import __version__
 from ._registry import _NOUNS, KINDS, REINSTALL_HINT, Registry, default_registry
@@ -18,6 +21,8 @@ from .errors import RegistryError, UnknownNameError
 #: Bounds of --channels (a 4096-channel 256x256 input is 1 GiB) and --repeats.
 MAX_CHANNELS, MAX_REPEATS = 4096, 1000
 DEFAULT_CHANNELS, DEFAULT_REPEATS = 64, 3
+#: Largest --map-size: photos are refused over 50 megapixels (about 7071 px on a side).
+MAX_MAP_SIZE = 8192
 
 EPILOG_LIST = """\
 examples:
@@ -53,12 +58,119 @@ file's SHA-256. Loading checks the file fully (weights finite and fitting the ge
 """
 
 
+EPILOG_PREDICT = """\
+examples:
+  svbrdf-models predict photo.jpg -o maps/           # the shipped model, refined {refine} steps
+  svbrdf-models predict photo.jpg -o maps/ --refine 0                 # the network's maps only
+  svbrdf-models predict shots/*.png -o maps/ --linear --bits 16 --refine-seconds 20
+  svbrdf-models predict big.jpg --model ours.pt -o maps/ --tiles --map-size 1024
+  svbrdf-models predict IMG_0042.jpg -o maps/ --crop 600,200,1800 --map-size 512
+
+The model: --model (a file of svbrdf-train export, an https URL whose name carries its
+SHA-256 prefix, models:/NAME/VERSION or runs:/ID/PATH of MLflow, pretrained[:NAME]); without
+it, the model shipped inside svbrdf-models (pretrained), named on stderr; its model card says
+what it was trained on and how well it does on real materials. Training checkpoints and
+MLflow runs of fits: `svbrdf-train predict --checkpoint/--run`.
+
+"""
+
+
+def _add_predict(sub) -> None:
+    from .batch import help_text
+    from .capture import ALBEDO_ENCODINGS, NORMAL_CONVENTIONS, RELIT_FORMATS
+
+    p = sub.add_parser(
+        "predict",
+        help="maps from flash photos: network, then refinement against the photo",
+        description="Capture normal, diffuse, roughness and specular maps from flash photos: the "
+        "network's maps, refined against the photo at its own resolution, judged by re-rendering.",
+        epilog=EPILOG_PREDICT.format(refine=DEFAULT_REFINE_STEPS) + help_text(DEFAULT_REFINE_STEPS),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("photos", nargs="+", type=Path, metavar="PHOTO")
+    p.add_argument("-o", "--out", type=Path, required=True, help="output folder")
+    p.add_argument(
+        "--model",
+        metavar="SOURCE",
+        help="model file, URL, MLflow URI or pretrained[:NAME] "
+        "(default: pretrained, the model shipped with svbrdf-models)",
+    )
+    p.add_argument(
+        "--refine",
+        type=int_range(0),
+        default=DEFAULT_REFINE_STEPS,
+        metavar="STEPS",
+        help=f"refinement steps per photo, 0 for the network's maps only (default: {DEFAULT_REFINE_STEPS})",
+    )
+    p.add_argument(
+        "--refine-seconds",
+        type=float_range(0, above=True),
+        metavar="S",
+        help="stop refining a photo after S seconds (default: no time bound)",
+    )
+    p.add_argument(
+        "--scene",
+        type=Path,
+        metavar="FILE",
+        help="the capture's scene (YAML) to refine under (default: a flash found per photo)",
+    )
+    p.add_argument(
+        "--backend",
+        choices=["eager", "compiled"],
+        default="eager",
+        help="the renderer's backend for refinement (default: eager)",
+    )
+    p.add_argument("--linear", action="store_true", help="the photos hold linear values (default: sRGB)")
+    p.add_argument(
+        "--crop",
+        metavar="X,Y,SIZE",
+        type=_crop,
+        help="the square to capture, in pixels of the photo as displayed (default: centred)",
+    )
+    p.add_argument("--tiles", action="store_true", help="predict at high resolution from overlapping tiles")
+    p.add_argument(
+        "--map-size",
+        type=int_range(1, MAX_MAP_SIZE),
+        metavar="N",
+        help="with --tiles or --refine: side of the maps (default: the square's own side)",
+    )
+    p.add_argument(
+        "--normal-convention",
+        choices=NORMAL_CONVENTIONS,
+        default="opengl",
+        help="directx stores the normal's y (green) flipped (default: opengl)",
+    )
+    p.add_argument("--bits", type=int, choices=[8, 16], default=8, help="PNG bit depth (default: 8)")
+    p.add_argument(
+        "--albedo-encoding",
+        choices=ALBEDO_ENCODINGS,
+        default="linear",
+        help="how diffuse.png and specular.png store values (default: linear; srgb for texture tools)",
+    )
+    p.add_argument("--relit", choices=RELIT_FORMATS, default="gif", help="relit preview (default: gif)")
+    p.add_argument("--device", default="cpu", help="cpu, cuda, cuda:K or auto (default: cpu)")
+
+
+def _crop(text: str) -> tuple[int, int, int]:
+    try:
+        x, y, size = (int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected X,Y,SIZE (three integers in pixels), got {text!r}"
+        ) from None
+    if x < 0 or y < 0 or size <= 0:
+        raise argparse.ArgumentTypeError(f"X and Y must be >= 0 and SIZE > 0, got {text!r}")
+    return x, y, size
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog="svbrdf-models",
         description="List and describe the registered generators, attention modules and discriminators "
-        "(built-ins and plugins, found through entry points).",
-        epilog="Exit status: 0 done; 2 bad arguments (an unknown name, a bad option); 130 interrupted.",
+        "(built-ins and plugins, found through entry points), show what a model file holds, and "
+        "capture maps from flash photos (predict).",
+        epilog="Exit status: 0 done; 2 bad arguments (an unknown name, a bad option); 130 interrupted. "
+        "predict: see svbrdf-models predict --help.",
     )
     parser.add_argument("--version", action="version", version=f"svbrdf-models {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -118,6 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="a model file, an https URL (NAME-HEX.pt), models:/NAME/VERSION, runs:/ID/PATH, or "
         "pretrained[:NAME] (default: the model shipped with this package)",
     )
+    _add_predict(sub)
     return parser
 
 
@@ -271,18 +384,87 @@ def _cmd_show(args, registry: Registry, out) -> None:
     print("\n".join(lines), file=out)
 
 
+def _cmd_predict(args, registry: Registry, out) -> int:
+    """``predict``: the options checked, the model loaded and announced, the photos captured."""
+    from svbrdf_render.files import check_output_folder
+
+    from .batch import capture_batch, pick_device
+
+    options = _capture_options(args)
+    device = pick_device(args.device)  # a GPU that is not there is named as such
+    check_output_folder(args.out, "-o")  # before the model is loaded and the first photo is done
+    model = _load_predict_model(args.model, device, args.map_size if args.tiles else None)
+    summary = {"model": model.source, "step": model.steps, "resolution": model.resolution,
+               "refine": args.refine, "refine_seconds": args.refine_seconds}  # fmt: skip
+    return capture_batch(model, args.photos, args.out, options, prog="svbrdf-models", summary=summary)
+
+
+def _capture_options(args):
+    """The :class:`~svbrdf_models.capture.CaptureOptions` of ``predict``'s flags; flags that go
+    with another one given alone, and a scene that cannot be a photo's capture, are refused."""
+    from .batch import load_scene
+    from .capture import CaptureOptions
+    from .errors import DataError
+
+    if args.map_size is not None and not (args.tiles or args.refine):
+        raise DataError("--map-size goes with --tiles or --refine STEPS > 0")
+    alone = [
+        f for f, v in (("--refine-seconds", args.refine_seconds), ("--scene", args.scene)) if v is not None
+    ]
+    if alone and not args.refine:
+        raise DataError(f"{' and '.join(alone)} go(es) with --refine STEPS > 0, not --refine 0")
+    return CaptureOptions(
+        linear=args.linear,
+        crop=args.crop,
+        tiles=args.tiles,
+        map_size=args.map_size,
+        bits=args.bits,
+        normal_convention=args.normal_convention,
+        relit=args.relit,
+        albedo_encoding=args.albedo_encoding,
+        refine=args.refine,
+        refine_seconds=args.refine_seconds,
+        scene=None if args.scene is None else load_scene(args.scene),
+        backend=args.backend,
+    )
+
+
+def _load_predict_model(source, device, tile_size):
+    """The model of --model (the shipped one when None), announced on stderr."""
+    from .errors import DataError
+    from .modelfile import PRETRAINED, card_path, load_model
+
+    if source is None:
+        print(
+            f"no --model: using the model shipped with svbrdf-models (pretrained:{PRETRAINED}; "
+            f"its card: {card_path()})",
+            file=sys.stderr,
+        )
+    model = load_model(source or "pretrained", device)
+    if tile_size is not None and tile_size < model.resolution:
+        raise DataError(f"--map-size {tile_size} is smaller than the model's resolution ({model.resolution})")
+    print(model.describe(), file=sys.stderr)
+    return model
+
+
 def main(argv: list[str] | None = None, registry: Registry | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
     except SystemExit as e:  # a usage error (one line, exit 2) or --help (exit 0)
         return int(e.code or 0)
-    registry = registry or default_registry()
     try:
+        if args.command == "predict":  # the registry is read when the model's generator is built
+            return _cmd_predict(args, registry, sys.stdout)
+        registry = registry or default_registry()
         commands = {"list": _cmd_list, "describe": _cmd_describe, "show": _cmd_show}
         commands[args.command](args, registry, sys.stdout)
-    except RegistryError as e:
+    except SVBRDFError as e:  # RegistryError, a model file, a photo option, a scene: one line
         print(f"svbrdf-models: error: {e}", file=sys.stderr)
-        return 2
+        return exit_status(e)
+    except OSError as e:
+        where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+        print(f"svbrdf-models: error: {where}{e.strerror or e}", file=sys.stderr)
+        return exit_status(e)
     except KeyboardInterrupt:
         print("svbrdf-models: interrupted", file=sys.stderr)
         return 130

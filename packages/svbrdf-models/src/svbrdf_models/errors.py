@@ -1,5 +1,5 @@
-"""Errors of the model registry. All derive from svbrdf_render's SVBRDFError (a ValueError),
-so command lines print them as one line with exit code 2."""
+"""Errors of the model registry, model files and the photo tool. All derive from svbrdf_render's
+SVBRDFError (a ValueError), so command lines print them as one line with exit code 2."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ __all__ = [
     "PluginLoadError",
     "ConfigError",
     "ModelFileError",
+    "DataError",
 ]
 
 
@@ -37,3 +38,11 @@ class ConfigError(RegistryError):
 
 class ModelFileError(RegistryError):
     """A trained model file cannot be found, fetched, read or rebuilt into its generator."""
+
+
+class DataError(SVBRDFError):
+    """Bad input data: a folder, file or argument that cannot be used. Say what, which, and what to do.
+
+    The photo tool's errors (:class:`svbrdf_models.capture.PhotoError`) are DataErrors;
+    svbrdf-train raises the same class for its data sets (``svbrdf_train.errors.DataError`` is
+    this class)."""

@@ -8,6 +8,7 @@ Loading needs only this package and svbrdf-render (and mlflow for MLflow URIs)::
     model = sm.load_model("https://host/ours-1a2b3c4d.pt")  # downloaded once, SHA-256 checked
     model = sm.load_model("models:/svbrdf-ours/3")    # the MLflow model registry (mlflow installed)
     maps = model.predict(photo)                       # (3, H, W) linear photo -> SVBRDF of one
+    maps = model.predict(photo, refine=150)           # + refined against the photo, at its size
 
 A model file is one ``torch.save`` dict of tensors and plain values, read with
 ``weights_only=True`` (no code is unpickled):
@@ -107,18 +108,54 @@ class TrainedModel:
         self.generator.to(device)
         return self
 
-    @torch.no_grad()
-    def predict(self, photo: Tensor) -> SVBRDF:
+    def predict(
+        self,
+        photo: Tensor,
+        refine: int = 0,
+        *,
+        seconds: float | None = None,
+        scene=None,
+        callback=None,
+        backend: str | None = None,
+    ) -> SVBRDF:
         """Maps of linear photos: ``(3, H, W)`` (one material) or ``(N, 3, H, W)``.
 
-        The largest centred square is resized to :attr:`resolution` (antialiased, on linear
-        values) when it is not that size already.
+        ``refine=0``: the largest centred square is resized to :attr:`resolution` (antialiased,
+        on linear values) when it is not that size already; the maps are at :attr:`resolution`.
+
+        ``refine=STEPS > 0``: the network's maps of that square are then refined against the
+        square at its own resolution (:func:`svbrdf_models.refining.refine_prediction`, start
+        and prior the network's maps) for at most STEPS steps and ``seconds`` seconds, under
+        ``scene`` (default: the flash found from the network's maps), with the renderer's
+        ``backend`` (default :data:`svbrdf_models.refining.BACKEND`); ``callback(step, total,
+        loss)`` follows it. The maps are at the square's size (the photo's shorter side), which
+        must be at least :data:`svbrdf_render.MIN_REFINE_SIDE`.
         """
         batch = photo[None] if photo.dim() == 3 else photo
         if batch.dim() != 4 or batch.shape[1] != 3:
             raise ValueError(
                 f"{self.source}: expected a photo (3, H, W) or (N, 3, H, W), got {tuple(photo.shape)}"
             )
+        from .refining import BACKEND, check_refine, refine_prediction
+
+        steps = check_refine(refine, seconds)
+        if steps == 0:
+            return self._network(batch)
+        squares = torch.stack([square_photo(p.float(), None) for p in batch])
+        result = refine_prediction(
+            squares,
+            self._network(squares).to(self.device),
+            steps,
+            seconds=seconds,
+            scene=scene,
+            callback=callback,
+            backend=backend or BACKEND,
+        )
+        return result.svbrdf
+
+    @torch.no_grad()
+    def _network(self, batch: Tensor) -> SVBRDF:
+        """The generator's maps of ``(N, 3, H, W)`` photos' centre squares at :attr:`resolution`."""
         x = torch.stack([square_photo(p.float(), self.resolution) for p in batch])
         return self.generator(x.to(self.device)).detach().to("cpu")
 

@@ -64,7 +64,7 @@ __all__ = [
 
 #: The refinement budget the photo tools use when none is given (chosen from the accuracy
 #: curve of ``benchmarks/refine_curve.py``; see the README).
-DEFAULT_REFINE_STEPS = 150
+DEFAULT_REFINE_STEPS = 100
 
 #: Photos with a shorter side below this are refused by the photo tools (the renderer itself
 #: refines any size; it is tested down to 1x1).
@@ -109,7 +109,7 @@ class RefineSettings:
     coarse: int = 8
     normal_lr_scale: float = 0.5
     levels: int = 1
-    lobe_first: float = 0.3
+    lobe_first: float = 0.0
     rings: float = 1.0
 
     def __post_init__(self):
@@ -208,7 +208,7 @@ class _Parameters:
         self.delta: dict[str, list[Tensor]] = {}
         for name, base in self.base.items():
             sizes = _grid_sizes(h, w, levels, limit[name])
-            if sizes[-1] != (1, 1):  # a change of the whole material (its mean), always free
+            if limit[name] is None and sizes[-1] != (1, 1):  # per-pixel maps: a mean change too
                 sizes.append((1, 1))
             self.delta[name] = [
                 torch.zeros(b, base.shape[1], gh, gw, device=start.device, requires_grad=True)

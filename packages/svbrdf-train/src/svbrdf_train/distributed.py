@@ -9,7 +9,6 @@ on when to stop through :meth:`Dist.any`.
 from __future__ import annotations
 
 import os
-import re
 from dataclasses import dataclass
 
 import torch
@@ -22,22 +21,15 @@ __all__ = ["Dist", "init", "pick_device"]
 
 def pick_device(name: str, local_rank: int = 0) -> torch.device:
     """``auto`` (CUDA when there is one), ``cpu``, ``cuda`` or ``cuda:K``; under torchrun each
-    process takes the GPU of its local rank."""
-    if name == "auto":
-        name = "cuda" if torch.cuda.is_available() else "cpu"
-    if name == "cuda" or re.fullmatch(r"cuda:[0-9]+", name):
-        if not torch.cuda.is_available():
-            raise TrainingError(f"--device {name}: this torch sees no CUDA GPU; use --device cpu")
-        count = torch.cuda.device_count()
-        if name == "cuda":
-            name = f"cuda:{local_rank % count}"
-        elif int(name[5:]) >= count:
-            raise TrainingError(
-                f"--device {name}: this machine has {count} GPU(s), cuda:0 to cuda:{count - 1}"
-            )
-    elif name != "cpu":
-        raise TrainingError(f"--device {name!r}: expected auto, cpu, cuda or cuda:K")
-    return torch.device(name)
+    process takes the GPU of its local rank (:func:`svbrdf_models.batch.pick_device`, whose
+    refusals are :class:`TrainingError` here)."""
+    from svbrdf_models.batch import pick_device as pick
+    from svbrdf_models.errors import DataError
+
+    try:
+        return pick(name, local_rank)
+    except DataError as e:
+        raise TrainingError(str(e)) from None
 
 
 @dataclass

@@ -3,13 +3,14 @@ command line turns any of them into a one-line message and exit code 2."""
 
 from __future__ import annotations
 
+from svbrdf_models.errors import DataError
 from svbrdf_render import SVBRDFError
 
 __all__ = ["DataError", "ShardError", "RecipeError", "CheckpointError", "TrainingError", "TrackingError"]
 
 
-class DataError(SVBRDFError):
-    """Bad input data: a folder, file or argument that cannot be used. Say what, which, and what to do."""
+# DataError (bad input data: a folder, file or argument that cannot be used) is svbrdf-models'
+# own class, so that the photo tool there and the data sets here raise one kind of error.
 
 
 class ShardError(DataError):

@@ -11,11 +11,10 @@ from __future__ import annotations
 import fnmatch
 from pathlib import Path
 
-import torch
-from torch import Tensor
 from torch.utils.data import Dataset
 
 from svbrdf_models.modelfile import square_photo
+from svbrdf_models.photos import exif_orientation, file_orientation, orient
 from svbrdf_render import read_image
 from svbrdf_render.mapfiles import srgb_to_linear
 
@@ -27,43 +26,6 @@ __all__ = ["PhotoFolder", "ENCODINGS", "PHOTO_EXTENSIONS", "exif_orientation", "
 ENCODINGS = ("srgb", "linear")
 #: File types read (case-insensitive).
 PHOTO_EXTENSIONS = (".png", ".jpg", ".jpeg")
-#: The EXIF tag saying how to turn the stored pixels to show the photo upright (1-8).
-EXIF_ORIENTATION = 0x0112
-
-
-def exif_orientation(image) -> tuple[int, str | None]:
-    """The EXIF orientation (1-8) of an open Pillow image, and a note for the user when it is applied,
-    unreadable or invalid (both of the latter read as 1: the pixels as stored)."""
-    try:
-        orientation = int(image.getexif().get(EXIF_ORIENTATION, 1))
-    except Exception:  # a damaged EXIF block: keep the pixels as stored
-        return 1, "EXIF block unreadable: orientation not applied"
-    if orientation not in range(1, 9):
-        return 1, f"EXIF orientation {orientation} is not 1-8: ignored"
-    return orientation, (f"EXIF orientation {orientation} applied" if orientation != 1 else None)
-
-
-def orient(image: Tensor, orientation: int) -> Tensor:
-    """Apply an EXIF orientation (1-8) to ``(C, H, W)``: what ``PIL.ImageOps.exif_transpose`` does."""
-    ops = {
-        1: lambda t: t,
-        2: lambda t: t.flip(-1),
-        3: lambda t: t.flip(-1, -2),
-        4: lambda t: t.flip(-2),
-        5: lambda t: t.transpose(-1, -2),
-        6: lambda t: torch.rot90(t, -1, (-2, -1)),
-        7: lambda t: t.transpose(-1, -2).flip(-1, -2),
-        8: lambda t: torch.rot90(t, 1, (-2, -1)),
-    }
-    return ops.get(int(orientation), ops[1])(image).contiguous()
-
-
-def _file_orientation(path: Path) -> int:
-    """The EXIF orientation of an image file (1 when it has none, or a damaged or invalid one)."""
-    from PIL import Image
-
-    with Image.open(path) as image:
-        return exif_orientation(image)[0]
 
 
 class PhotoFolder(Dataset):
@@ -127,7 +89,7 @@ class PhotoFolder(Dataset):
         if not -len(self) <= index < len(self):
             raise IndexError(f"PhotoFolder: index {index} out of range for {len(self)} photos")
         path = self.files[index]
-        photo = orient(read_image(path, channels=3), _file_orientation(path))
+        photo = orient(read_image(path, channels=3), file_orientation(path))
         if self.encoding == "srgb":
             photo = srgb_to_linear(photo)
         return {"input": square_photo(photo, self.size), "name": path.name}

@@ -14,10 +14,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-import numpy as np
-import torch
 from torch import Tensor
 
+from svbrdf_models.figures import image_grid
 from svbrdf_render.mapfiles import linear_to_srgb
 
 from ..errors import DataError
@@ -26,17 +25,6 @@ __all__ = ["contact_sheet", "image_grid", "map_tiles", "COLUMNS"]
 
 #: Column titles, left to right (after the label column).
 COLUMNS = ("input", "normal", "diffuse", "roughness", "specular")
-_BACKGROUND = 30  # 8-bit grey behind the tiles
-_TEXT = (235, 235, 235)
-
-
-def _font(size: int):
-    from PIL import ImageFont
-
-    try:
-        return ImageFont.load_default(size=size)
-    except TypeError:  # Pillow < 10.1: one bitmap size only
-        return ImageFont.load_default()
 
 
 def map_tiles(maps: Tensor) -> list[Tensor]:
@@ -94,58 +82,3 @@ def contact_sheet(
         names = batch.get("name")
         labels = [str(s) for s in names] if names is not None else [str(k) for k in range(len(rows))]
     return image_grid(rows, COLUMNS, labels, gap=gap)
-
-
-def image_grid(
-    rows: Sequence[Sequence[Tensor]],
-    columns: Sequence[str],
-    labels: Sequence[str],
-    *,
-    gap: int = 4,
-    min_tile: int = 0,
-) -> Tensor:
-    """Tiles ``(3, H, W)`` in [0, 1] laid out in rows, under column titles, each row labelled.
-
-    Tiles narrower than ``min_tile`` pixels are enlarged by a whole factor (nearest neighbour,
-    so pixels stay sharp) to be seen at all. Returns ``(3, H', W')`` values in [0, 1] (8-bit
-    steps), ready for ``svbrdf_render.write_image``.
-    """
-    from PIL import Image, ImageDraw
-
-    n = len(rows)
-    labels = list(labels)
-    if len(labels) != n:
-        raise DataError(f"image grid: {len(labels)} labels for {n} rows")
-    if n == 0:
-        raise DataError("image grid: no rows to draw")
-    grow = max(1, min_tile // rows[0][0].shape[-1])
-    if grow > 1:
-        rows = [[t.repeat_interleave(grow, -1).repeat_interleave(grow, -2) for t in row] for row in rows]
-    h, w = rows[0][0].shape[-2:]
-    font = _font(max(10, min(h, w) // 14))
-    draw = ImageDraw.Draw(Image.new("RGB", (1, 1)))
-
-    def text_size(s: str) -> tuple[int, int]:
-        left, top, right, bottom = draw.textbbox((0, 0), s, font=font)
-        return right - left, bottom - top
-
-    label_w = max(text_size(s)[0] for s in labels) + 2 * gap
-    header_h = max(text_size(c)[1] for c in columns) + 3 * gap
-    width = label_w + len(columns) * (w + gap) + gap
-    height = header_h + n * (h + gap)
-    canvas = np.full((height, width, 3), _BACKGROUND, dtype=np.uint8)
-    for r, tiles in enumerate(rows):
-        top = header_h + r * (h + gap)
-        for c, tile in enumerate(tiles):
-            left = label_w + c * (w + gap) + gap
-            pixels = (tile.detach().float().cpu().clamp(0, 1).permute(1, 2, 0).numpy() * 255).round()
-            canvas[top : top + h, left : left + w] = pixels.astype(np.uint8)
-    image = Image.fromarray(canvas)
-    draw = ImageDraw.Draw(image)
-    for c, title in enumerate(columns):
-        tw, _ = text_size(title)
-        draw.text((label_w + c * (w + gap) + gap + (w - tw) // 2, gap), title, fill=_TEXT, font=font)
-    for r, label in enumerate(labels):
-        _, th = text_size(label)
-        draw.text((gap, header_h + r * (h + gap) + (h - th) // 2), label, fill=_TEXT, font=font)
-    return torch.from_numpy(np.asarray(image).copy()).permute(2, 0, 1).float() / 255

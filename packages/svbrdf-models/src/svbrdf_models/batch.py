@@ -1,0 +1,280 @@
+"""The photo tool's command-line side, shared by ``svbrdf-models predict`` and ``svbrdf-train
+predict``: photos captured one by one into their folders, progress, the summary table and the
+exit status.
+
+::
+
+    status = capture_batch(model, ["a.jpg", "b.png"], Path("maps"), CaptureOptions(refine=100),
+                           prog="svbrdf-models", summary={"model": model.source})
+
+Messages go to stderr, one line each, starting with ``PROG: error:`` or ``PROG: note:``; the
+folder of each photo captured goes to stdout. Exit status: 0 every photo captured; 1 some
+failed; 2 all failed; 3 a file could not be written (the photos after it are not done); 130
+interrupted (the photo in progress is not written, the summary neither).
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+from .errors import DataError
+
+__all__ = [
+    "HELP_SECTIONS",
+    "ProgressBar",
+    "capture_batch",
+    "folder_name",
+    "help_text",
+    "load_scene",
+    "pick_device",
+]
+
+#: Exit status of an interrupted command (128 + SIGINT).
+INTERRUPTED = 130
+
+#: The ``--help`` paragraphs both photo commands share (``{refine}``: the command's --refine
+#: default; the limits are filled in by :func:`help_text`).
+HELP_SECTIONS = (
+    """Photos: JPEG or PNG, in colour, the flash roughly at the centre. The EXIF orientation is
+applied, then the largest centred square (or --crop X,Y,SIZE, in pixels of the photo as
+displayed) is resized to the model's resolution and decoded from sRGB (unless --linear).
+With --tiles the square is kept at its own size (or --map-size) and predicted in tiles of
+the model's resolution overlapping by half, blended with raised-cosine weights; each tile
+sees the flash off its centre, which the model may not have been trained for: check the
+re-rendering.""",
+    """Refinement (--refine STEPS, default {refine}; 0: the network's maps only): the network's
+maps are refined against the photo at the square's own resolution (or --map-size) through
+the differentiable renderer, for at most STEPS steps (and --refine-seconds S), under the
+flash svbrdf_render.refine_maps finds from the network's maps (or --scene FILE, a scene
+YAML as `svbrdf-render scene` writes: one camera, one view). The maps written are the refined
+ones. A progress bar is drawn on stderr when it is a terminal (nothing when it is not).
+Squares or --map-size under {min_refine} px are refused. --backend compiled compiles the
+renderer first (seconds), worth it only for long refinements of large photos.""",
+    """Each photo gets a folder DIR/NAME/:
+  normal.png      tangent-space normal, stored (n+1)/2 (OpenGL y up; --normal-convention directx)
+  diffuse.png     albedo, linear as Des18 stores it (--albedo-encoding srgb for texture tools)
+  roughness.png   grey, alpha = roughness^2
+  specular.png    albedo, encoded like diffuse.png
+  input.png       the square the maps are of (sRGB)
+  rerender.png    photo | re-rendering under the fitted flash | |error| heat map; refined:
+                  photo | network's | refined re-rendering | both heat maps, one flash
+  relit.gif       a point light circling the material (--relit png: a grid, refined: a row
+                  per version; none: skipped)
+and DIR/summary.json holds, per photo, the status, notes, the re-rendering RMSE against the
+photo (linear) of the maps written and the flash, with refinement the budget, steps, seconds
+and the RMSE of the network's and the refined maps; and the median RMSE over the photos.""",
+    """Refused photos (each reported on its own line, the others still done): missing, folders,
+not an image, neither JPEG nor PNG, under {min_side} px on the short side, over {megapixels} megapixels,
+grey, translucent alpha, a crop that does not fit. Processed with a note: EXIF rotation,
+16-bit PNG, opaque alpha, palette or CMYK, grey saved as RGB, clipped highlights, a square
+smaller than the model's resolution.""",
+    """stdout: the folder of each photo captured; stderr: progress, notes, errors, a summary table.
+Exit status: 0 every photo captured; 1 some photos failed, others were captured; 2 every
+photo failed, or bad arguments (no model, unreadable model, bad option, -o not writable);
+3 a file could not be written (disk full...): the photos after it are not done; 130
+interrupted (Ctrl-C): the photo in progress is not written, nor summary.json.
+Every file is written whole or not at all (summary.json too).""",
+)
+
+
+def help_text(refine: int, *, click: bool = False) -> str:
+    """:data:`HELP_SECTIONS` filled in; ``click``: each paragraph kept as written (``\\b``)."""
+    from svbrdf_render import MIN_REFINE_SIDE
+
+    from .capture import MAX_PIXELS, MIN_SIDE
+
+    limits = {"min_refine": MIN_REFINE_SIDE, "min_side": MIN_SIDE, "megapixels": MAX_PIXELS // 1_000_000}
+    parts = [p.format(refine=refine, **limits) for p in HELP_SECTIONS]
+    return "\n\n".join(f"\b\n{p}" if click else p for p in parts)
+
+
+def pick_device(name: str, local_rank: int = 0) -> torch.device:
+    """``auto`` (CUDA when there is one), ``cpu``, ``cuda`` or ``cuda:K``; ``cuda`` takes the GPU
+    of ``local_rank`` (under torchrun). A device this machine lacks is a :class:`DataError`."""
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cuda" or re.fullmatch(r"cuda:[0-9]+", name):
+        if not torch.cuda.is_available():
+            raise DataError(f"--device {name}: this torch sees no CUDA GPU; use --device cpu")
+        count = torch.cuda.device_count()
+        if name == "cuda":
+            name = f"cuda:{local_rank % count}"
+        elif int(name[5:]) >= count:
+            raise DataError(f"--device {name}: this machine has {count} GPU(s), cuda:0 to cuda:{count - 1}")
+    elif name != "cpu":
+        raise DataError(f"--device {name!r}: expected auto, cpu, cuda or cuda:K")
+    return torch.device(name)
+
+
+class ProgressBar:
+    """``callback(step, total, loss)`` drawing one line on ``stream`` with ``\\r`` updates:
+    ``NAME: refining  37/100 [#######.............] 1.2 s loss 0.0812``.
+
+    Silent when ``enabled`` is false (by default: when ``stream`` is not a terminal, so logs and
+    pipes get no control characters). :meth:`close` ends the line. At most ~20 redraws a second.
+    """
+
+    def __init__(self, name: str, stream=None, enabled: bool | None = None, width: int = 20):
+        self.stream = stream if stream is not None else sys.stderr
+        if enabled is None:
+            isatty = getattr(self.stream, "isatty", None)
+            enabled = bool(isatty and isatty())
+        self.enabled = enabled
+        self.name = name
+        self.width = width
+        self.start = time.perf_counter()
+        self.drawn = 0.0
+        self.used = False
+
+    def __call__(self, step: int, total: int, loss: float) -> None:
+        if not self.enabled:
+            return
+        now = time.perf_counter()
+        if step < total and now - self.drawn < 0.05:
+            return
+        self.drawn, self.used = now, True
+        filled = round(self.width * step / max(total, 1))
+        bar = "#" * filled + "." * (self.width - filled)
+        digits = len(str(total))
+        self.stream.write(
+            f"\r{self.name}: refining {step:>{digits}}/{total} [{bar}] {now - self.start:.1f} s "
+            f"loss {loss:.4f}"
+        )
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.used:
+            self.stream.write("\n")
+            self.stream.flush()
+            self.used = False
+
+
+def load_scene(path):
+    """A scene file for refinement, refused (one line naming it) when it is not one camera and
+    one view (the shapes :func:`svbrdf_render.refine_maps` takes for one photo)."""
+    from svbrdf_render import Scene, SceneError, SVBRDFError
+
+    from .refining import check_scene
+
+    scene = Scene.load(path)  # a SceneError naming the file when it cannot be read or parsed
+    try:
+        return check_scene(scene)
+    except SVBRDFError as e:
+        raise SceneError(f"--scene {path}: {e}") from None
+
+
+def folder_name(path: Path, used: set[str]) -> str:
+    """The photo's stem, numbered (``NAME-2``, ...) when an earlier photo of the batch took it."""
+    name, k = path.stem, 1
+    while name in used:
+        k += 1
+        name = f"{path.stem}-{k}"
+    return name
+
+
+def capture_batch(predictor, photos, out: Path, options, *, prog: str, summary: dict) -> int:
+    """Capture each photo into ``out/NAME``, write ``out/summary.json`` (with ``summary``'s
+    fields), print the table; the exit status (see the module)."""
+    out = Path(out)
+    entries, stopped = _capture_all(predictor, photos, out, options, prog)
+    if stopped == INTERRUPTED:
+        return INTERRUPTED
+    from .capture import write_summary
+
+    result = write_summary(out / "summary.json", entries, **summary)
+    err = sys.stderr
+    print(_table(entries, result), file=err, end="", flush=True)
+    if stopped is not None:
+        left = len(photos) - len(entries)
+        print(f"stopped: a file could not be written; {left} photo(s) after it not done", file=err)
+        return stopped.exit_code
+    failed = result["failed"]
+    if failed:
+        print(f"{failed} of {len(photos)} photo(s) failed", file=err)
+        return 2 if failed == len(photos) else 1
+    return 0
+
+
+def _capture_all(predictor, photos, out: Path, options, prog: str):
+    """Capture each photo into its own folder of ``out``; the summary entries, and what stopped the
+    batch (None: every photo was tried; an OutputError; or INTERRUPTED). A photo that fails is
+    reported and skipped; a file that cannot be written stops the photos after it."""
+    from svbrdf_render import SVBRDFError
+    from svbrdf_render.errors import OutputError
+
+    from .capture import capture_one
+
+    entries: list[dict] = []
+    used: set[str] = set()
+    for path in map(Path, photos):
+        name = folder_name(path, used)
+        bar = ProgressBar(path.name)
+        try:
+            entry = capture_one(predictor, path, out / name, options, progress=bar)
+        except KeyboardInterrupt:
+            bar.close()
+            print(f"{prog}: interrupted: {path} not written ({len(entries)} photo(s) before it done, "
+                  "no summary.json)", file=sys.stderr)  # fmt: skip
+            return entries, INTERRUPTED
+        except OutputError as e:  # the disk, not the photo: the photos after it would fail alike
+            bar.close()
+            print(f"{prog}: error: {e}", file=sys.stderr)
+            entries.append({"photo": str(path), "status": "failed", "error": str(e)})
+            return entries, e
+        except (SVBRDFError, OSError, RuntimeError) as e:  # RuntimeError: out of memory, a broken model
+            bar.close()
+            what = str(e) if isinstance(e, (SVBRDFError, OSError)) else f"{type(e).__name__}: {e}"
+            text = what if what.startswith(str(path)) else f"{path}: {what}"
+            print(f"{prog}: error: {text}", file=sys.stderr)
+            entries.append({"photo": str(path), "status": "failed", "error": text})
+            continue
+        bar.close()
+        used.add(name)
+        for note in entry["notes"]:
+            print(f"{prog}: note: {path}: {note}", file=sys.stderr)
+        entries.append({"name": name, **entry})
+        print(str(out / name), flush=True)
+    return entries, None
+
+
+def _table(entries: list[dict], summary: dict) -> str:
+    """The summary table: one line per photo, then the median. With refinement, the network's
+    RMSE, the refined one (under the same scene) and the steps and seconds taken."""
+    names = [Path(e["photo"]).name for e in entries]
+    width = max(len("photo"), *(len(n) for n in names))
+    refined = any(e.get("refine") for e in entries)
+    extra = f"  {'network':>7}  {'steps':>5}  {'seconds':>7}" if refined else ""
+    lines = [
+        f"{'photo':<{width}}  status  {'rmse':>7}{extra}  {'flash x, y, z':>21}  {'intensity':>9}  notes"
+    ]
+    for name, e in zip(names, entries, strict=True):
+        if e["status"] != "ok":
+            dash = f"  {'-':>7}  {'-':>5}  {'-':>7}" if refined else ""
+            lines.append(f"{name:<{width}}  failed  {'-':>7}{dash}  {'-':>21}  {'-':>9}")
+            continue
+        rmse = _number(e["rmse"], ".4f")
+        more = ""
+        if refined:
+            r = e.get("refine") or {}
+            more = (
+                f"  {_number(r.get('rmse_network'), '.4f'):>7}  {r.get('steps', 0):>5}  "
+                f"{_number(r.get('seconds'), '.1f'):>7}"
+            )
+        pos = ", ".join(_number(v, "+.2f") for v in e["flash"]["position"])
+        k = _number(e["flash"]["intensity"], "9.3g")
+        lines.append(f"{name:<{width}}  ok      {rmse:>7}{more}  {pos:>21}  {k:>9}  {len(e['notes'])}")
+    median = summary["median_rmse"]
+    lines.append(
+        f"median re-rendering RMSE over {summary['captured']} photo(s): "
+        + ("-" if median is None else f"{median:.4f}")
+    )
+    return "\n".join(lines) + "\n"
+
+
+def _number(value, spec: str) -> str:
+    return "nan" if value is None else format(value, spec)

@@ -1,0 +1,127 @@
+"""A network's maps refined against their photo (inverse rendering), and how well each explains it.
+
+The network sees the photo at its training resolution; :func:`refine_prediction` then runs
+:func:`svbrdf_render.refine_maps` at the photo's own resolution, starting from the network's
+maps and pulled toward them (start = prior = the network's maps)::
+
+    from svbrdf_models.refining import refine_prediction, rerender, rerender_rmse
+    result = refine_prediction(photo, network_maps, 100)      # a svbrdf_render.Refinement
+    rmse = rerender_rmse(rerender(result.svbrdf, result.scene), photo)   # (B,)
+
+:meth:`svbrdf_models.TrainedModel.predict` (``refine=STEPS``) and the photo tool
+(:mod:`svbrdf_models.capture`, ``--refine``) both go through it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+
+import torch
+from torch import Tensor
+
+from svbrdf_render import MIN_REFINE_SIDE, SVBRDF, Refinement, Scene, refine_maps, refine_start, render
+
+from .errors import DataError
+
+__all__ = ["BACKEND", "check_refine", "check_scene", "refine_prediction", "rerender", "rerender_rmse"]
+
+#: The renderer backend the photo tools refine with: eager runs at once, where ``compiled``
+#: first compiles for seconds (about 3 s with a warm cache, 20 s cold) and is no faster per
+#: step at 256 px on a CPU (at 1024 px it is about 20% faster per step).
+BACKEND = "eager"
+
+
+def check_refine(refine, seconds=None) -> int:
+    """``refine`` as a number of steps: an integer >= 0 (not a bool); ``seconds`` None or a
+    finite number >= 0. A :class:`DataError` (one line) otherwise."""
+    if isinstance(refine, bool) or not isinstance(refine, int) or refine < 0:
+        raise DataError(
+            f"refine must be a whole number of refinement steps >= 0 (0: the network's maps "
+            f"only), got {refine!r}"
+        )
+    if seconds is not None and (
+        isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not math.isfinite(seconds)
+        or seconds < 0
+    ):  # fmt: skip
+        raise DataError(f"refine seconds must be a finite number >= 0 (or None), got {seconds!r}")
+    return int(refine)
+
+
+def check_scene(scene: Scene) -> Scene:
+    """``scene`` when it can be one photo's capture (one camera, one view: configuration shape
+    ``()`` or ``(1, 1)``), else the :class:`~svbrdf_render.SceneError` of
+    :func:`svbrdf_render.refine_maps` itself, raised at once (checked on a 1-pixel photo)."""
+    refine_maps(torch.zeros(1, 3, 1, 1), SVBRDF.constant(1, 1), scene=scene, steps=0)
+    return scene
+
+
+def refine_prediction(
+    photo: Tensor,
+    start: SVBRDF,
+    steps: int,
+    *,
+    seconds: float | None = None,
+    scene: Scene | None = None,
+    callback: Callable[[int, int, float], None] | None = None,
+    backend: str = BACKEND,
+) -> Refinement:
+    """Refine ``start`` (a network's maps, any size) against ``photo`` at the photo's size.
+
+    Args:
+        photo: ``(B, 3, H, W)`` linear photos (the squares the maps are of), ``H, W >=``
+            :data:`svbrdf_render.MIN_REFINE_SIDE`.
+        start: maps of B materials; the start and the prior of the refinement.
+        steps, seconds: the budget (see :func:`svbrdf_render.refine_maps`).
+        scene: the capture (default: the flash found from ``start``).
+        callback: ``callback(step, total, loss)`` after each step.
+        backend: the renderer's backend (:data:`BACKEND` by default).
+
+    The refinement runs on ``start``'s device with gradients on (also when called under
+    ``torch.no_grad`` or ``torch.inference_mode``); the :class:`~svbrdf_render.Refinement`
+    comes back on the CPU.
+    """
+    steps = check_refine(steps, seconds)
+    if photo.dim() == 3:
+        photo = photo[None]
+    h, w = photo.shape[-2:]
+    if min(h, w) < MIN_REFINE_SIDE:
+        raise DataError(
+            f"the photo is {w}x{h}, smaller than {MIN_REFINE_SIDE} px: too few pixels to refine "
+            "maps against; give a larger photo, or refine 0 (the network's maps only)"
+        )
+    device = start.device
+    # Gradients on, even under torch.no_grad or torch.inference_mode (whose tensors are copied
+    # into ordinary ones: autograd cannot save inference tensors for the backward pass).
+    with torch.inference_mode(False), torch.enable_grad():
+        photo = photo.detach().to(device, torch.float32).clone()
+        start = SVBRDF(**{k: t.detach().clone() for k, t in start.maps().items()}, validate=False)
+        result = refine_maps(
+            photo,
+            start,
+            scene=None if scene is None else scene.to(device),
+            steps=steps,
+            seconds=seconds,
+            backend=backend,
+            callback=callback,
+        )
+    return dataclasses.replace(result, svbrdf=result.svbrdf.to("cpu"), scene=result.scene.to("cpu"))
+
+
+@torch.no_grad()
+def rerender(svbrdf: SVBRDF, scene: Scene, size: tuple[int, int] | None = None) -> Tensor:
+    """``(B, 3, H, W)`` rendering of ``svbrdf`` (brought to ``size`` first, as a refinement's
+    start is) under ``scene`` (one view), clipped to [0, 1] as a camera saturates."""
+    if size is not None:
+        svbrdf = refine_start(svbrdf, tuple(size))
+    image = render(svbrdf.detach().to(torch.float32), scene.to(svbrdf.device))
+    if image.dim() == 5:  # (B, 1, 3, H, W): one configuration per material
+        image = image[:, 0]
+    return image.clamp(0, 1)
+
+
+def rerender_rmse(rendering: Tensor, photo: Tensor) -> Tensor:
+    """``(B,)`` RMSE of clipped renderings against linear photos ``(B, 3, H, W)``."""
+    photo = photo[None] if photo.dim() == 3 else photo
+    return (rendering - photo.to(rendering).clamp(0, 1)).square().flatten(1).mean(1).sqrt()

@@ -1,0 +1,315 @@
+"""The photo tool in svbrdf-models: ``TrainedModel.predict(photo, refine=STEPS)`` and
+``svbrdf-models predict`` (network, then refinement against the photo).
+
+Photos are made here: known maps rendered under a known flash, saved as sRGB PNG. The model is
+the one shipped with the package (128 px); refinements are a few eager steps on small photos.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import subprocess
+import sys
+
+import pytest
+import torch
+
+import svbrdf_models as sm
+from svbrdf_models import capture
+from svbrdf_models.batch import ProgressBar
+from svbrdf_models.cli import main
+from svbrdf_models.errors import DataError
+from svbrdf_models.modelfile import square_photo
+from svbrdf_models.refining import rerender, rerender_rmse
+from svbrdf_render import (
+    DEFAULT_REFINE_STEPS,
+    MIN_REFINE_SIDE,
+    Camera,
+    PointLight,
+    Scene,
+    read_image,
+    render,
+    write_image,
+)
+from svbrdf_render.examples import example_material
+from svbrdf_render.mapfiles import linear_to_srgb
+
+MAPS = ("normal", "diffuse", "roughness", "specular")
+SCENE = Scene.flash(intensity=12.0)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return sm.load_model("pretrained")
+
+
+def _photo(size: int = 64, name: str = "tiles", width: int | None = None) -> torch.Tensor:
+    """``(3, size, width)`` linear flash photo of a known material (clipped as a camera does)."""
+    maps = example_material(name, max(size, width or size))
+    photo = render(maps, SCENE).clamp(0, 1)[0]
+    return photo[:, :size, : width or size].contiguous()
+
+
+@pytest.fixture(scope="module")
+def photo_file(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("photos")
+    return write_image(folder / "tiles.png", linear_to_srgb(_photo(72, width=80)))
+
+
+def _run(*args, capsys=None):
+    code = main(["predict", *map(str, args)])
+    out = capsys.readouterr() if capsys is not None else None
+    return code, out
+
+
+# -- TrainedModel.predict ----------------------------------------------------------------------
+
+
+def test_refine_zero_is_the_network_unchanged(model):
+    """refine=0 (the default) gives the generator's maps of the centre square at the model's
+    resolution, as before refinement existed."""
+    photo = _photo(64, width=90)
+    with torch.no_grad():
+        want = model.generator(square_photo(photo, model.resolution)[None])
+    for got in (model.predict(photo), model.predict(photo, 0), model.predict(photo[None], refine=0)):
+        assert got.size == (model.resolution, model.resolution)
+        for name in MAPS:
+            assert torch.equal(getattr(got, name), getattr(want, name)), name
+
+
+def test_refined_maps_are_photo_sized_and_explain_the_photo_better(model):
+    """refine=STEPS: maps at the square's own size (the photo's shorter side), whose re-rendering
+    under the refinement's scene is closer to the photo than the network's maps' (brought to
+    that size as the refinement's start is)."""
+    photo = _photo(64, width=80)
+    square = square_photo(photo, None)
+    calls = []
+    refined = model.predict(photo, 20, scene=SCENE, callback=lambda *a: calls.append(a), backend="eager")
+    assert refined.size == (64, 64) and refined.batch_size == 1
+    assert [c[0] for c in calls] == list(range(1, 21)) and all(c[1] == 20 for c in calls)
+    network = model.predict(photo)
+    before = float(rerender_rmse(rerender(network, SCENE, (64, 64)), square)[0])
+    after = float(rerender_rmse(rerender(refined, SCENE), square)[0])
+    assert after < 0.8 * before, (before, after)
+    assert float((refined.normal.norm(dim=1) - 1).abs().max()) < 1e-4
+
+
+def test_refine_runs_under_no_grad_and_inference_mode(model):
+    photo = _photo(32)
+    with torch.no_grad():
+        assert model.predict(photo, 2).size == (32, 32)
+    with torch.inference_mode():
+        assert model.predict(photo, 2).size == (32, 32)
+
+
+@pytest.mark.parametrize("refine", [-1, True, 1.5, "3", None])
+def test_refine_must_be_a_whole_number_of_steps(model, refine):
+    with pytest.raises(DataError, match="refine must be a whole number of refinement steps >= 0") as e:
+        model.predict(_photo(32), refine)
+    assert "\n" not in str(e.value) and isinstance(e.value, ValueError)
+
+
+def test_refine_refuses_a_photo_under_the_minimum_side(model):
+    small = MIN_REFINE_SIDE - 1
+    with pytest.raises(DataError, match=f"smaller than {MIN_REFINE_SIDE} px"):
+        model.predict(torch.rand(3, small, 40) * 0.5, 2)
+    assert model.predict(torch.rand(3, small, 40) * 0.5).size == (model.resolution,) * 2  # network only
+
+
+@pytest.mark.slow
+def test_refine_at_1024(model):
+    """A 1024x1024 photo is refined at its own resolution (two steps: memory and shapes, not quality)."""
+    photo = torch.nn.functional.interpolate(_photo(128)[None], size=(1024, 1024), mode="bilinear")[0]
+    refined = model.predict(photo, 2)
+    assert refined.size == (1024, 1024) and bool(torch.isfinite(refined.pack()).all())
+
+
+# -- svbrdf-models predict -----------------------------------------------------------------------
+
+
+def test_command_refines_and_shows_both_versions(tmp_path, photo_file, model, capsys):
+    """--refine 4: maps at the square's size (72 of a 72x80 photo), the refined ones; rerender.png
+    photo | network | refined | two heat maps; relit.png a row per version for each group of
+    angles; summary.json with the budget, steps, seconds and both RMSEs."""
+    out = tmp_path / "maps"
+    code, got = _run(photo_file, "-o", out, "--refine", 4, "--relit", "png", capsys=capsys)
+    assert code == 0, got.err
+    assert "using the model shipped with svbrdf-models" in got.err and model.describe() in got.err
+    assert got.out.split() == [str(out / "tiles")]
+    folder = out / "tiles"
+    assert {p.name for p in folder.iterdir()} == {f"{n}.png" for n in (*MAPS, "input", "rerender", "relit")}
+    assert read_image(folder / "normal.png").shape == (3, 72, 72)
+    assert read_image(folder / "input.png").shape == (3, 72, 72)
+    figure = read_image(folder / "rerender.png")
+    assert figure.shape[2] > 5 * 72 and figure.shape[1] < 2 * 72  # one row of five tiles
+    relit = read_image(folder / "relit.png")
+    assert relit.shape[1] > 8 * 72 > relit.shape[1] - 8 * 72 - 200  # 2 versions x 4 rows of 6 frames
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["refine"] == 4 and summary["model"] == model.source
+    entry = summary["entries"][0]
+    assert entry["maps"] == 72 and entry["square"] == 72
+    r = entry["refine"]
+    assert r["budget"] == 4 and r["steps"] == 4 and r["seconds"] > 0 and r["backend"] == "eager"
+    assert r["rmse_refined"] == entry["rmse"] and 0 <= r["rmse_refined"] < 1 and 0 <= r["rmse_network"] < 1
+    assert "network" in got.err  # the table's column of the network's RMSE
+
+
+def test_command_writes_the_refined_maps(tmp_path, photo_file):
+    """The maps written are the refinement's: the same as TrainedModel.predict with the same
+    budget on the same square (within 8-bit steps)."""
+    out = tmp_path / "maps"
+    assert _run(photo_file, "-o", out, "--refine", 3, "--relit", "none")[0] == 0
+    photo, _ = capture.load_photo(photo_file)
+    want = sm.load_model("pretrained").predict(photo, 3)
+    stored = read_image(out / "tiles" / "diffuse.png")
+    assert float((stored - want.diffuse[0]).abs().max()) <= 1 / 255 + 1e-6
+
+
+def test_command_refine_zero_is_the_network_figure(tmp_path, photo_file, model, capsys):
+    """--refine 0: maps at the model's resolution, the flash fitted to them, no refinement entry;
+    the gif of the network's maps."""
+    out = tmp_path / "maps"
+    code, got = _run(photo_file, "-o", out, "--refine", 0, capsys=capsys)
+    assert code == 0, got.err
+    entry = json.loads((out / "summary.json").read_text())["entries"][0]
+    assert entry["maps"] == model.resolution and entry["refine"] is None
+    assert "relit.gif" in {p.name for p in (out / "tiles").iterdir()}
+    assert read_image(out / "tiles" / "rerender.png").shape[2] < 4 * model.resolution + 200
+
+
+def test_command_default_budget_is_the_renderers(tmp_path, photo_file, monkeypatch, capsys):
+    """No --refine: svbrdf_render.DEFAULT_REFINE_STEPS (read, not copied); --refine-seconds bounds it."""
+    out = tmp_path / "maps"
+    code, got = _run(photo_file, "-o", out, "--relit", "none", "--refine-seconds", "0.001", capsys=capsys)
+    assert code == 0, got.err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["refine"] == DEFAULT_REFINE_STEPS and summary["refine_seconds"] == 0.001
+    assert summary["entries"][0]["refine"]["steps"] == 1  # the time bound stops it after a step
+
+
+def _bad_scene(tmp_path):
+    """A scene of two light positions: two views, not one photo's capture."""
+    scene = Scene(Camera(), (PointLight(torch.tensor([[0.0, 0.0, 2.2], [1.0, 0.0, 2.0]]), 10.0),))
+    scene.save(tmp_path / "two-views.yaml")
+    return tmp_path / "two-views.yaml"
+
+
+@pytest.mark.parametrize(
+    "args, says",
+    [
+        (["--refine", "-1"], "--refine: expected an integer at least 0"),
+        (["--refine", "many"], "--refine: expected an integer"),
+        (["--refine", "2.5"], "--refine: expected an integer"),
+        (["--refine-seconds", "0"], "--refine-seconds: expected a finite number > 0"),
+        (["--refine", "0", "--refine-seconds", "3"], "--refine-seconds go(es) with --refine STEPS > 0"),
+        (["--refine", "3", "--map-size", str(MIN_REFINE_SIDE - 1)], f"smaller than {MIN_REFINE_SIDE} px"),
+        (["--refine", "0", "--map-size", "64"], "--map-size goes with --tiles or --refine"),
+        (["--scene", "TWO_VIEWS"], "the scene has configurations of shape"),
+        (["--scene", "MISSING"], "cannot read the scene file"),
+        (["--crop", "1,2"], "X,Y,SIZE"),
+        (["--device", "tpu"], "--device 'tpu': expected auto, cpu, cuda or cuda:K"),
+    ],
+)
+def test_command_bad_input_is_one_line_exit_2_and_writes_nothing(tmp_path, photo_file, capsys, args, says):
+    args = [str(_bad_scene(tmp_path)) if a == "TWO_VIEWS" else str(tmp_path / "no.yaml") if a == "MISSING"
+            else a for a in args]  # fmt: skip
+    code, got = _run(photo_file, "-o", tmp_path / "maps", *args, capsys=capsys)
+    assert code == 2 and says in got.err, got.err
+    assert got.err.startswith("svbrdf-models") and " error: " in got.err and got.err.count("\n") == 1, got.err
+    assert not (tmp_path / "maps").exists()
+
+
+def test_command_photo_too_small_to_refine_is_reported(tmp_path, capsys):
+    """A photo refused (here under capture's 64 px minimum) is one error line; all failed: exit 2."""
+    small = write_image(tmp_path / "small.png", torch.rand(3, 40, 40))
+    code, got = _run(small, "-o", tmp_path / "maps", "--refine", 2, capsys=capsys)
+    assert code == 2
+    assert f"svbrdf-models: error: {small}: is 40x40, smaller than 64 px" in got.err
+    assert "Traceback" not in got.err
+
+
+def test_command_interrupted_during_refinement_writes_nothing_of_that_photo(
+    tmp_path, photo_file, monkeypatch, capsys
+):
+    """Ctrl-C during the second photo's refinement: exit 130; the first photo's folder is whole, the
+    second has no folder at all, and no summary.json is written."""
+    second = write_image(tmp_path / "second.png", linear_to_srgb(_photo(64, "leather")))
+    real_call = ProgressBar.__call__
+
+    def interrupt(self, step, total, loss):
+        if self.name == "second.png" and step == 2:
+            raise KeyboardInterrupt
+        return real_call(self, step, total, loss)
+
+    monkeypatch.setattr(ProgressBar, "__call__", interrupt)
+    out = tmp_path / "maps"
+    code, got = _run(photo_file, second, "-o", out, "--refine", 3, "--relit", "none", capsys=capsys)
+    assert code == 130
+    assert f"svbrdf-models: interrupted: {second} not written" in got.err and "Traceback" not in got.err
+    assert sorted(p.name for p in out.iterdir()) == ["tiles"]
+    assert len(list((out / "tiles").iterdir())) == 6
+
+
+def test_progress_bar_draws_on_a_terminal_only():
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    tty, pipe = Tty(), io.StringIO()
+    for stream in (tty, pipe):
+        bar = ProgressBar("shot.png", stream)
+        for step in range(1, 11):
+            bar(step, 10, 0.5 / step)
+        bar.close()
+    assert pipe.getvalue() == ""
+    text = tty.getvalue()
+    assert text.startswith("\rshot.png: refining ") and text.endswith("\n")
+    assert "10/10 [####################]" in text and "loss 0.0500" in text
+
+
+def test_help_reads_the_default_budget_and_limits(capsys):
+    assert main(["predict", "--help"]) == 0
+    text = capsys.readouterr().out
+    assert f"default: {DEFAULT_REFINE_STEPS}" in text and f"under {MIN_REFINE_SIDE} px" in text
+    assert "130" in text and "Exit status: 0 every photo captured" in text
+
+
+# -- the photo tool stands alone -----------------------------------------------------------------
+
+
+def test_the_photo_tool_imports_no_trainer_tracking_or_click(tmp_path, photo_file):
+    """svbrdf-models predict, run to the end with refinement, loads nothing of svbrdf-train,
+    svbrdf-bench, mlflow, h5py or click (Pillow and PyYAML, the photo extra, are allowed)."""
+    code = (
+        "import sys\n"
+        "from svbrdf_models.cli import main\n"
+        f"status = main(['predict', {str(photo_file)!r}, '-o', {str(tmp_path / 'maps')!r}, '--refine', '2',"
+        " '--relit', 'png'])\n"
+        "bad = sorted(m for m in ('mlflow', 'h5py', 'click', 'svbrdf_train', 'svbrdf_bench') if m in sys.modules)\n"
+        "print(status, ','.join(bad) or 'none')\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split()[-2:] == ["0", "none"], r.stdout
+
+
+def test_the_network_only_path_imports_no_compiler(tmp_path, photo_file):
+    """--refine 0 runs no torch.optim optimiser: its first step imports torch._dynamo (~0.8 s on
+    a CPU, a third of the command's time); the flash fit steps by hand."""
+    code = (
+        "import sys\n"
+        "from svbrdf_models.cli import main\n"
+        f"status = main(['predict', {str(photo_file)!r}, '-o', {str(tmp_path / 'maps')!r}, '--refine', '0'])\n"
+        "print(status, 'torch._dynamo' in sys.modules)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split()[-2:] == ["0", "False"], r.stdout
+
+
+def test_the_photo_extra_is_declared():
+    from importlib.metadata import requires
+
+    extras = [r for r in requires("svbrdf-models") or [] if "extra ==" in r]
+    assert extras == ['svbrdf-render[io]; extra == "photo"']
