@@ -313,3 +313,15 @@ def test_the_photo_extra_is_declared():
 
     extras = [r for r in requires("svbrdf-models") or [] if "extra ==" in r]
     assert extras == ['svbrdf-render[io]; extra == "photo"']
+
+
+def test_auto_backend_compiles_large_photos_only():
+    from svbrdf_models.errors import DataError
+    from svbrdf_models.refining import COMPILE_PIXELS, pick_backend
+
+    assert pick_backend("auto", 256, 256) == "eager"
+    assert pick_backend("auto", 1024, 1024) == "compiled"
+    assert pick_backend("auto", COMPILE_PIXELS, 1) == "compiled"
+    assert pick_backend("eager", 4096, 4096) == "eager"
+    with pytest.raises(DataError, match="backend"):
+        pick_backend("gpu", 8, 8)

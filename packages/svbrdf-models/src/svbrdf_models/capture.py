@@ -64,7 +64,7 @@ from .errors import DataError
 from .figures import HEAT_MAX, error_heatmap, image_grid
 from .modelfile import square_photo
 from .photos import exif_orientation, orient
-from .refining import BACKEND, check_refine, refine_prediction, rerender, rerender_rmse
+from .refining import BACKEND, check_refine, pick_backend, refine_prediction, rerender, rerender_rmse
 
 __all__ = [
     "ALBEDO_ENCODINGS",
@@ -467,7 +467,7 @@ class CaptureOptions:
         refine: refinement steps after the network (0: the network's maps only).
         refine_seconds: with ``refine``, stop refining a photo after this many seconds.
         scene: with ``refine``, the capture's scene (default: the flash found from the maps).
-        backend: with ``refine``, the renderer's backend (``"eager"`` or ``"compiled"``).
+        backend: with ``refine``, the renderer's backend (``"auto"``, ``"eager"`` or ``"compiled"``).
     """
 
     linear: bool = False
@@ -617,7 +617,7 @@ def _judge_refined(photo: Tensor, network: SVBRDF, options: CaptureOptions, prog
             "seconds_budget": options.refine_seconds,
             "steps": int(result.steps),
             "seconds": round(float(result.seconds), 3),
-            "backend": options.backend,
+            "backend": pick_backend(options.backend, *size),
             "rmse_network": _finite(rmse[0]),
             "rmse_refined": _finite(rmse[1]),
         },

@@ -116,9 +116,10 @@ def _add_predict(sub) -> None:
     )
     p.add_argument(
         "--backend",
-        choices=["eager", "compiled"],
-        default="eager",
-        help="the renderer's backend for refinement (default: eager)",
+        choices=["auto", "eager", "compiled"],
+        default="auto",
+        help="the renderer's backend for refinement (default: auto, compiled from 512x512 up, where "
+        "it is faster than its compile time costs)",
     )
     p.add_argument("--linear", action="store_true", help="the photos hold linear values (default: sRGB)")
     p.add_argument(

@@ -25,12 +25,31 @@ from svbrdf_render import MIN_REFINE_SIDE, SVBRDF, Refinement, Scene, refine_map
 
 from .errors import DataError
 
-__all__ = ["BACKEND", "check_refine", "check_scene", "refine_prediction", "rerender", "rerender_rmse"]
+__all__ = [
+    "BACKEND",
+    "BACKENDS",
+    "COMPILE_PIXELS",
+    "pick_backend",
+    "check_refine", "check_scene", "refine_prediction", "rerender", "rerender_rmse"]
 
-#: The renderer backend the photo tools refine with: eager runs at once, where ``compiled``
-#: first compiles for seconds (about 3 s with a warm cache, 20 s cold) and is no faster per
-#: step at 256 px on a CPU (at 1024 px it is about 20% faster per step).
-BACKEND = "eager"
+#: The renderer backend the photo tools refine with. ``"auto"``: ``compiled`` for photos of at
+#: least :data:`COMPILE_PIXELS` pixels, ``eager`` below. Measured on 2 CPU cores, 100 steps
+#: (``benchmarks/refine_speed.py``): 256 px eager 1.5 s, compiled 1.2 s after a compile of about
+#: 4 s (warm cache; ~20 s cold); 1024 px eager 27 s, compiled 19 s.
+BACKEND = "auto"
+#: Photos with at least this many pixels are refined with the compiled renderer under ``"auto"``.
+COMPILE_PIXELS = 512 * 512
+#: What ``--backend`` takes.
+BACKENDS = ("auto", "eager", "compiled")
+
+
+def pick_backend(backend: str, height: int, width: int) -> str:
+    """The renderer backend of ``backend`` (one of :data:`BACKENDS`) for an ``height x width`` photo."""
+    if backend not in BACKENDS:
+        raise DataError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+    if backend != "auto":
+        return backend
+    return "compiled" if height * width >= COMPILE_PIXELS else "eager"
 
 
 def check_refine(refine, seconds=None) -> int:
@@ -103,7 +122,7 @@ def refine_prediction(
             scene=None if scene is None else scene.to(device),
             steps=steps,
             seconds=seconds,
-            backend=backend,
+            backend=pick_backend(backend, h, w),
             callback=callback,
         )
     return dataclasses.replace(result, svbrdf=result.svbrdf.to("cpu"), scene=result.scene.to("cpu"))

@@ -137,10 +137,10 @@ def _parse_crop(ctx, param, value):
 )
 @click.option(
     "--backend",
-    type=click.Choice(["eager", "compiled"]),
-    default="eager",
+    type=click.Choice(["auto", "eager", "compiled"]),
+    default="auto",
     show_default=True,
-    help="The renderer's backend for refinement.",
+    help="The renderer's backend for refinement (auto: compiled from 512x512 up).",
 )
 @click.option("--device", default="cpu", show_default=True, help="cpu, cuda or cuda:K.")
 def predict(photos, model_source, checkpoint, run_id, out, device, **flags):
