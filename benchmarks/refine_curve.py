@@ -3,8 +3,9 @@
 ``DEFAULT_REFINE_STEPS`` and the README's refinement table.
 
 For every material of a folder of Des18-layout strips (``unseen-dev``: materials unlike any Des18
-one; ``des18-dev``), the shipped model's maps and constant maps (the ``mean`` baseline) are
-refined by :func:`svbrdf_render.refine_maps` at each budget, and each result is judged against
+one; ``des18-dev``), the shipped model's maps (refined as the photo tools refine them,
+:func:`svbrdf_models.refining.refine_prediction`) and constant maps (the ``mean`` baseline,
+:func:`svbrdf_render.refine_maps`) are refined at each budget, and each result is judged against
 the ground truth: RMSE of each map (stored encodings) and of renderings under the 6 evaluation
 views (never the photo's own view, which baking the photo into the diffuse map matches
 exactly). Scores are averaged *per material*: a Des18 strip blends two source materials (named
@@ -64,6 +65,7 @@ def per_material(rows: list[tuple[list[str], dict[str, float]]]) -> dict[str, di
 
 def run_folder(folder: Path, budgets: list[int], flash: str, backend: str, model) -> dict:
     import svbrdf_models as sm
+    from svbrdf_models.refining import refine_prediction
     from svbrdf_render import Scene, read_des18, refine_maps
 
     mean = sm.create_generator("mean", {})
@@ -83,7 +85,10 @@ def run_folder(folder: Path, budgets: list[int], flash: str, backend: str, model
         for start_name, start in starts.items():
             for n in budgets:
                 t = time.perf_counter()
-                out = refine_maps(photo, start, scene=scene, steps=n, backend=backend)
+                if start_name == "network" and n:  # as the photo tools refine a network's maps
+                    out = refine_prediction(photo, start, n, scene=scene, backend=backend)
+                else:
+                    out = refine_maps(photo, start, scene=scene, steps=n, backend=backend)
                 dt = time.perf_counter() - t + (net_seconds if start_name == "network" else 0.0)
                 label = f"{start_name} + refine {n}" if n else f"{start_name} maps"
                 rows.setdefault(label, []).append((material_groups(f), score(out.svbrdf, truth)))

@@ -325,3 +325,25 @@ def test_auto_backend_compiles_large_photos_only():
     assert pick_backend("eager", 4096, 4096) == "eager"
     with pytest.raises(DataError, match="backend"):
         pick_backend("gpu", 8, 8)
+
+
+def test_the_start_of_a_refinement_loses_the_two_pixel_pattern():
+    """Transposed convolutions leave a 2-pixel checkerboard in a network's maps; the start and
+    prior of a refinement are filtered so that it is gone (its Nyquist energy is 0), while a
+    coarser pattern (8 pixels) keeps most of its amplitude."""
+    from svbrdf_models.refining import without_checkerboard
+    from svbrdf_render import SVBRDF
+
+    y, x = torch.meshgrid(torch.arange(32), torch.arange(32), indexing="ij")
+    checker = ((x + y) % 2).float()[None, None] * 0.2 - 0.1
+    coarse = torch.sin(2 * torch.pi * x / 8).float()[None, None] * 0.1
+    maps = SVBRDF.constant(1, 32, diffuse=(0.5, 0.5, 0.5))
+    noisy = SVBRDF(maps.normal, maps.diffuse + checker, maps.roughness + checker, maps.specular + 0.2 + checker)
+    out = without_checkerboard(noisy)
+    inner = (slice(None), slice(None), slice(1, -1), slice(1, -1))
+    assert torch.allclose(out.diffuse[inner], torch.full_like(out.diffuse[inner], 0.5), atol=1e-6)
+    assert torch.allclose(out.roughness[inner], torch.full_like(out.roughness[inner], 0.5), atol=1e-6)
+    kept = without_checkerboard(SVBRDF(maps.normal, maps.diffuse + coarse, maps.roughness, maps.specular))
+    amplitude = float((kept.diffuse - 0.5)[inner].abs().max())
+    assert 0.07 < amplitude <= 0.1
+    assert torch.allclose(out.normal.norm(dim=1), torch.ones(1, 32, 32), atol=1e-5)

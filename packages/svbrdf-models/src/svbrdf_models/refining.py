@@ -26,6 +26,7 @@ from svbrdf_render import MIN_REFINE_SIDE, SVBRDF, Refinement, Scene, refine_map
 from .errors import DataError
 
 __all__ = [
+    "without_checkerboard",
     "BACKEND",
     "BACKENDS",
     "COMPILE_PIXELS",
@@ -76,6 +77,33 @@ def check_scene(scene: Scene) -> Scene:
     return scene
 
 
+def without_checkerboard(maps: SVBRDF) -> SVBRDF:
+    """``maps`` with a binomial ``[1, 2, 1] / 4`` filter applied in each direction (edges
+    replicated; normals renormalised): its response is 0 at a 2-pixel period, so the pattern
+    transposed convolutions leave at the network's resolution is gone, while coarser detail
+    is kept (the response is 0.5 at a 4-pixel period). The start and prior of a refinement of
+    network maps, which would otherwise pull the refined maps back toward the pattern."""
+    import torch.nn.functional as F
+
+    from svbrdf_render import safe_normalize
+
+    k = torch.tensor([0.25, 0.5, 0.25], dtype=maps.dtype, device=maps.device)
+    kernel = (k[:, None] * k[None, :])[None, None]
+
+    def smooth(t: Tensor) -> Tensor:
+        c = t.shape[1]
+        padded = F.pad(t, (1, 1, 1, 1), mode="replicate")
+        return F.conv2d(padded, kernel.expand(c, 1, 3, 3), groups=c)
+
+    return SVBRDF(
+        safe_normalize(smooth(maps.normal), dim=1),
+        smooth(maps.diffuse).clamp(0, 1),
+        smooth(maps.roughness).clamp(0, 1),
+        smooth(maps.specular).clamp(0, 1),
+        validate=False,
+    )
+
+
 def refine_prediction(
     photo: Tensor,
     start: SVBRDF,
@@ -91,7 +119,8 @@ def refine_prediction(
     Args:
         photo: ``(B, 3, H, W)`` linear photos (the squares the maps are of), ``H, W >=``
             :data:`svbrdf_render.MIN_REFINE_SIDE`.
-        start: maps of B materials; the start and the prior of the refinement.
+        start: a network's maps of B materials; without their 2-pixel pattern
+            (:func:`without_checkerboard`), the start and the prior of the refinement.
         steps, seconds: the budget (see :func:`svbrdf_render.refine_maps`).
         scene: the capture (default: the flash found from ``start``).
         callback: ``callback(step, total, loss)`` after each step.
@@ -115,7 +144,7 @@ def refine_prediction(
     # into ordinary ones: autograd cannot save inference tensors for the backward pass).
     with torch.inference_mode(False), torch.enable_grad():
         photo = photo.detach().to(device, torch.float32).clone()
-        start = SVBRDF(**{k: t.detach().clone() for k, t in start.maps().items()}, validate=False)
+        start = without_checkerboard(SVBRDF(**{k: t.detach().clone() for k, t in start.maps().items()}, validate=False))
         result = refine_maps(
             photo,
             start,
