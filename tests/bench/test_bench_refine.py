@@ -171,6 +171,76 @@ def test_without_refine_nothing_changes(refined):
     assert "s/image" not in text
 
 
+@pytest.fixture(scope="module")
+def refined_real(tmp_path_factory):
+    """--refine with --real-data: two tiny real photos (no ground truth), the model file alone;
+    the rows of the real-photo sheet recorded as the runner hands them to the plot."""
+    from svbrdf_bench import plots
+    from svbrdf_render import linear_to_srgb, write_image
+    from svbrdf_train.data import ProceduralMaterials
+
+    folder = tmp_path_factory.mktemp("refine-real")
+    tiny_model(folder / "fold0.pt")
+    real = folder / "photos"
+    real.mkdir()
+    photos = ProceduralMaterials(2, 40, seed=11)
+    for i in range(2):
+        write_image(real / f"photo{i}.png", linear_to_srgb(photos[i]["input"]))
+    sheets = []
+    draw = plots.comparison_grid
+
+    def recording(rows, columns, path, **kw):
+        sheets.append((str(path), [label for label, _ in rows], list(columns)))
+        return draw(rows, columns, path, **kw)
+
+    out = folder / "report"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(plots, "comparison_grid", recording)
+        result = _invoke("run", "--from-models", folder / "fold0.pt", *FAST, "--no-baselines", "--refine",
+                         f"0,{STEPS}", "--real-data", real, "-o", out)  # fmt: skip
+    assert result.exit_code == 0, result.output
+    return out, result, sheets
+
+
+def test_real_photos_get_the_refined_rows(refined_real):
+    """Each refined row also refines its maps of each real photo: a row of the real-photo table,
+    a note that this re-rendering is what refinement optimises, and a figure in results/MLflow."""
+    from svbrdf_bench.report import REAL_REFINED_CAVEAT
+
+    out, result, _ = refined_real
+    table = _section(result.stdout, "Real photos")
+    assert [line.split("  ")[0] for line in table[3:]] == [LABEL, REFINED]
+    assert all(line.split()[-5] == "2" for line in table[3:])  # two photos each
+    assert REAL_REFINED_CAVEAT in result.stdout
+    md = (out / "report.md").read_text()
+    assert f"| {REFINED} | 2 |" in md and REAL_REFINED_CAVEAT in md
+    records = _records(out)
+    before, after = (records[x]["real_rerender_rmse_median"] for x in (LABEL, REFINED))
+    assert 0 <= after < 1 and 0 <= before < 1
+    assert after < before  # by construction: refinement optimised the re-rendering of these photos
+    parent = json.loads((out / "results.json").read_text())["parent_run"]
+    metrics = {k: c.data.metrics for k, c in _children(parent).items()}
+    assert metrics[REFINED]["real/rerender_rmse_median"] == pytest.approx(after)
+    assert "test/real/rerender_rmse" not in metrics[REFINED]  # kept out of the test means
+
+
+def test_the_real_photo_sheet_puts_each_refined_row_under_its_model(refined_real):
+    out, _, sheets = refined_real
+    ((labels, columns),) = [(rows, c) for path, rows, c in sheets if path.endswith("real_comparison.png")]
+    names = ("fold0 (reference)", f"fold0 +refine {STEPS} (reference)")  # each refined row under its model's
+    assert labels == [f"#{i} {x}" for i in range(2) for x in names]
+    assert columns == ["photo", "normal", "diffuse", "roughness", "specular", "fitted flash"]
+    image = read_image(out / "real_comparison.png")
+    assert image.shape[0] == 3 and image.shape[1] >= 4 * 96  # four rows of enlarged tiles
+    assert "(real_comparison.png)" in (out / "report.md").read_text()
+
+
+def test_without_real_data_no_real_sheet(refined):
+    out, result, _ = refined
+    assert not (out / "real_comparison.png").exists()
+    assert "Real photos" not in result.stdout and "real_comparison" not in (out / "report.md").read_text()
+
+
 @pytest.mark.parametrize(
     ("value", "needle"),
     [("-5", "-5 is negative"), ("0,-50", "-50 is negative"), ("1.5", "'1.5' is not a whole number"),

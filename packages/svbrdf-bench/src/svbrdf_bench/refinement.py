@@ -14,6 +14,11 @@ the refinement alone (batch of one), with the device synchronised, after an unti
 With refinement on, every row (budget 0 too) also gets :data:`~svbrdf_bench.layout.INPUT_RERENDER`:
 the maps re-rendered under the flash the refinement used against the photo itself, what the
 refinement optimises (the 6 evaluation views measure whether that helped the material).
+
+With ``--real-data`` too, each refined row also gets the real-photo figure
+(:data:`~svbrdf_bench.layout.REAL_RERENDER`, :func:`refine_real`): the row's maps of each real
+photo refined alike against that photo, then re-rendered under the flash fitted to them. That
+re-rendering of the photo's own view is what refinement optimises, so it is no evidence of accuracy.
 """
 
 from __future__ import annotations
@@ -43,6 +48,7 @@ __all__ = [
     "parse_flash",
     "refined_label",
     "refine_rows",
+    "refine_real",
     "REFINE_BACKENDS",
     "REFINE_FLASH_MODES",
 ]
@@ -245,3 +251,39 @@ def refine_rows(generator, test, device, lpips, plan: RefinePlan, shown: int = 0
         per_sample = {name: np.concatenate(v) for name, v in parts[k].items()}
         out[k] = RefinedRow(k, per_sample, figures, grids[k])
     return out
+
+
+def refine_real(
+    generator, photos, resolution: int, device, plan: RefinePlan, shown: int = 0
+) -> dict[int, tuple]:
+    """Every budget of ``plan`` for one generator on every real photo (no ground truth).
+
+    Each photo's centre square at ``resolution`` (as the unrefined real-photo figure takes it) is
+    predicted, its maps refined for each budget against it with the plan's backend, flash and
+    settings, then re-rendered under the flash fitted to the refined maps
+    (:func:`~svbrdf_train.capture.flash_consistency`, as for the unrefined row).
+
+    Returns ``{steps: (per-photo RMSE, shown)}`` for every budget, 0 (the network's maps) too;
+    ``shown``: up to ``shown`` ``(photo, maps, fitted re-rendering)`` on the CPU, for the sheet.
+    """
+    from svbrdf_render import refine_maps
+    from svbrdf_train.capture import flash_consistency
+    from svbrdf_train.data.photos import square_photo
+
+    device = torch.device(device)
+    scene = plan.scene(device)
+    options = {"scene": scene, "flash": plan.flash if scene is None else "axis",
+               "settings": plan.refine_settings(), "backend": plan.backend}  # fmt: skip
+    errors: dict[int, list[float]] = {k: [] for k in plan.budgets}
+    grids: dict[int, list] = {k: [] for k in plan.budgets}
+    for i in range(len(photos)):
+        x = square_photo(photos[i]["input"], resolution).to(device)[None]
+        with torch.no_grad():
+            start = generator(x)
+        for k in plan.budgets:
+            maps = refine_maps(x, start, steps=k, **options).svbrdf if k > 0 else start
+            fit = flash_consistency(maps, x)
+            errors[k].append(float(fit.rmse[0]))
+            if len(grids[k]) < shown:
+                grids[k].append((x[0].cpu(), maps.detach().to("cpu"), fit.rendering[0].detach().cpu()))
+    return {k: (np.asarray(errors[k], dtype=np.float64), grids[k]) for k in plan.budgets}

@@ -5,7 +5,9 @@ as reference rows (:mod:`svbrdf_bench.references`): same test images, same figur
 says they are not equal-budget competitors.
 
 ``--refine 0,50,200`` adds, per scored row and budget, a row of its maps refined against each
-test photo (:mod:`svbrdf_bench.refinement`), each a child run of its own.
+test photo (:mod:`svbrdf_bench.refinement`), each a child run of its own; with ``--real-data``
+too, each refined row also refines its maps of each real photo (the real-photo figure), and the
+report gets a real-photo sheet: each model's maps and re-renderings, its refined ones under it.
 
 Each invocation is one MLflow parent run with a child run per model and per baseline, laid out
 as :mod:`svbrdf_bench.layout` describes; :mod:`svbrdf_bench.report` builds every table and plot
@@ -70,7 +72,7 @@ from .references import (
     reference_figures,
     split_pretrained,
 )
-from .refinement import RefinedRow, RefinePlan, refine_rows, refined_label
+from .refinement import RefinedRow, RefinePlan, refine_real, refine_rows, refined_label
 from .testset import TestSet
 
 __all__ = ["BenchOptions", "run_bench", "BASELINES"]
@@ -504,6 +506,7 @@ def run_bench(options: BenchOptions) -> str:
                 child = _reused_child(client, parent.experiment_id, parent_id, label, source)
                 jobs.append((label, child, None, source, None))
             shown_by_model = {}
+            real_by_model: dict[str, list] = {}  # the real-photo sheet (--real-data with --refine)
 
             def evaluate_one(
                 label: str, generator, shown_as: str | None = None
@@ -535,6 +538,21 @@ def run_bench(options: BenchOptions) -> str:
                     top, shown_label = max(refined), shown_as or label
                     grid_label = refined_label(shown_label, top, shown_label.split(" (")[0])
                     shown_by_model[grid_label] = refined[top].shown
+                    if photos is not None:
+                        options.say(
+                            f"refining {label}'s maps of {len(photos)} real photos for "
+                            f"{', '.join(map(str, options.refine.refined))} steps"
+                        )
+                        real_rows = refine_real(generator, photos, test.resolution, device, options.refine,
+                                                GRID_SAMPLES)  # fmt: skip
+                        for k, row in refined.items():
+                            values = real_rows[k][0]
+                            row.per_sample[REAL_RERENDER] = values
+                            row.figures[f"{REAL_RERENDER}_median"] = float(np.median(values))
+                        name = shown_label.split(" (")[0]
+                        real_by_model[shown_label] = real_rows[0][1]
+                        for k in sorted(refined):
+                            real_by_model[refined_label(shown_label, k, name)] = real_rows[k][1]
                 figures |= _test_means(per_sample)
                 return figures, per_sample, refined
 
@@ -585,7 +603,11 @@ def run_bench(options: BenchOptions) -> str:
                                   figures["model/params"], work)  # fmt: skip
             report = build_report(parent_id)
             grid = _comparison_grid(shown_by_model, work / "comparison.png") if shown_by_model else None
-            files = write_report(report, options.out, grid=grid)
+            if real_by_model:
+                real_grid = _real_grid(real_by_model, work / "real_comparison.png")
+                files = write_report(report, options.out, grid=grid, real_grid=real_grid)
+            else:
+                files = write_report(report, options.out, grid=grid)
             for f in files:
                 parent.log_artifact(f, REPORT_ARTIFACTS)
         status = "FINISHED"
@@ -618,4 +640,23 @@ def _comparison_grid(shown: dict[str, list], path: Path) -> Path:
             rows.append((f"#{k} {label}", [linear_to_srgb(photo), *map_tiles(pred.pack()[0]),
                                           display_rendering(pred, flash)[0]]))  # fmt: skip
     columns = ["input", "normal", "diffuse", "roughness", "specular", "flash"]
+    return comparison_grid(rows, columns, path, min_tile=GRID_MIN_SIZE)
+
+
+def _real_grid(shown: dict[str, list], path: Path) -> Path:
+    """Per real photo: each model's maps and their re-rendering under the flash fitted to them,
+    each refined version in the row under its model's (``--real-data`` with ``--refine``)."""
+    from svbrdf_render import linear_to_srgb
+    from svbrdf_train.data.sheet import map_tiles
+
+    from .plots import comparison_grid
+
+    rows = []
+    count = min(len(items) for items in shown.values())
+    for k in range(count):
+        for label, items in shown.items():
+            photo, maps, rendering = items[k]
+            rows.append((f"#{k} {label}", [linear_to_srgb(photo), *map_tiles(maps.pack()[0]),
+                                          linear_to_srgb(rendering.clamp(0, 1))]))  # fmt: skip
+    columns = ["photo", "normal", "diffuse", "roughness", "specular", "fitted flash"]
     return comparison_grid(rows, columns, path, min_tile=GRID_MIN_SIZE)

@@ -64,7 +64,8 @@ models, reference rows, then baselines; RMSE and SSIM per map and on renderings 
 light/view pairs, each with a 95% bootstrap interval; the difference to `mean`; time and
 memory; what each trained model's extra accuracy costs against each other one), and in --out:
 report.md, results.csv, results.json, costs.csv, against_mean.csv, learning_curves.png,
-pareto.png, comparison.png (and accuracy_vs_capture_time.png with --refine). MLflow: one parent
+pareto.png, comparison.png (and accuracy_vs_capture_time.png with --refine; real_comparison.png
+with --refine and --real-data). MLflow: one parent
 run, one child per model, reference row, baseline and refined row; `svbrdf-bench report
 PARENT_RUN_ID` rebuilds the report later.
 """
@@ -157,7 +158,8 @@ def _split(value: str | None) -> list[str]:
     show_default=True,
     metavar="N,N,...",
     help="Refinement budgets in Adam steps (integers >= 0; 0, the row as it is, is always in): each row "
-    "gets a row per budget N > 0, its maps refined against each test photo. Example: --refine 0,50,200.",
+    "gets a row per budget N > 0, its maps refined against each test photo (and, with --real-data, "
+    "against each real photo). Example: --refine 0,50,200.",
 )
 @click.option(
     "--refine-backend",
