@@ -10,7 +10,9 @@ there); the network's maps score 10-300.
 
 Usage::
 
-    .venv/bin/python benchmarks/checkerboard.py ../shared/data/real-dev --pattern 'deschaintre*' --linear
+    .venv/bin/python benchmarks/checkerboard.py DATA/real-dev --pattern 'deschaintre*' --linear
+
+DATA/real-dev: real flash photos, 256 px (Deschaintre's linear, Luo's sRGB).
 """
 
 from __future__ import annotations
