@@ -47,7 +47,7 @@ from .errors import MapError, SceneError
 from .fit import fit_flash
 from .maps import MAP_NAMES, SVBRDF
 from .renderer import BACKENDS, log_radiance, render
-from .geometry import surface_positions
+from .geometry import safe_normalize, surface_positions
 from .scene import DES18_DISTANCE, Camera, Flash, PointLight, Scene
 
 __all__ = [
@@ -165,8 +165,6 @@ def _logit(x: Tensor) -> Tensor:
 def _slopes(normal: Tensor) -> Tensor:
     """``(B, 2, H, W)`` slopes ``(x / z, y / z)`` of normals; grazing or back-facing ones are
     raised to ``n.z`` of about ``1 / _MAX_SLOPE``."""
-    from .geometry import safe_normalize
-
     n = safe_normalize(normal, dim=1)
     z = n[:, 2:3].clamp_min(1.0 / _MAX_SLOPE)
     return (n[:, 0:2] / z).clamp(-_MAX_SLOPE, _MAX_SLOPE)
@@ -298,10 +296,15 @@ def axis_flash(start: SVBRDF, photo: Tensor, distance: float = DES18_DISTANCE) -
     for i in range(b):
         r = ratio[i][keep[i]]
         k.append(torch.exp(r.median()) if r.numel() else photo.new_tensor(1.0))
-    intensity = torch.stack(k)
-    if b == 1:
-        return Scene.flash(distance, float(intensity[0])).to(photo.device)
-    pos = photo.new_tensor([0.0, 0.0, distance]).expand(b, 1, 3)
+    return _camera_flashes(photo.new_tensor([0.0, 0.0, distance]).expand(b, 3), torch.stack(k))
+
+
+def _camera_flashes(position: Tensor, intensity: Tensor) -> Scene:
+    """A light at ``position`` ``(B, 3)`` with the camera at it, of ``intensity`` ``(B,)``, one per
+    material: a scene of shape ``()`` for one material, ``(B, 1)`` for more."""
+    if position.shape[0] == 1:
+        return Scene(Camera(position[0]), (PointLight(position[0], float(intensity[0])),), DES18_EFFECTS)
+    pos = position[:, None, :]
     return Scene(Camera(pos), (PointLight(pos, intensity[:, None]),), DES18_EFFECTS)
 
 
@@ -315,10 +318,7 @@ def _scene_for(photo: Tensor, start: SVBRDF, scene: Scene | None, flash: str) ->
         if flash == "axis":
             return axis_flash(start, photo)
         fit = fit_flash(start, photo)
-        if b == 1:
-            return fit.scene(0)
-        pos = fit.position[:, None, :]  # (B, 1, 3): one configuration per material
-        return Scene(Camera(pos), (PointLight(pos, fit.intensity[:, None]),), DES18_EFFECTS)
+        return _camera_flashes(fit.position, fit.intensity)
     if not isinstance(scene, Scene):
         raise SceneError(f"refine: expected a Scene, got {type(scene).__name__}")
     shape = scene.config_shape
