@@ -136,3 +136,67 @@ def test_paper_generator_at_256():
     assert maps.shape == (1, 256, 256)
     maps.pack().mean().backward()
     assert all(p.grad is not None and torch.isfinite(p.grad).all() for p in g.parameters())
+
+
+def _nyquist_share(t: torch.Tensor) -> float:
+    """Share of a map's variance (channels summed) at a 2-pixel period, vertical or horizontal:
+    the power on the row and column of the spectrum at half the sampling rate."""
+    x = t - t.mean(dim=(-2, -1), keepdim=True)
+    f = torch.fft.fft2(x.double()).abs().square().sum(0)
+    n = f.shape[-1] // 2
+    nyquist = f[n, :].sum() + f[:, n].sum() - f[n, n]
+    return float(nyquist / f.sum().clamp_min(1e-300))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_resize_upsampling_leaves_no_two_pixel_pattern_on_a_uniform_photo(seed):
+    # The maps predicted for a uniform photo should be uniform but for the borders (zero
+    # padding), whose effect is smooth. Bound: white noise puts (2N - 1) / N^2 of its power on
+    # those two lines of an N x N spectrum (~2/N); a map free of a 2-pixel pattern puts less
+    # there than noise would. The paper's transposed convolutions (the control) put far more.
+    photo = torch.full((1, 3, 64, 64), 0.1)
+    bound = (2 * 64 - 1) / 64**2
+    shares = {}
+    for upsample in ("resize", "transpose"):
+        torch.manual_seed(seed)
+        g = sm.create_generator("ours", {"preset": "tiny", "upsample": upsample}).eval()
+        with torch.no_grad():
+            maps = g(photo)
+        shares[upsample] = max(_nyquist_share(m[0]) for m in (maps.normal, maps.diffuse, maps.roughness, maps.specular))
+    assert shares["resize"] < bound, shares
+    assert shares["transpose"] > bound, shares
+
+
+def test_median_input_norm_makes_the_maps_independent_of_exposure():
+    torch.manual_seed(0)
+    photo = torch.rand(2, 3, 32, 32) * 0.4
+    for cfg, invariant in (({"input_norm": "median"}, True), ({}, False)):
+        torch.manual_seed(0)
+        g = sm.create_generator("ours", {"preset": "tiny", **cfg}).eval()
+        with torch.no_grad():
+            a, b = g(photo), g(photo * 2.0)
+        change = (a.diffuse - b.diffuse).abs().max().item()
+        assert (change < 1e-5) == invariant, (cfg, change)
+
+
+def test_input_level_reaches_the_maps_and_needs_the_norm_and_the_track():
+    torch.manual_seed(0)
+    g = sm.create_generator("ours", {"preset": "tiny", "input_norm": "median", "input_level": True}).eval()
+    photo = torch.rand(1, 3, 32, 32) * 0.4
+    with torch.no_grad():
+        assert (g(photo).diffuse - g(photo * 2.0).diffuse).abs().max() > 1e-4
+    for bad in ({"input_level": True}, {"input_level": True, "input_norm": "median", "global_track": False}):
+        with pytest.raises(ValueError, match="input_level"):
+            sm.create_generator("ours", {"preset": "tiny", **bad})
+
+
+@pytest.mark.parametrize("photo", [torch.zeros(1, 3, 32, 32), torch.ones(1, 3, 32, 32), torch.full((1, 3, 32, 32), 1e-9)])
+def test_median_input_norm_is_finite_forward_and_backward_on_hard_photos(photo):
+    g = sm.create_generator("ours", {"preset": "tiny", "input_norm": "median", "input_level": True, "upsample": "resize"})
+    photo = photo.clone().requires_grad_(True)
+    maps = g(photo)
+    loss = sum(m.sum() for m in (maps.normal, maps.diffuse, maps.roughness, maps.specular))
+    loss.backward()
+    assert all(torch.isfinite(m).all() for m in (maps.normal, maps.diffuse, maps.roughness, maps.specular))
+    assert all(torch.isfinite(p.grad).all() for p in g.parameters() if p.grad is not None)
+    assert torch.isfinite(photo.grad).all()

@@ -15,7 +15,16 @@ Down block (level l): conv 4x4/2 -> attention -> InstanceNorm -> (+ FC output of
 track at level l) -> LeakyReLU(0.2). The FC of level l takes [FC output of level l-1,
 spatial mean of level l's attention output] and passes through SELU (as in Deschaintre 2018).
 Up block: deconv 4x4/2 -> InstanceNorm -> LeakyReLU(0.2) -> dropout, fed with the previous
-up block and the skip of equal size. The last up block produces 9 channels through tanh:
+up block and the skip of equal size. With ``upsample: resize`` each deconv becomes a nearest
+x2 resize then a 3x3 conv (Odena et al. 2016, "Deconvolution and Checkerboard Artifacts"):
+a stride-2 transposed convolution gives the two pixel phases of each axis different weights,
+so its maps carry a 2-pixel pattern; a resize followed by one convolution treats every
+output pixel alike.
+
+Input: the photo is log-encoded (:func:`encode_photo`). With ``input_norm: median`` it is
+first scaled so that its median is :data:`NORM_LEVEL` (a Des18 photo's typical median), which
+makes the maps independent of exposure; ``input_level`` gives the network the log2 of that
+scale back, through the global track only, so it may learn how much the absolute level says. The last up block produces 9 channels through tanh:
 normal x, y (z = 1 before normalising, so z > 0), diffuse 3, roughness 1, specular 3, the
 albedos and roughness mapped from [-1, 1] to [0, 1].
 """
@@ -35,12 +44,18 @@ from ._config import param
 from ._init import normal_init
 from ._registry import ModelSpec, create_attention
 
-__all__ = ["GeneratorConfig", "UNetGenerator", "encode_photo", "OURS", "UNET", "NO_ATTN", "PRESETS"]
+__all__ = ["GeneratorConfig", "UNetGenerator", "encode_photo", "normalise_exposure", "OURS", "UNET", "NO_ATTN", "PRESETS"]
 
 #: Output channels of the last up block: normal xy, diffuse, roughness, specular.
 OUTPUT_CHANNELS = 9
 #: Offset of the log encoding of input photos (Deschaintre 2018 uses the same).
 LOG_EPS = 0.01
+#: The median a photo is scaled to with ``input_norm: median`` (des18-dev's median photo
+#: value is 0.088; the simulated phone photos' 0.088 too).
+NORM_LEVEL = 0.1
+#: The input normalisations and the upsampling layers a generator may use.
+INPUT_NORMS = ("none", "median")
+UPSAMPLES = ("transpose", "resize")
 
 
 @dataclass(frozen=True)
@@ -55,6 +70,23 @@ class GeneratorConfig:
     global_track: bool = param(True, "Deschaintre's fully connected global track beside the encoder")
     dropout: float = param(0.5, "dropout probability of the up blocks that use it")
     dropout_levels: int = param(3, "how many of the innermost up blocks apply dropout (pix2pix: 3)")
+    upsample: str = param(
+        "transpose",
+        "how up blocks double the size: transpose (4x4/2 transposed conv, the paper's) or resize "
+        "(nearest x2 then 3x3 conv: no 2-pixel checkerboard)",
+        choices=UPSAMPLES,
+    )
+    input_norm: str = param(
+        "none",
+        "none (the photo as given, the paper's) or median (scaled so its median is 0.1 first: "
+        "the maps no longer depend on exposure)",
+        choices=INPUT_NORMS,
+    )
+    input_level: bool = param(
+        False,
+        "with input_norm median and the global track, feed log2 of the scale the photo was "
+        "normalised by to the global track, so the network may learn to use the exposure",
+    )
     init_std: float = param(
         0.02,
         "std of the normal init of the U-Net's conv and FC weights (pix2pix); attention modules keep "
@@ -77,6 +109,15 @@ class GeneratorConfig:
             raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
         if not 0 <= self.dropout_levels <= self.depth:
             raise ValueError(f"dropout_levels must be in [0, depth], got {self.dropout_levels}")
+        if self.upsample not in UPSAMPLES:
+            raise ValueError(f"upsample must be one of {', '.join(UPSAMPLES)}, got {self.upsample!r}")
+        if self.input_norm not in INPUT_NORMS:
+            raise ValueError(f"input_norm must be one of {', '.join(INPUT_NORMS)}, got {self.input_norm!r}")
+        if self.input_level and (self.input_norm == "none" or not self.global_track):
+            raise ValueError(
+                "input_level feeds the normalisation's scale to the global track: it needs "
+                "input_norm: median and global_track: true"
+            )
         if not 0.0 <= self.init_std < math.inf:
             raise ValueError(f"init_std must be a finite number >= 0 (0: torch's init), got {self.init_std}")
 
@@ -119,6 +160,20 @@ PRESETS = {
 }
 
 
+def normalise_exposure(photo: Tensor) -> tuple[Tensor, Tensor]:
+    """Scale each photo of ``(B, 3, H, W)`` so that its median (over pixels and channels) is
+    :data:`NORM_LEVEL`; returns the scaled photos and ``log2`` of each scale ``(B, 1)``.
+
+    A black photo (median 0) is scaled by at most ``2**16``, never by infinity. Clipping is
+    not undone: a photo with a saturated highlight keeps it at ``scale`` after scaling, which
+    is what the same scene exposed differently would show only below the clip.
+    """
+    flat = photo.clamp_min(0.0).flatten(1)
+    median = flat.median(dim=1).values.clamp_min(NORM_LEVEL * 2.0**-16)
+    scale = NORM_LEVEL / median
+    return photo * scale[:, None, None, None], torch.log2(scale)[:, None]
+
+
 def encode_photo(photo: Tensor) -> Tensor:
     """Linear radiance ``(B, 3, H, W)``, nominally in [0, 1] -> log-encoded, [0, 1] -> [-1, 1].
 
@@ -136,7 +191,9 @@ class DownBlock(nn.Module):
     normalisation would zero every activation (pix2pix does the same).
     """
 
-    def __init__(self, in_ch: int, conv_ch: int, attention: nn.Module, *, norm: bool, global_in: int | None):
+    def __init__(
+        self, in_ch: int, conv_ch: int, attention: nn.Module, *, norm: bool, global_in: int | None, extra: int = 0
+    ):
         super().__init__()
         self.conv = nn.Conv2d(in_ch, conv_ch, 4, stride=2, padding=1)
         self.attention = attention
@@ -144,7 +201,8 @@ class DownBlock(nn.Module):
         self.out_channels = out_ch
         self.norm = nn.InstanceNorm2d(out_ch) if norm else nn.Identity()
         # global_in: size of the previous level's global vector (0 at level 1), None without a track.
-        self.fc = nn.Linear(global_in + out_ch, out_ch) if global_in is not None else None
+        # extra: inputs of the first level's FC beyond the mean (the exposure level).
+        self.fc = nn.Linear(global_in + extra + out_ch, out_ch) if global_in is not None else None
 
     def forward(self, x: Tensor, g: Tensor | None) -> tuple[Tensor, Tensor | None]:
         h = self.attention(self.conv(x))
@@ -156,12 +214,19 @@ class DownBlock(nn.Module):
         return F.leaky_relu(y, 0.2), g
 
 
-class UpBlock(nn.Module):
-    """deconv 4x4/2 -> InstanceNorm -> LeakyReLU(0.2) -> dropout."""
+def upsampling_layer(in_ch: int, out_ch: int, kind: str) -> nn.Module:
+    """A layer doubling H and W: the paper's 4x4/2 transposed conv, or nearest x2 + 3x3 conv."""
+    if kind == "transpose":
+        return nn.ConvTranspose2d(in_ch, out_ch, 4, stride=2, padding=1)
+    return nn.Sequential(nn.Upsample(scale_factor=2, mode="nearest"), nn.Conv2d(in_ch, out_ch, 3, padding=1))
 
-    def __init__(self, in_ch: int, out_ch: int, dropout: float):
+
+class UpBlock(nn.Module):
+    """deconv 4x4/2 (or resize + conv) -> InstanceNorm -> LeakyReLU(0.2) -> dropout."""
+
+    def __init__(self, in_ch: int, out_ch: int, dropout: float, upsample: str = "transpose"):
         super().__init__()
-        self.deconv = nn.ConvTranspose2d(in_ch, out_ch, 4, stride=2, padding=1)
+        self.deconv = upsampling_layer(in_ch, out_ch, upsample)
         self.norm = nn.InstanceNorm2d(out_ch)
         self.dropout = nn.Dropout(dropout) if dropout > 0 else nn.Identity()
 
@@ -203,6 +268,7 @@ class UNetGenerator(nn.Module):
                 att,
                 norm=level < depth - 1,
                 global_in=g_ch if config.global_track else None,
+                extra=1 if config.input_level and level == 0 else 0,
             )
             self.down.append(block)
             in_ch = g_ch = block.out_channels
@@ -216,9 +282,9 @@ class UNetGenerator(nn.Module):
             up_out = OUTPUT_CHANNELS if k == 0 else conv_ch[k - 1]
             use_dropout = k >= depth - config.dropout_levels and k > 0
             if k == 0:
-                self.up.append(nn.ConvTranspose2d(up_in, up_out, 4, stride=2, padding=1))
+                self.up.append(upsampling_layer(up_in, up_out, config.upsample))
             else:
-                self.up.append(UpBlock(up_in, up_out, config.dropout if use_dropout else 0.0))
+                self.up.append(UpBlock(up_in, up_out, config.dropout if use_dropout else 0.0, config.upsample))
         if config.init_std > 0:
             # The generator's own layers only: attention modules (plugins) keep their own init.
             own = [m for b in self.down for m in (b.conv, b.fc)] + [m for m in self.up]
@@ -228,9 +294,13 @@ class UNetGenerator(nn.Module):
 
     def forward(self, photo: Tensor) -> SVBRDF:
         _check_photo(photo, 2**self.config.depth)
+        g = None
+        if self.config.input_norm == "median":
+            photo, level = normalise_exposure(photo)
+            if self.config.input_level:
+                g = level  # the first level's FC reads [level, mean] (see DownBlock)
         x = encode_photo(photo)
         skips = []
-        g = None
         for block in self.down:
             x, g = block(x, g)
             skips.append(x)
