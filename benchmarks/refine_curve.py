@@ -8,8 +8,9 @@ one; ``des18-dev``), the shipped model's maps (refined as the photo tools refine
 :func:`svbrdf_render.refine_maps`) are refined at each budget, and each result is judged against
 the ground truth: RMSE of each map (stored encodings) and of renderings under the 6 evaluation
 views (never the photo's own view, which baking the photo into the diffuse map matches
-exactly). Scores are averaged *per material*: a Des18 strip blends two source materials (named
-in its file name) and counts for both; an unseen-dev file is a material of its own. Means come
+exactly). Scores are averaged *per material* (:mod:`svbrdf_train.data.materials`): a Des18
+strip blends two source materials (named in its file name) and counts for both; an unseen-dev
+file is a material of its own. Means come
 with 95% bootstrap intervals over materials, and each refined row is compared, paired, with the
 network alone and with constant maps refined for the same budget.
 
@@ -37,14 +38,6 @@ import torch
 MAPS = ("normal", "diffuse", "roughness", "specular", "render")
 
 
-def material_groups(path: Path) -> list[str]:
-    """The source materials a strip shows: both of ``ID;MatAXMatB;varAXvarB.png``, else the file."""
-    parts = path.stem.split(";")
-    if len(parts) == 3 and "X" in parts[1]:
-        return sorted(set(parts[1].split("X")))
-    return [path.stem]
-
-
 def score(pred, truth) -> dict[str, float]:
     from svbrdf_train.metrics import map_rmse, render_rmse
 
@@ -53,20 +46,11 @@ def score(pred, truth) -> dict[str, float]:
     return out
 
 
-def per_material(rows: list[tuple[list[str], dict[str, float]]]) -> dict[str, dict[str, float]]:
-    """``{material: {map: mean over its strips}}``."""
-    acc: dict[str, dict[str, list[float]]] = {}
-    for groups, figures in rows:
-        for g in groups:
-            for k, v in figures.items():
-                acc.setdefault(g, {}).setdefault(k, []).append(v)
-    return {g: {k: sum(v) / len(v) for k, v in d.items()} for g, d in acc.items()}
-
-
 def run_folder(folder: Path, budgets: list[int], flash: str, backend: str, model) -> dict:
     import svbrdf_models as sm
     from svbrdf_models.refining import refine_prediction
     from svbrdf_render import Scene, read_des18, refine_maps
+    from svbrdf_train.data.materials import material_groups, per_material
 
     mean = sm.create_generator("mean", {})
     files = sorted(folder.glob("*.png"))
@@ -95,7 +79,7 @@ def run_folder(folder: Path, budgets: list[int], flash: str, backend: str, model
                 seconds.setdefault(label, []).append(dt)
         print(f"  {folder.name}: {i + 1}/{len(files)} {f.name}", file=sys.stderr, flush=True)
     return {
-        label: {"materials": per_material(r), "seconds": sum(seconds[label]) / len(seconds[label])}
+        label: {"materials": per_material(r).materials, "seconds": sum(seconds[label]) / len(seconds[label])}
         for label, r in rows.items()
     }
 

@@ -3,22 +3,29 @@
 the constant-map baselines: the figures of the shipped model's card.
 
 Each model file lists in its provenance the real strips it trained on. Its judging strips
-are the other strips of the Des18 folder ``DATA`` (so a model trained on the even strips of
-des18-dev is judged on the odd ones; a procedural-only model on all of them). For each model:
+are the other strips of each folder ``DATA`` (so a model trained on the even strips of
+des18-dev is judged on the odd ones; a procedural-only model on all of them; on unseen-dev,
+whose materials no Des18 strip shows, on all). For each folder and model:
 ``svbrdf-bench run --preset quick --models ours --from-models FILE --test-data JUDGE``, which
 also trains the quick ``ours`` (2 minutes, procedural) and scores the ``mean`` and ``photo``
 baselines on the same strips (``OUT/report-K``). Then:
 
 1. the first model alone on its judging strips: RMSE per map and of the renderings, 95%
    bootstrap intervals, and the paired difference against ``mean``;
-2. all models pooled (each strip judged once, by the model that never saw it: with two
+2. all models pooled (each strip judged once, by the model that never saw it: with
    complementary folds, a cross-validated figure for the recipe), the same way.
+
+Every figure is a mean *per source material* (:mod:`svbrdf_train.data.materials`): a Des18
+strip counts for both materials its name gives, an unseen-dev file is one material; intervals
+and the paired differences resample materials. Note that folds split by strip (even/odd) judge
+on materials the model trained on; ``svbrdf-train data folds`` makes folds that do not.
 
 Usage::
 
-    .venv/bin/python benchmarks/shipped_model.py ../shared/data/des18-dev \\
+    .venv/bin/python benchmarks/shipped_model.py DATA/des18-dev \\
         --models fold0.pt,fold1.pt -o shipped-report
     .venv/bin/python benchmarks/shipped_model.py DATA --models fold0.pt,fold1.pt -o OUT --judge-only
+    .venv/bin/python benchmarks/shipped_model.py DATA/unseen-dev DATA/des18-dev --models pretrained
 
 Runs go to MLflow (``MLFLOW_TRACKING_URI``, else ``./mlflow.db``), experiment ``shipped-model``.
 """
@@ -65,18 +72,39 @@ def bench(model: str, judge: Path, out: Path, env: dict) -> str:
     return json.loads((out / "results.json").read_text())["parent_run"]
 
 
-def scores_of(parent: str) -> dict[str, dict[str, list[float]]]:
-    """Per-image RMSE of each row of a benchmark, keyed by role: model, ours, mean, photo."""
+#: A benchmark's per-strip scores: the strips' names, and per role {column: RMSE per strip}.
+Scores = tuple[list[str], dict[str, dict[str, list[float]]]]
+
+
+def scores_of(parent: str, judge: Path) -> Scores:
+    """Per-strip RMSE of each row of a benchmark, keyed by role (model, ours, mean, photo), and
+    the strips' names (as the benchmark recorded them; older runs: the judging folder's)."""
     from svbrdf_bench.report import build_report
 
+    report = build_report(parent)
     out: dict[str, dict[str, list[float]]] = {}
-    for entry in build_report(parent).models:
+    for entry in report.models:
         role = entry.label if entry.label in (QUICK, MEAN, PHOTO) else "model"
         out[role] = {c: entry.per_sample[f"rmse/{c}"].tolist() for c in COLUMNS}
-    return out
+    return report.sample_names or [s.name for s in strips(judge)], out
+
+
+def per_material_values(scores: Scores) -> tuple[dict[str, dict[str, list[float]]], int]:
+    """Per role and column, the per-material means (materials sorted); and the number of materials."""
+    from svbrdf_train.data.materials import per_material
+
+    names, by_role = scores
+    out: dict[str, dict[str, list[float]]] = {}
+    count = 0
+    for role, columns in by_role.items():
+        pm = per_material((name, {c: columns[c][i] for c in COLUMNS}) for i, name in enumerate(names))
+        out[role] = {c: pm.values(c) for c in COLUMNS}
+        count = len(pm.materials)
+    return out, count
 
 
 def table(scores: dict[str, dict[str, list[float]]], labels: dict[str, str]) -> str:
+    """The tables of per-material values ``scores`` (role -> column -> one value per material)."""
     from svbrdf_bench.metrics import bootstrap_ci, paired_difference
 
     head = "| model | " + " | ".join(COLUMNS) + " |\n| --- |" + " ---: |" * len(COLUMNS)
@@ -89,7 +117,8 @@ def table(scores: dict[str, dict[str, list[float]]], labels: dict[str, str]) -> 
         rows.append(f"| {label} | " + " | ".join(cells) + " |")
     rows += [
         "",
-        "Against `mean` (paired, % of `mean`'s RMSE; beats / worse: the interval excludes 0):",
+        "Against `mean` (paired over materials, % of `mean`'s RMSE; beats / worse: the interval "
+        "excludes 0):",
         "",
         head,
     ]
@@ -104,53 +133,74 @@ def table(scores: dict[str, dict[str, list[float]]], labels: dict[str, str]) -> 
     return "\n".join(rows)
 
 
-def pooled(parts: list[dict[str, dict[str, list[float]]]]) -> dict[str, dict[str, list[float]]]:
+def pooled(parts: list[Scores]) -> Scores:
+    """The strips of every part together (each judged by the one model that never saw it)."""
+    names: list[str] = []
     out: dict[str, dict[str, list[float]]] = {}
-    for part in parts:
+    for part_names, part in parts:
+        names += part_names
         for role, columns in part.items():
             for c, values in columns.items():
                 out.setdefault(role, {}).setdefault(c, []).extend(values)
-    return out
+    return names, out
+
+
+def report_folder(data: Path, models: list[str], out: Path, judge_only: bool, env: dict) -> list[str]:
+    """The Markdown sections of one folder of strips."""
+    parts, counts = [], []
+    for k, model in enumerate(models):
+        report = out / f"report-{k}"
+        judge = judging_folder(data, model, out / f"fold-{k}")
+        counts.append(len(strips(judge)))
+        print(f"{model}: judged on {counts[-1]} strips of {data} it never trained on ({judge})", flush=True)
+        if judge_only:
+            parent = json.loads((report / "results.json").read_text())["parent_run"]
+        else:
+            parent = bench(model, judge, report, env)
+        parts.append(scores_of(parent, judge))
+    labels = {"model": "shipped model", QUICK: "`ours`, quick (2 min, procedural)", MEAN: "`mean` (baseline)"}
+    labels[PHOTO] = "`photo` (baseline)"
+    values, materials = per_material_values(parts[0])
+    text = [
+        f"## {data.name}: {models[0]} on the {counts[0]} strips ({materials} materials) it never trained on",
+        "",
+        "RMSE, mean over materials [95% bootstrap over materials]:",
+        "",
+        table(values, labels),
+    ]
+    if len(parts) > 1:
+        labels["model"] = "fold models (each strip judged by the one that never saw it)"
+        values, materials = per_material_values(pooled(parts))
+        text += [
+            "",
+            f"## {data.name}: all {len(models)} models pooled: {sum(counts)} strips of {materials} materials",
+            "",
+            table(values, labels),
+        ]
+    return text
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("data", type=Path, help="a Des18 folder of strips with ground truth (e.g. des18-dev)")
+    p.add_argument(
+        "data", type=Path, nargs="+", help="folders of strips with ground truth (des18-dev, unseen-dev)"
+    )
     p.add_argument(
         "--models", required=True, help="model files, comma-separated; the first is reported alone"
     )
     p.add_argument("-o", "--out", type=Path, default=Path("shipped-report"))
     p.add_argument("--judge-only", action="store_true", help="reuse OUT/report-K from an earlier run")
     args = p.parse_args(argv)
-    if not args.data.is_dir():
-        print(
-            f"shipped_model: error: {args.data}: not a folder; give a Des18 folder of strips", file=sys.stderr
-        )
-        return 2
+    for data in args.data:
+        if not data.is_dir():
+            print(f"shipped_model: error: {data}: not a folder; give folders of strips", file=sys.stderr)
+            return 2
     models = [m for m in args.models.split(",") if m]
     env = dict(os.environ)
-    parts, counts = [], []
-    for k, model in enumerate(models):
-        out = args.out / f"report-{k}"
-        judge = judging_folder(args.data, model, args.out / f"fold-{k}")
-        counts.append(len(strips(judge)))
-        print(f"{model}: judged on {counts[-1]} strips it never trained on ({judge})", flush=True)
-        if args.judge_only:
-            parent = json.loads((out / "results.json").read_text())["parent_run"]
-        else:
-            parent = bench(model, judge, out, env)
-        parts.append(scores_of(parent))
-    labels = {"model": "shipped model", QUICK: "`ours`, quick (2 min, procedural)", MEAN: "`mean` (baseline)"}
-    labels[PHOTO] = "`photo` (baseline)"
-    text = [f"## {models[0]} on the {counts[0]} strips it never trained on", "", table(parts[0], labels)]
-    if len(parts) > 1:
-        labels["model"] = "fold models (each strip judged by the one that never saw it)"
-        text += [
-            "",
-            f"## All {len(models)} models pooled: {sum(counts)} strips",
-            "",
-            table(pooled(parts), labels),
-        ]
+    text: list[str] = []
+    for data in args.data:  # one folder: OUT/report-K as before; several: OUT/<folder>/report-K
+        out = args.out if len(args.data) == 1 else args.out / data.name
+        text += [*report_folder(data, models, out, args.judge_only, env), ""]
     report = "\n".join(text) + "\n"
     (args.out / "shipped.md").write_text(report)
     print("\n" + report)

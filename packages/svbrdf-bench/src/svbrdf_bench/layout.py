@@ -40,6 +40,12 @@ params ``refine_budgets``,          parent  the refinement budgets (``0``: none;
                                             :data:`REFINE_FLASH_PARAM`)
 artifacts ``report/``               parent  the written report: ``report.md``, CSV, JSON, plots
                                             (:data:`REPORT_ARTIFACTS`)
+artifact ``eval/test_groups.json``  parent  of a real test set: how samples were grouped
+                                            (``des18``, ``file``), each sample's name and source
+                                            materials, in order; the tables average per material.
+                                            Absent (procedural, older runs): each image its own
+                                            (:data:`TEST_GROUPS`, :func:`test_groups_json`,
+                                            :func:`read_test_groups`; param ``group_by``)
 tag ``mlflow.parentRunId``          child   the benchmark's parent run (MLflow's own nesting tag,
                                             :data:`PARENT_TAG`)
 tag ``svbrdf.model``                child   the row label of the model or baseline; a child
@@ -148,6 +154,10 @@ __all__ = [
     "train_run_id",
     "per_sample_json",
     "read_per_sample",
+    "TEST_GROUPS",
+    "GROUP_BY_PARAM",
+    "test_groups_json",
+    "read_test_groups",
 ]
 
 #: Tag of the parent run; its value :data:`BENCH_KIND` marks a benchmark's parent.
@@ -179,6 +189,10 @@ BASELINES_PARAM = "baselines"
 REFERENCES_PARAM = "reference_models"
 #: Artifact of each evaluated child run: every per-sample figure (:func:`per_sample_json`).
 PER_SAMPLE = "eval/per_sample.json"
+#: Artifact of the parent run of a real test set: each sample's name and source materials.
+TEST_GROUPS = "eval/test_groups.json"
+#: Param of the parent run: how the test samples were grouped into materials.
+GROUP_BY_PARAM = "group_by"
 #: Artifact folder of the parent run holding the written report.
 REPORT_ARTIFACTS = "report"
 
@@ -248,3 +262,14 @@ def per_sample_json(per_sample: Mapping[str, np.ndarray]) -> str:
 def read_per_sample(text: str) -> dict[str, np.ndarray]:
     """Per-sample figures back from the text of :data:`PER_SAMPLE` (float64 arrays)."""
     return {k: np.asarray(v, dtype=np.float64) for k, v in json.loads(text).items()}
+
+
+def test_groups_json(group_by: str, names: list[str], groups: list[tuple[str, ...]]) -> str:
+    """The text of :data:`TEST_GROUPS`."""
+    return json.dumps({"group_by": group_by, "names": list(names), "groups": [list(g) for g in groups]})
+
+
+def read_test_groups(text: str) -> tuple[str, list[str], list[tuple[str, ...]]]:
+    """``(group_by, names, groups)`` back from the text of :data:`TEST_GROUPS`."""
+    doc = json.loads(text)
+    return doc["group_by"], list(doc["names"]), [tuple(g) for g in doc["groups"]]

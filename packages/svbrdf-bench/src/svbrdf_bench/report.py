@@ -2,8 +2,11 @@
 
 Tables in the layout of the paper's Tables 1-4 (rows = models, then the untrained baselines
 ``mean`` and ``photo``; columns = the four maps and the renderings), one per metric, each figure
-with its 95% bootstrap interval over test images; whether each trained model beats the
-constant-map baseline ``mean``, map by map (paired bootstrap of the RMSE difference), which the
+with its 95% bootstrap interval over test images; on a real test set (strips with the materials
+the parent's ``eval/test_groups.json`` records) each figure is the mean over source materials of
+the per-material means (a Des18 strip counts for both its materials), intervals and paired
+comparisons resampling materials (:func:`svbrdf_train.data.materials.per_material`); whether each
+trained model beats the constant-map baseline ``mean``, map by map (paired bootstrap of the RMSE difference), which the
 headline repeats in words; the time table (training time on the budget clock and wall time,
 throughput, latency, parameters, memory); and what each trained model's extra accuracy costs
 against each other one, saying when the difference lies within noise.
@@ -47,6 +50,7 @@ from .layout import (
     BENCH_KIND,
     BUDGET_PREFIX,
     FIT_WALL_METRIC,
+    GROUP_BY_PARAM,
     INPUT_RERENDER,
     KIND_TAG,
     LPIPS_TAG,
@@ -58,6 +62,7 @@ from .layout import (
     PER_SAMPLE,
     PRESET_PARAM,
     REAL_DATA_PARAM,
+    REAL_PREFIX,
     REAL_RERENDER,
     REFINE_BACKEND_PARAM,
     REFINE_FLASH_PARAM,
@@ -66,10 +71,12 @@ from .layout import (
     SECONDS_PER_IMAGE,
     STEPS_METRIC,
     STEPS_WALL_METRIC,
+    TEST_GROUPS,
     TEST_SET_PARAM,
     TRAINER_PREFIXES,
     is_baseline,
     read_per_sample,
+    read_test_groups,
     reference_name,
     refine_steps,
     train_run_id,
@@ -194,6 +201,82 @@ class Report:
     baselines: str | None = None
     #: The refinement budgets, backend and flash (parent params); budgets "0": no refinement.
     refine: dict[str, str] = field(default_factory=dict)
+    #: The source materials of each test sample, in order (parent artifact ``eval/test_groups.json``);
+    #: None: each image its own (procedural test sets, older runs): figures are means over images.
+    groups: list[tuple[str, ...]] | None = None
+    #: The name of each test sample, in order (with :attr:`groups`).
+    sample_names: list[str] = field(default_factory=list)
+    #: How the samples were grouped: ``des18`` or ``file`` (with :attr:`groups`).
+    group_by: str | None = None
+
+    # -- per material -------------------------------------------------------------------------
+
+    @property
+    def per_material_on(self) -> bool:
+        return self.groups is not None
+
+    @property
+    def unit(self) -> str:
+        """What the tables' means and bootstraps run over: ``materials`` or ``test images``."""
+        return "materials" if self.per_material_on else "test images"
+
+    def _per_material(self, e: ModelEntry, keys):
+        from svbrdf_train.data.materials import per_material
+
+        rows = []
+        for i, g in enumerate(self.groups or []):
+            rows.append((g, {k: float(e.per_sample[k][i]) for k in keys}))
+        return per_material(rows)
+
+    def values(self, e: ModelEntry, key: str) -> np.ndarray | None:
+        """The values of per-sample figure ``key`` the tables average: per material (the mean of
+        the strips showing it, materials sorted) on a grouped test set, else per image; figures on
+        real photos (``real/``) are never grouped. None when the row lacks the figure."""
+        v = e.per_sample.get(key)
+        if v is None or len(v) == 0:
+            return None
+        if not self.per_material_on or key.startswith(REAL_PREFIX):
+            return v
+        if len(v) != len(self.groups):
+            raise BenchError(
+                f"{e.label}: {len(v)} values of {key} for the {len(self.groups)} test samples the parent "
+                "run records; the runs do not belong together"
+            )
+        return np.asarray(self._per_material(e, [key]).values(key), dtype=np.float64)
+
+    def averaging_note(self) -> str:
+        """How many strips and materials the tables are over, and how they are averaged."""
+        if not self.per_material_on:
+            n = len(next(iter(self.models)).per_sample.get("rmse/render", ())) if self.models else 0
+            return (
+                f"tables over {n} test images, each its own material (mean over images; "
+                "95% bootstrap intervals over images)"
+            )
+        materials = sorted({m for g in self.groups for m in g})
+        how = (
+            "a Des18 strip counts for both materials its name gives"
+            if self.group_by == "des18"
+            else "one material per file"
+        )
+        return (
+            f"tables over {len(self.groups)} strips of {len(materials)} materials ({how}): each figure is "
+            "the mean over materials of the mean over each material's strips, so every material weighs "
+            "alike; bootstrap intervals and paired comparisons resample materials; per-strip figures "
+            "are in results.json"
+        )
+
+    def per_strip_json(self) -> dict:
+        """Per-strip figures of every row (``names``: the test samples, in order), and, on a grouped
+        test set, each row's per-material means."""
+        out: dict = {"names": list(self.sample_names), "groups": [list(g) for g in self.groups or []]}
+        out["rows"] = {e.label: {k: v.tolist() for k, v in e.per_sample.items()} for e in self.models}
+        if self.per_material_on:
+            out["per_material"] = {}
+            for e in self.models:
+                keys = [k for k in e.per_sample if not k.startswith(REAL_PREFIX)]
+                pm = self._per_material(e, keys)
+                out["per_material"][e.label] = {"materials": pm.materials, "strips": pm.counts}
+        return out
 
     # -- figures ----------------------------------------------------------------------------
 
@@ -291,6 +374,7 @@ class Report:
                     continue
                 if len(a) != len(b):
                     raise BenchError(f"{e.label} and {ref.label} were tested on different test sets")
+                a, b = self.values(e, f"rmse/{c}"), self.values(ref, f"rmse/{c}")  # paired over materials
                 d = paired_difference(a, b)
                 verdict = "within noise" if d.within_noise else "beats" if d.mean < 0 else "worse"
                 base = float(np.mean(b))
@@ -391,8 +475,8 @@ class Report:
     def interval(self, model: ModelEntry, metric: str, column: str) -> tuple[float, float, float] | None:
         from .metrics import bootstrap_ci
 
-        values = model.per_sample.get(f"{metric}/{column}")
-        return None if values is None or len(values) == 0 else bootstrap_ci(values)
+        values = self.values(model, f"{metric}/{column}")
+        return None if values is None else bootstrap_ci(values)
 
     def metrics_present(self) -> list[tuple[str, str, str]]:
         return [m for m in METRICS if any(f"{m[0]}/render" in e.per_sample for e in self.models)]
@@ -415,6 +499,7 @@ class Report:
                 ra, rb = a.per_sample["rmse/render"], b.per_sample["rmse/render"]
                 if len(ra) != len(rb):
                     raise BenchError(f"{a.label} and {b.label} were tested on different test sets")
+                ra, rb = self.values(a, "rmse/render"), self.values(b, "rmse/render")
                 if ra.mean() > rb.mean():
                     continue
                 d = paired_difference(ra, rb)
@@ -450,7 +535,12 @@ class Report:
                 ci = self.interval(e, metric, c)
                 cells.append("-" if ci is None else f"{ci[0]:.4f} [{ci[1]:.4f}, {ci[2]:.4f}]")
             rows.append(cells)
-        return _table(f"{title} ({sense}; 95% bootstrap interval over test images)", head, rows, markdown)
+        over = (
+            "mean over materials; 95% bootstrap interval over materials"
+            if self.per_material_on
+            else "95% bootstrap interval over test images"
+        )
+        return _table(f"{title} ({sense}; {over})", head, rows, markdown)
 
     def _against_table(self, markdown: bool) -> list[str]:
         rows_by_model: dict[str, dict[str, str]] = {}
@@ -468,7 +558,8 @@ class Report:
         )
         title = (
             f"Against the {REFERENCE} baseline (RMSE of the model minus RMSE of `{REFERENCE}` on the same "
-            f"images, in % of `{REFERENCE}`'s RMSE, 95% paired bootstrap interval; beats: the whole "
+            f"{'materials' if self.per_material_on else 'images'}, in % of `{REFERENCE}`'s RMSE, 95% paired "
+            "bootstrap interval; beats: the whole "
             f"interval below 0{refined})"
         )
         return _table(title, ["model", *COLUMNS], rows, markdown)
@@ -612,6 +703,7 @@ class Report:
             f"svbrdf-bench: {', '.join(e.name for e in self.models)} ({self.preset}; {self.budget_words()})",
             *self.headline(),
             f"test set: {self.test_set}; {self.lpips_note}",
+            self.averaging_note(),
             self.clock_note(),
             *self.init_notes(),
             *([note] if note else []),
@@ -632,6 +724,7 @@ class Report:
             *(f"- {line}" for line in [self.reference_note()] if line),
             *(f"- {line}" for line in [self.refine_note()] if line),
             f"- test set: {self.test_set}",
+            f"- {self.averaging_note()}",
             f"- {self.lpips_note}",
             f"- MLflow parent run: `{self.parent_id}`; rebuild with `svbrdf-bench report {self.parent_id}`",
             "",
@@ -797,6 +890,16 @@ def build_report(parent_id: str) -> Report:
         raise BenchError(f"run {parent_id} has no evaluated models yet")
     models = _link_refined(models)
     params = parent.data.params
+    grouping: dict = {}
+    if params.get(GROUP_BY_PARAM) in ("des18", "file"):
+        with tempfile.TemporaryDirectory() as tmp:
+            try:
+                local = client.download_artifacts(parent_id, TEST_GROUPS, tmp)
+            except Exception:  # recorded as grouped but the artifact is gone: per image, as before
+                local = None
+            if local is not None:
+                group_by, names, groups = read_test_groups(Path(local).read_text())
+                grouping = {"group_by": group_by, "sample_names": names, "groups": groups}
     minutes = params.get(MINUTES_PARAM, "?")
     return Report(
         parent_id=parent_id,
@@ -810,6 +913,7 @@ def build_report(parent_id: str) -> Report:
         refine={
             k: params[k] for k in (REFINE_PARAM, REFINE_BACKEND_PARAM, REFINE_FLASH_PARAM) if k in params
         },
+        **grouping,
     )
 
 
@@ -938,11 +1042,14 @@ def write_report(
                 "parent_run": report.parent_id,
                 "preset": report.preset,
                 "test_set": report.test_set,
+                "averaged_over": report.unit,
+                "averaging": report.averaging_note(),
                 "headline": report.headline(),
                 "budget_clock": report.clock_note(),
                 "models": records,
                 "against_mean": against,
                 "costs": costs,
+                "per_strip": report.per_strip_json(),
             },
             indent=2,
         )  # fmt: skip

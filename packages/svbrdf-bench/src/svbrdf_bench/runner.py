@@ -37,6 +37,7 @@ from .layout import (
     BASELINES_PARAM,
     BENCH_KIND,
     FIT_WALL_METRIC,
+    GROUP_BY_PARAM,
     KIND_TAG,
     LPIPS_TAG,
     MINUTES_PARAM,
@@ -57,11 +58,13 @@ from .layout import (
     REPORT_ARTIFACTS,
     STEPS_METRIC,
     STEPS_WALL_METRIC,
+    TEST_GROUPS,
     TEST_PREFIX,
     TEST_SET_PARAM,
     TRAIN_RUN_TAG,
     baseline_tags,
     per_sample_json,
+    test_groups_json,
 )
 from .presets import Preset
 from .references import (
@@ -114,6 +117,8 @@ class BenchOptions:
     """Registered generators evaluated untrained beside the models (``[]``: none)."""
     refine: RefinePlan = field(default_factory=RefinePlan)
     """Refinement budgets: a row per scored row and budget > 0 (default: none)."""
+    group_by: str = "auto"
+    """How real test samples are grouped into materials (svbrdf_train.data.materials.GROUP_BY)."""
     say: Callable[[str], None] = print
 
 
@@ -392,7 +397,7 @@ def run_bench(options: BenchOptions) -> str:
     from .testset import test_set
 
     def make_test_set(resolution: int):
-        test = test_set(options.test_data, resolution, options.test_count or p.test_count)
+        test = test_set(options.test_data, resolution, options.test_count or p.test_count, options.group_by)
         if len(test) == 0:
             raise BenchError(f"the test set ({test.description}) is empty")
         return test
@@ -462,6 +467,7 @@ def run_bench(options: BenchOptions) -> str:
             MINUTES_PARAM: budget,
             TEST_SET_PARAM: test.description,
             "test_count": str(len(test)),
+            GROUP_BY_PARAM: test.group_by,
             "overrides": " ".join([*p.overrides, *options.overrides]) or "-",
             REAL_DATA_PARAM: f"{len(photos)} photos of {options.real_data} ({options.real_encoding})"
             if photos
@@ -482,7 +488,8 @@ def run_bench(options: BenchOptions) -> str:
     parent_id = parent.run_id
     options.say(
         f"benchmark {', '.join(labels)} ({p.name}: {words}); "
-        + f"baselines: {', '.join(options.baselines) or 'none'}; test set: {test.description}; "
+        + f"baselines: {', '.join(options.baselines) or 'none'}; test set: {test.description}, "
+        + f"{test.grouping_words()}; "
         + f"{lpips_note}"
         + (
             f"; refinement budgets: {', '.join(map(str, options.refine.budgets))} steps "
@@ -496,6 +503,10 @@ def run_bench(options: BenchOptions) -> str:
     try:
         with tempfile.TemporaryDirectory(prefix="svbrdf-bench-") as tmp:
             work = Path(tmp)
+            if test.groups is not None:  # the report averages per material: which sample shows which
+                groups_file = work / Path(TEST_GROUPS).name
+                groups_file.write_text(test_groups_json(test.group_by, test.sample_names, test.groups))
+                parent.log_artifact(groups_file, str(Path(TEST_GROUPS).parent))
             # label, evaluation run, training wall seconds, reused run, local checkpoint
             jobs: list[tuple[str, str, float | None, str | None, Path | None]] = []
             for i, model in enumerate(to_train, 1):

@@ -61,18 +61,19 @@ def cli():
       svbrdf-train predict photo.jpg --checkpoint runs/ours-cpu/last.pt -o maps/
       svbrdf-train data make --count 1000 --resolution 256 --out train.h5
       svbrdf-train data import des18-dev/ --out test.h5
+      svbrdf-train data folds des18-dev/ --out folds/  # train/judge splits by source material
     """
 
 
 @cli.group(cls=OneLineErrors)
 def data():
-    """Make, import and inspect training data (procedural materials, Des18, HDF5 shards)."""
+    """Make, import, split and inspect training data (procedural materials, Des18, HDF5 shards)."""
 
 
 def _register() -> None:
-    from .commands import data_compare, data_shards, data_sheet, export, fit, predict, recipes
+    from .commands import data_compare, data_folds, data_shards, data_sheet, export, fit, predict, recipes
 
-    for module in (data_sheet, data_shards, data_compare):
+    for module in (data_sheet, data_shards, data_compare, data_folds):
         for command in module.COMMANDS:
             data.add_command(command)
     for module in (recipes, fit, predict, export):

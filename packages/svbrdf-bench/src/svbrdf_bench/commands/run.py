@@ -59,6 +59,15 @@ Test data: Des18 tiles and shards larger than the models are resized to the mode
 resolution (area filter), never centre-cropped: models see the field of view they trained at.
 
 \b
+Per material: with --test-data a folder of strips, the accuracy tables average per source
+material, not per strip: a Des18 strip (ID;MatAXMatB;varAXvarB.png) counts for both materials
+its name gives, other files are one material each (--group-by). A material shown by 3 strips
+weighs as much as one shown by 1; bootstrap intervals and the paired comparisons with `mean`
+resample materials. Per-strip figures stay in results.json and in MLflow. Procedural test
+images are each a material of their own. Material folds that keep judged materials out of
+training: svbrdf-train data folds.
+
+\b
 Output: the tables in the terminal (a headline per model on whether it beats `mean`; rows =
 models, reference rows, then baselines; RMSE and SSIM per map and on renderings under 6 fixed
 light/view pairs, each with a 95% bootstrap interval; the difference to `mean`; time and
@@ -116,6 +125,15 @@ def _split(value: str | None) -> list[str]:
     type=click.Path(path_type=Path),
     help="A Des18 folder or .h5 shards, resized to the models' resolution [default: procedural test "
     "materials from a fixed seed].",
+)
+@click.option(
+    "--group-by",
+    type=click.Choice(["auto", "des18", "file"]),
+    default="auto",
+    show_default=True,
+    help="How --test-data strips are grouped into source materials for the per-material means: des18 "
+    "(both materials of ID;MatAXMatB;varAXvarB.png; any other name is an error), file (one material per "
+    "file), auto (des18 when every name parses, else file).",
 )
 @click.option(
     "--real-data",
@@ -188,6 +206,7 @@ def run(
     from_models,
     allow_trained_strips,
     test_data,
+    group_by,
     real_data,
     real_encoding,
     real_pattern,
@@ -232,6 +251,7 @@ def run(
             from_models=files,
             allow_trained_strips=allow_trained_strips,
             test_data=str(test_data) if test_data else None,
+            group_by=group_by,
             real_data=str(real_data) if real_data else None,
             real_encoding=real_encoding,
             real_pattern=real_pattern,
