@@ -27,7 +27,9 @@ from svbrdf_train.data.procedural import (
 from svbrdf_train.data.procedural_families import family_fields
 from svbrdf_train.errors import DataError
 
-DIELECTRICS = [f for f in FAMILIES if f != "metal"]
+#: Families with metal in them: the metal family, and painted and rusted metal.
+METALLIC = ("metal", "rusted")
+DIELECTRICS = [f for f in FAMILIES if f not in METALLIC]
 
 
 def _digest(*tensors: torch.Tensor) -> str:
@@ -49,7 +51,8 @@ def _check_maps(m: SVBRDF) -> None:
 
 def test_the_issue_families_exist():
     assert set(FAMILIES) >= {"stone", "tiles", "cells", "wood", "metal", "fabric"}
-    assert isinstance(GENERATOR_VERSION, str) and GENERATOR_VERSION
+    assert set(FAMILIES) >= {"plaster", "rusted", "bark", "rock"}  # generator 3
+    assert isinstance(GENERATOR_VERSION, str) and GENERATOR_VERSION == "3"
 
 
 @pytest.mark.parametrize("family", FAMILIES)
@@ -196,6 +199,88 @@ def test_grout_is_rougher_and_lower_than_the_tiles():
         assert f.roughness[k][in_grout].mean() > f.roughness[k][on_tile].mean() + 0.1
         assert f.roughness[k][in_grout].min() > f.roughness[k][on_tile].max()
         assert f.height[k][in_grout].mean() < f.height[k][on_tile].mean()
+
+
+def test_painted_and_rusted_metal_is_metal_only_where_bare():
+    f = family_fields("rusted", list(range(16)), 64)
+    metal, rust, paint = f.parts["metal"][:, 0], f.parts["rust"][:, 0], f.parts["paint"][:, 0]
+    assert torch.allclose(metal + rust + paint, torch.ones(()), atol=1e-5)  # the three layers
+    level = _luminance(f.specular)
+    spread = f.specular.amax(dim=1) - f.specular.amin(dim=1)
+    bare = [k for k in range(16) if (metal[k] > 0.99).any()]
+    rusty = [k for k in range(16) if (rust[k] > 0.99).any()]
+    painted = [k for k in range(16) if (paint[k] > 0.99).any()]
+    assert len(bare) >= 8 and len(rusty) >= 8 and len(painted) >= 4
+    for k in bare:  # bare metal: coloured specular above every dielectric, dark diffuse
+        on = metal[k] > 0.999
+        assert level[k][on].min() >= 0.08 and f.diffuse[k][:, on].max() <= 0.035
+    for k in range(16):  # rust and paint: grey dielectric specular
+        coat = (rust[k] == 1) | (paint[k] == 1)
+        assert spread[k][coat].max() < 1e-6
+        assert 0.025 <= f.specular[k, 0][coat].min() and f.specular[k, 0][coat].max() <= 0.05
+    for k in rusty:  # rust: orange-brown (red above blue), rough
+        on = rust[k] > 0.99
+        rgb = f.diffuse[k][:, on].mean(dim=1)
+        assert rgb[0] > rgb[2] and f.roughness[k, 0][on].mean() >= 0.65
+    for k in painted:  # paint lies on the metal, chipped: raised above the bare chips
+        chipped = metal[k] > 0.99
+        if chipped.any():
+            assert f.height[k, 0][paint[k] > 0.99].mean() > f.height[k, 0][chipped].mean()
+
+
+@pytest.mark.parametrize(("family", "part"), [("plaster", "pore"), ("bark", "furrow"), ("rock", "crevice")])
+def test_recessed_parts_are_rougher_and_lower(family, part):
+    f = family_fields(family, list(range(12)), 96)
+    mask = f.parts[part][:, 0]
+    found = 0
+    for k in range(12):
+        inside, outside = mask[k] > 0.95, mask[k] < 0.05
+        if inside.sum() < 10 or outside.sum() < 10:
+            continue
+        found += 1
+        rough, height = f.roughness[k, 0], f.height[k : k + 1]
+        assert rough[inside].mean() > rough[outside].mean() + 0.05, k
+        # Lower than what lies around (rock's broad relief dwarfs its crevices' depth).
+        around = F.avg_pool2d(height, 15, stride=1, padding=7, count_include_pad=False)
+        below = (around - height)[0, 0]
+        assert below[inside].mean() > below[outside].mean(), k
+    assert found >= 5
+
+
+@pytest.mark.parametrize("family", ["plaster", "bark", "rock"])
+def test_rough_surfaces_are_rough_and_not_shiny(family):
+    m, _ = materials(5, range(12), 48, family=family)
+    assert m.roughness.mean(dim=(1, 2, 3)).min() >= 0.55
+    assert m.diffuse.mean(dim=(1, 2, 3)).max() <= 0.7
+
+
+def test_plaster_is_nearly_flat_and_rock_strongly_relieved():
+    from svbrdf_train.data.stats import slope_mean
+
+    plaster, _ = _packed_maps("plaster")
+    rock, _ = _packed_maps("rock")
+    assert float(slope_mean(plaster).median()) < 0.2 < float(slope_mean(rock).median())
+
+
+def _packed_maps(family: str):
+    m, names = materials(6, range(12), 64, family=family)
+    return m.pack(), names
+
+
+def test_the_new_families_batch_as_they_compute_alone():
+    # Batched with each other, mixed with the old families, and alone: the same bytes.
+    families = ["plaster", "rusted", "bark", "rock", "stone"]
+    data = ProceduralMaterials(12, 40, seed=11, families=families, mix=0.5)
+    indices = list(range(12))
+    batch = data.batch(indices)
+    assert {n for i in indices for n in data.family(i).split("+")} >= {"plaster", "rusted", "bark", "rock"}
+    for k in indices:
+        item = data[k]
+        assert torch.equal(batch["maps"][k], item["maps"]) and torch.equal(batch["input"][k], item["input"])
+    for family in ("plaster", "rusted", "bark", "rock"):
+        many, _ = materials(4, range(5), 33, family=family)
+        one, _ = materials(4, [3], 33, family=family)
+        assert torch.equal(many.pack()[3], one.pack()[0]), family
 
 
 def test_normals_follow_the_opengl_convention():

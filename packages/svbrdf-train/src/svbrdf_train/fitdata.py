@@ -3,8 +3,8 @@
 =============  ==================================================  =====================================
 source         training set                                        validation set (fixed, held out)
 =============  ==================================================  =====================================
-procedural     ``count`` materials of ``seed``                     ``validation`` materials of
-                                                                   ``seed + 1`` (never the same ones)
+procedural     ``count`` materials of ``seed``, photographed       ``validation`` materials of
+               under ``data.capture``                              ``seed + 1`` (never the same ones)
 shards         every sample of the files but the last              the last ``validation`` samples
                ``validation``
 des18          the folder's ``trainBlended/`` (or the strips),     ``testBlended/`` when there is one,
@@ -44,7 +44,7 @@ import numpy as np
 import torch
 from torch.utils.data import ConcatDataset, Dataset, Subset, default_collate
 
-from .data import Des18Folder, ProceduralMaterials
+from .data import Des18Folder, PhotoSettings, ProceduralMaterials
 from .errors import DataError
 from .recipe import DataSection, Recipe
 
@@ -120,9 +120,10 @@ def build_datasets(recipe: Recipe) -> tuple[Dataset, Dataset]:
 
 def _source_datasets(d: DataSection, res: int) -> tuple[Dataset, Dataset]:
     if d.source == "procedural":
+        photo = PhotoSettings.preset(d.capture)
         return (
-            ProceduralMaterials(d.count, res, seed=d.seed),
-            ProceduralMaterials(d.validation, res, seed=d.seed + 1),
+            ProceduralMaterials(d.count, res, seed=d.seed, photo=photo),
+            ProceduralMaterials(d.validation, res, seed=d.seed + 1, photo=photo),
         )
     if not d.path:
         raise DataError(f"data.source {d.source} needs a path: give --data PATH, or --set data.path=PATH")

@@ -173,6 +173,9 @@ class OptimSection:
         _int_at_least(self.warmup_samples, "warmup_samples", 0)
 
 
+#: The named photo captures of procedural data (``data.capture``; svbrdf_train.data.procedural's
+#: ``CAPTURE_PRESETS``).
+CAPTURES = ("des18", "phone")
 #: Keys of one ``data.mix`` entry, and the sources an entry may name.
 MIX_KEYS = ("source", "weight", "path", "count", "validation")
 MIX_SOURCES = ("procedural", "shards", "des18")
@@ -219,6 +222,15 @@ class DataSection:
         "with source mix: entries {source, weight[, path, count, validation]}; each training "
         "sample comes from entry i with probability weight_i / sum(weights); validation sets "
         "are each entry's own, put together",
+    )
+    capture: str = param(
+        "des18",
+        "how procedural materials are photographed (training and validation alike): des18 (a "
+        "flash at 1.8-2.75 whose irradiance follows the distance, +-0.75 EV, linear, as the "
+        "Des18 inputs) or phone (the flashes fitted to real phone photos: distance 1.8-3.7 and "
+        "intensity 10-21 drawn independently, white balance within 8%, half of the photos "
+        "JPEG-compressed at quality 75-95)",
+        choices=CAPTURES,
     )
 
     def __post_init__(self):

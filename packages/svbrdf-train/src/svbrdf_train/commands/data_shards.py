@@ -114,20 +114,31 @@ def _summary(out: Path, count: int, resolution: int, bits: int, seconds: float) 
     default=None,
     help="Fraction of samples mixing two families through a mask (default: the generator's).",
 )
+@click.option(
+    "--capture",
+    type=click.Choice(["des18", "phone"]),
+    default="des18",
+    show_default=True,
+    help="How the photos are taken: des18 (the Des18 inputs' flash) or phone (flashes fitted to "
+    "real phone photos, white balance, JPEG); recorded with the photo settings.",
+)
 @click.option("--force", is_flag=True, help="Replace --out if it exists.")
-def make(count, resolution, out, seed, bits, batch, families, mix, force):
+def make(count, resolution, out, seed, bits, batch, families, mix, capture, force):
     """Make a shard of procedural materials with their simulated flash photos.
 
     No download: each sample is generated from (--seed, index), rendered under a jittered
     phone flash, and stored with its four maps.
     """
-    from ..data.procedural import GENERATOR_VERSION, ProceduralMaterials
+    from ..data.procedural import GENERATOR_VERSION, PhotoSettings, ProceduralMaterials
     from ..data.shards import ShardWriter
 
     bits = int(bits)
     kwargs = {} if mix is None else {"mix": mix}
     # Unknown families are refused here, before --out is looked at.
-    materials = ProceduralMaterials(count, resolution, seed, families=list(families) or None, **kwargs)
+    photo = PhotoSettings.preset(capture)
+    materials = ProceduralMaterials(
+        count, resolution, seed, families=list(families) or None, photo=photo, **kwargs
+    )
     _check_target(out, force)
     attrs = {
         "source": "procedural",
@@ -135,6 +146,7 @@ def make(count, resolution, out, seed, bits, batch, families, mix, force):
         "seed": seed,
         "families": list(materials.families),
         "mix": materials.mix,
+        "capture": capture,
         "photo": dataclasses.asdict(materials.photo),
     }
     start = time.perf_counter()
@@ -214,7 +226,8 @@ def _format_attr(value) -> str:
 
 #: Provenance first, in the order a person asks about it; other attributes follow by name.
 _INFO_ORDER = (
-    "source", "generator_version", "seed", "families", "mix", "photo", "source_folder", "split", "crop"
+    "source", "generator_version", "seed", "families", "mix", "capture", "photo",
+    "source_folder", "split", "crop",
 )
 
 

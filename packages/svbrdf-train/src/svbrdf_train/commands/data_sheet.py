@@ -68,7 +68,7 @@ def _families(ctx, param, value):
     callback=_families,
     metavar="NAME",
     help="Draw only from this family; repeat for several (default: all of stone, tiles, "
-    "cells, wood, metal, fabric).",
+    "cells, wood, metal, fabric, plaster, rusted, bark, rock).",
 )
 @click.option(
     "--mix",

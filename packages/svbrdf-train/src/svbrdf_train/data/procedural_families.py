@@ -749,6 +749,275 @@ def _fabric(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
     return Fields(height, diffuse, roughness, p["specular"].expand_as(diffuse), {"warp": on_warp.float()})
 
 
+# -- plaster: plaster, stucco, concrete ----------------------------------------------------
+
+
+def _draw_plaster(d: Draw) -> dict[str, Any]:
+    kind = d.choice(["plaster", "stucco", "concrete"], [0.35, 0.3, 0.35])
+    p = _draw_frame(d)
+    p["freq"] = d.log_uniform(0.6, 2.0)  # broad bumps of the wall, cells per patch unit
+    p["gain"] = d.uniform(0.45, 0.6)
+    p["relief"] = d.uniform(0.01, 0.04)  # slope of the broad bumps: walls are nearly flat
+    # Stucco: thrown or trowelled dabs of plaster standing on the wall, flat-topped.
+    p["stucco"] = 1.0 if kind == "stucco" else 0.0
+    p["dab_freq"] = d.uniform(4.0, 12.0)
+    p["dab_level"], p["dab_soft"] = d.uniform(-0.1, 0.3), d.uniform(0.05, 0.25)
+    p["dab_relief"] = d.uniform(0.1, 0.35)
+    p["grain_freq"] = d.uniform(30.0, 70.0)
+    p["grain_relief"] = d.uniform(0.01, 0.04) if kind != "plaster" else d.uniform(0.003, 0.015)
+    # Pores and air holes: small round pits, most in concrete.
+    p["pore_freq"] = d.uniform(10.0, 30.0)
+    p["pore_density"] = d.uniform(0.2, 0.6) if kind == "concrete" else d.uniform(0.0, 0.2)
+    p["pore_radius"] = d.uniform(0.1, 0.3)  # in cells
+    p["pore_depth"] = d.uniform(0.15, 0.4)  # the pit walls' slope over 2.5
+    if kind == "concrete":
+        base = d.colour((0.0, 1.0), (0.0, 0.08), (0.35, 0.75))
+    else:  # near-grey whites and earthy tints of render and paint
+        base = d.colour((0.05, 0.15), (0.0, 0.25), (0.45, 0.95)) if d.chance(0.6) else d.colour(
+            (0.0, 1.0), (0.05, 0.4), (0.3, 0.85)
+        )
+    p["base"] = base
+    p["stain_colour"] = _vary(d, base, (0.4, 0.8), (0.8, 1.5))  # damp, dirt, weathering
+    p["stain"] = d.uniform(0.0, 0.7)
+    p["mottle"] = d.uniform(0.02, 0.12)
+    p["roughness"] = d.uniform(0.6, 0.82)
+    p["roughness_var"] = d.uniform(0.02, 0.08)
+    p["specular"] = grey(d.uniform(0.025, 0.04))
+    p["points"] = d.cells(d.uniform(0.0, 0.4))
+    p["pore_table"] = d.table(CELL_PERIOD * CELL_PERIOD)
+    p["lattice"] = d.lattice(4)  # bumps, stains, dabs, grain
+    return p
+
+
+def _plaster(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
+    u, v = _frame(p, x, y)
+    f = p["freq"]
+    n = fbm(p["lattice"][:, 0:2], u * f, v * f, 5, p["gain"])
+    bumps, stain = n[:, 0:1], n[:, 1:2]
+    fs, fg = p["dab_freq"], p["grain_freq"]
+    dabs = fbm(p["lattice"][:, 2:3], u * fs, v * fs, 3)
+    grain = fbm(p["lattice"][:, 3:4], u * fg, v * fg, 2)
+    dab = smoothstep(p["dab_level"], p["dab_level"] + p["dab_soft"], dabs) * p["stucco"]
+    fp = p["pore_freq"]
+    f1, _, cell = worley(p["points"], u * fp, v * fp)
+    r = p["pore_radius"]
+    present = (lookup(p["pore_table"], cell) < p["pore_density"]).float()
+    pore = (1 - smoothstep(0.6 * r, r, f1)) * present
+    height = (
+        p["relief"] / f * bumps
+        + p["dab_relief"] * p["dab_soft"] / fs * dab
+        + p["grain_relief"] / fg * grain
+        - p["pore_depth"] * r / fp * pore
+    )
+    wet = smoothstep(0.0, 0.8, stain) * p["stain"]
+    diffuse = mix(p["base"], p["stain_colour"], wet) * (1 + p["mottle"] * grain) * (1 - 0.35 * pore)
+    face = (p["roughness"] + p["roughness_var"] * grain - 0.04 * dab).clamp(max=0.86)
+    roughness = mix(face, 0.93, pore)  # pores and holes stay rougher
+    return Fields(height, diffuse, roughness, p["specular"].expand_as(diffuse), {"pore": pore})
+
+
+# -- rusted: painted and rusted metal ------------------------------------------------------
+
+#: Metals that rust or carry paint: steel and iron, and the greyer coatings of sheet metal.
+_SHEET_METALS = ("iron", "chromium", "nickel", "zinc", "aluminium", "cobalt")
+
+
+def _draw_rusted(d: Draw) -> dict[str, Any]:
+    kind = d.choice(["rusted", "painted", "peeling"], [0.4, 0.3, 0.3])
+    p = _draw_frame(d)
+    f0 = METALS[d.choice(_SHEET_METALS)]
+    if d.chance(0.4):  # bare, clean metal
+        p["metal_specular"] = tuple(d.uniform(0.9, 1.0) * c for c in f0)
+    else:  # darkened, oxidised steel: the same colour at a luminance of 0.09-0.3
+        level = d.log_uniform(0.09, 0.3)
+        lum = sum(w * c for w, c in zip(LUMINANCE, f0, strict=True))
+        p["metal_specular"] = tuple(min(c * level / lum, 1.0) for c in f0)
+    p["metal_diffuse"] = grey(d.uniform(0.0, 0.03))
+    p["metal_roughness"] = d.uniform(0.2, 0.5)
+    p["freq"] = d.log_uniform(0.8, 3.0)  # patches of rust and paint, cells per patch unit
+    p["gain"] = d.uniform(0.5, 0.65)
+    # Paint covers the metal but where it chipped off (chips: sharp edges).
+    p["paint"] = 0.0 if kind == "rusted" else 1.0
+    p["chip_level"] = d.uniform(-0.1, 0.5) if kind == "painted" else d.uniform(-0.4, 0.1)
+    p["paint_colour"] = d.colour((0.0, 1.0), (0.2, 0.85), (0.2, 0.85))
+    p["paint_roughness"] = d.uniform(0.25, 0.6)
+    p["paint_specular"] = grey(d.uniform(0.035, 0.05))
+    p["paint_thickness"] = d.uniform(0.002, 0.008)  # patch units
+    # Rust: orange-brown, rough, raised and flaky, on the bare metal only.
+    p["rust_level"] = d.uniform(-0.3, 0.3) if kind != "painted" else d.uniform(-0.2, 0.4)
+    p["rust_soft"] = d.uniform(0.05, 0.3)
+    p["rust_light"] = d.colour((0.03, 0.08), (0.6, 0.9), (0.35, 0.65))
+    p["rust_dark"] = d.colour((0.0, 0.06), (0.5, 0.9), (0.1, 0.3))
+    p["rust_roughness"] = d.uniform(0.7, 0.9)
+    p["rust_specular"] = grey(d.uniform(0.025, 0.035))
+    p["flake_freq"] = d.uniform(15.0, 45.0)
+    p["flake_relief"] = d.uniform(0.05, 0.2)  # slope of the rust's flakes and pits
+    p["rust_thickness"] = d.uniform(0.0, 0.006)
+    p["lattice"] = d.lattice(5)  # rust, chips, mottling; flakes, colour
+    return p
+
+
+def _rusted(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
+    u, v = _frame(p, x, y)
+    f, ff = p["freq"], p["flake_freq"]
+    n = fbm(p["lattice"][:, 0:3], u * f, v * f, 5, p["gain"])
+    fine = fbm(p["lattice"][:, 3:5], u * ff, v * ff, 2)
+    flake, tone = fine[:, 0:1], fine[:, 1:2]
+    chip = smoothstep(p["chip_level"], p["chip_level"] + 0.04, n[:, 1:2])  # 1 where chipped
+    paint = p["paint"] * (1 - chip)
+    rs = p["rust_soft"]
+    rusty = smoothstep(p["rust_level"] - rs, p["rust_level"] + rs, n[:, 0:1] + 0.15 * flake)
+    rust, metal = rusty * (1 - paint), (1 - rusty) * (1 - paint)  # what shows: paint, rust, metal
+    mottle = n[:, 2:3]
+
+    rust_colour = mix(p["rust_dark"], p["rust_light"], smoothstep(-0.7, 0.7, tone + 0.5 * mottle))
+    paint_colour = p["paint_colour"] * (1 + 0.1 * mottle)
+    diffuse = mix(mix(p["metal_diffuse"], rust_colour, rusty), paint_colour, paint)
+    specular = mix(mix(p["metal_specular"], p["rust_specular"], rusty), p["paint_specular"], paint)
+    roughness = mix(
+        mix(p["metal_roughness"] + 0.05 * flake, p["rust_roughness"] + 0.05 * flake, rusty),
+        p["paint_roughness"] + 0.03 * mottle,
+        paint,
+    )
+    height = (
+        p["paint_thickness"] * paint
+        + rust * (p["rust_thickness"] + p["flake_relief"] / ff * flake)
+        + 0.2 * p["flake_relief"] / ff * flake * metal  # pitted under the rust
+    )
+    parts = {"metal": metal, "rust": rust, "paint": paint}
+    return Fields(height, diffuse, roughness, specular, parts)
+
+
+# -- bark: plates and deep furrows ---------------------------------------------------------
+
+
+def _draw_bark(d: Draw) -> dict[str, Any]:
+    p = _draw_frame(d, aligned=0.6)  # v along the trunk: furrows run along v
+    p["across"] = d.uniform(2.0, 7.0)  # furrows per patch unit, about
+    p["along"] = p["across"] * d.uniform(0.05, 0.15)  # long plates
+    p["warp"], p["warp_freq"] = d.uniform(0.05, 0.3), d.uniform(0.5, 1.5)
+    p["level"] = d.uniform(-0.25, 0.15)  # where plates end and furrows begin
+    p["edge"] = d.uniform(0.08, 0.3)
+    p["depth"] = d.uniform(0.25, 0.7)  # slope of the plates' flanks
+    p["cracks"], p["crack_freq"] = d.uniform(0.0, 1.0), d.uniform(3.0, 8.0)
+    p["fibre_relief"] = d.uniform(0.02, 0.08)
+    base = d.colour((0.03, 0.1), (0.2, 0.6), (0.12, 0.45)) if d.chance(0.7) else d.colour(
+        (0.0, 1.0), (0.0, 0.12), (0.2, 0.55)
+    )
+    p["base"] = base
+    p["weathered"] = _vary(d, base, (1.0, 1.6), (0.2, 0.6))  # grey, sun-bleached plate tops
+    p["weather"] = d.uniform(0.0, 0.7)
+    p["furrow_colour"] = _vary(d, base, (0.25, 0.6), (1.0, 1.3))
+    p["lichen"] = d.uniform(0.3, 1.0) if d.chance(0.3) else 0.0
+    p["lichen_colour"] = d.colour((0.12, 0.3), (0.15, 0.5), (0.4, 0.75))
+    p["lichen_level"] = d.uniform(0.0, 0.4)
+    p["roughness"] = d.uniform(0.6, 0.8)
+    p["furrow_roughness"] = d.uniform(0.84, 0.95)
+    p["specular"] = grey(d.uniform(0.025, 0.04))
+    p["lattice"] = d.lattice(5)  # warp, plates, cracks, fibres, lichen
+    return p
+
+
+def _bark(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
+    u, v = _frame(p, x, y)
+    fw = p["warp_freq"]
+    w = fbm(p["lattice"][:, 0:1], u * fw, v * fw, 2)
+    fa, fl = p["across"], p["along"]
+    n = fbm(p["lattice"][:, 1:2], (u + p["warp"] * w) * fa, v * fl, 4, turn=False)
+    plate = smoothstep(p["level"] - p["edge"], p["level"] + p["edge"], n)
+    furrow = 1 - plate
+    # Cracks across the plates: thin lines of noise stretched across the trunk.
+    fc = p["crack_freq"]
+    c = fbm(p["lattice"][:, 2:3], u * fc * 0.4, v * fc, 2, turn=False)
+    crack = (1 - c.abs() * 8).clamp(0, 1) * plate * p["cracks"]
+    fib = fbm(p["lattice"][:, 3:5], u * fa * 10, v * fl * 3, 2, turn=False)
+    fibre, blotch = fib[:, 0:1], fib[:, 1:2]
+    lichen = smoothstep(p["lichen_level"], p["lichen_level"] + 0.2, blotch) * plate * p["lichen"]
+
+    top = plate * (1 + 0.15 * n)  # the plates' tops are not flat
+    height = p["depth"] * p["edge"] / fa * (top - 0.6) - 0.3 * p["depth"] / fc * crack
+    height = height + p["fibre_relief"] / (fa * 10) * fibre + 0.004 * lichen
+    face = mix(p["base"], p["weathered"], plate * p["weather"] * smoothstep(-0.5, 0.8, n))
+    diffuse = mix(p["furrow_colour"], face * (1 + 0.1 * fibre), plate)
+    diffuse = mix(diffuse * (1 - 0.5 * crack), p["lichen_colour"] * (1 + 0.1 * fibre), lichen)
+    roughness = mix(p["furrow_roughness"], p["roughness"] + 0.04 * fibre, plate)
+    roughness = mix(roughness, p["furrow_roughness"], crack)
+    return Fields(height, diffuse, roughness, p["specular"].expand_as(diffuse), {"furrow": furrow})
+
+
+# -- rock: rough rock with strong relief, crevices, lichen ---------------------------------
+
+
+def _draw_rock(d: Draw) -> dict[str, Any]:
+    p = _draw_frame(d)
+    p["freq"] = d.log_uniform(0.5, 1.6)
+    p["warp"], p["gain"] = d.uniform(0.3, 1.2), d.uniform(0.5, 0.62)
+    p["relief"] = d.uniform(0.04, 0.1)  # slope of the broad relief (per octave: steeper in sum)
+    p["ridge"] = d.uniform(0.0, 1.0)  # sharp ridges and folds rather than round bumps
+    p["crack_freq"] = d.uniform(1.5, 5.0)
+    p["crack_width"] = d.uniform(0.03, 0.1)  # in cells
+    p["cracks"] = 1.0 if d.chance(0.7) else 0.0
+    p["crack_depth"] = d.uniform(0.06, 0.15)  # the crevice walls' slope over 4
+    p["grain_freq"] = d.uniform(20.0, 50.0)
+    p["grain_relief"] = d.uniform(0.02, 0.06)
+    tone = d.choice(["grey", "brown", "dark"], [0.4, 0.35, 0.25])
+    base = {
+        "grey": d.colour((0.0, 1.0), (0.0, 0.12), (0.2, 0.6)),
+        "brown": d.colour((0.04, 0.12), (0.2, 0.55), (0.2, 0.6)),
+        "dark": d.colour((0.0, 1.0), (0.0, 0.3), (0.06, 0.2)),
+    }[tone]
+    p["base"], p["second"] = base, _vary(d, base, (0.6, 1.3), (0.7, 1.5))
+    p["crevice_colour"] = _vary(d, base, (0.2, 0.5))
+    p["lichen"] = d.uniform(0.4, 1.0) if d.chance(0.35) else 0.0
+    lichen = d.choice(  # moss green, orange-yellow, pale grey
+        [
+            ((0.12, 0.3), (0.2, 0.6), (0.3, 0.7)),
+            ((0.07, 0.14), (0.5, 0.9), (0.5, 0.85)),
+            ((0.0, 1.0), (0.0, 0.1), (0.6, 0.85)),
+        ]
+    )
+    p["lichen_colour"] = d.colour(*lichen)
+    p["lichen_level"], p["lichen_freq"] = d.uniform(0.0, 0.5), d.uniform(2.0, 6.0)
+    p["roughness"], p["roughness_var"] = d.uniform(0.55, 0.78), d.uniform(0.03, 0.1)
+    p["crevice_roughness"] = d.uniform(0.86, 0.95)
+    p["specular"] = grey(d.uniform(0.028, 0.045))
+    p["points"] = d.cells(d.uniform(0.0, 0.3))
+    p["lattice"] = d.lattice(5)  # warp u, warp v, relief, colour, grain
+    p["lichen_lattice"] = d.lattice(1)
+    return p
+
+
+def _rock(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
+    u, v = _frame(p, x, y)
+    f = p["freq"]
+    uf, vf = u * f, v * f
+    w = fbm(p["lattice"][:, 0:2], uf, vf, 3)
+    uw, vw = uf + p["warp"] * w[:, 0:1], vf + p["warp"] * w[:, 1:2]
+    n = fbm(p["lattice"][:, 2:4], uw, vw, 5, p["gain"])
+    relief, tone = n[:, 0:1], n[:, 1:2]
+    shape = relief + p["ridge"] * (0.4 - relief.abs())  # folds: ridges where the noise crosses 0
+    k = p["crack_freq"] / f
+    f1, f2, _ = worley(p["points"], uw * k, vw * k)
+    cw = p["crack_width"]
+    crevice = (1 - smoothstep(0.5 * cw, cw, f2 - f1)) * p["cracks"]
+    fg = p["grain_freq"]
+    grain = fbm(p["lattice"][:, 4:5], u * fg, v * fg, 2)
+    fl = p["lichen_freq"]
+    patch = fbm(p["lichen_lattice"], u * fl, v * fl, 4)
+    lichen = smoothstep(p["lichen_level"], p["lichen_level"] + 0.15, patch + 0.2 * grain) * p["lichen"]
+    lichen = lichen * (1 - crevice)
+
+    height = p["relief"] / f * shape - p["crack_depth"] * cw / p["crack_freq"] * crevice
+    height = height + p["grain_relief"] / fg * grain + 0.003 * lichen
+    stone = mix(p["base"], p["second"], smoothstep(-0.6, 0.6, tone)) * (1 + 0.1 * grain)
+    stone = stone * (1 + 0.25 * (shape - 0.2))  # dirt collects low, ridges are lighter
+    diffuse = mix(mix(stone, p["crevice_colour"], crevice), p["lichen_colour"] * (1 + 0.15 * grain), lichen)
+    face = (p["roughness"] + p["roughness_var"] * grain).clamp(max=0.84)
+    roughness = mix(mix(face, p["crevice_roughness"], crevice), 0.85 + 0.05 * grain, lichen)
+    parts = {"crevice": crevice, "lichen": lichen}
+    return Fields(height, diffuse, roughness, p["specular"].expand_as(diffuse), parts)
+
+
 FAMILY_TABLE: dict[str, Family] = {
     f.name: f
     for f in (
@@ -765,6 +1034,15 @@ FAMILY_TABLE: dict[str, Family] = {
             "metal", "brushed, polished and scratched, hammered, sandblasted, embossed", _draw_metal, _metal
         ),
         Family("fabric", "plain, twill and satin weaves, stripes and checks", _draw_fabric, _fabric),
+        Family("plaster", "plaster, stucco and concrete: broad bumps, dabs, pores", _draw_plaster, _plaster),
+        Family(
+            "rusted",
+            "painted and rusted metal: paint chipped to the metal, rust patches",
+            _draw_rusted,
+            _rusted,
+        ),
+        Family("bark", "bark: plates between deep furrows, cracks, lichen", _draw_bark, _bark),
+        Family("rock", "rough rock: strong warped relief, crevices, lichen and moss", _draw_rock, _rock),
     )
 }
 
