@@ -262,6 +262,23 @@ def test_plaster_is_nearly_flat_and_rock_strongly_relieved():
     assert float(slope_mean(plaster).median()) < 0.2 < float(slope_mean(rock).median())
 
 
+def test_relief_and_saturation_spread_over_flat_to_relieved_and_grey_to_saturated():
+    # Generator 3: a relief scale flattens some materials of any family nearly flat while
+    # others keep a strong relief, and the albedo's chroma spans greyish to saturated.
+    from svbrdf_train.data.stats import diffuse_saturation, slope_p90
+
+    m, _ = materials(0, range(64), 32)
+    steep, sat = slope_p90(m.pack()), diffuse_saturation(m.pack())
+    flat = float((steep < 0.03).float().mean())
+    assert 0.05 <= flat <= 0.5 and float((steep > 0.6).float().mean()) >= 0.05
+    assert float(torch.quantile(sat, 0.1)) < 0.15 and float(torch.quantile(sat, 0.9)) > 0.65
+    assert float(sat.max()) < 1  # boosted chroma eases off before a pure colour
+    # Even the most relieved family has nearly flat members, and strongly relieved ones.
+    rock, _ = materials(6, range(16), 32, family="rock")
+    rock_steep = slope_p90(rock.pack())
+    assert float(rock_steep.min()) < 0.05 and float(rock_steep.max()) > 0.6
+
+
 def _packed_maps(family: str):
     m, names = materials(6, range(12), 64, family=family)
     return m.pack(), names
