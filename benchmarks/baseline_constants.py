@@ -21,7 +21,7 @@ The constants are read off the very images they are scored on, which favours the
 
 Usage::
 
-    .venv/bin/python benchmarks/baseline_constants.py                       # ../shared/data/des18-dev, 128 px
+    .venv/bin/python benchmarks/baseline_constants.py                       # DATA/des18-dev, 128 px
     .venv/bin/python benchmarks/baseline_constants.py --data DIR --resolution 256
 """
 

@@ -27,7 +27,7 @@ with 95% bootstrap intervals and the paired difference against ``mean`` (``OUT/p
 
 Usage::
 
-    .venv/bin/python benchmarks/real_mix.py ../shared/data/des18-dev -o real-mix --jobs 2 --threads 1
+    .venv/bin/python benchmarks/real_mix.py DATA/des18-dev -o real-mix --jobs 2 --threads 1
     .venv/bin/python benchmarks/real_mix.py DIR --size smoke --minutes 0.1     # the pipeline, in a minute
     .venv/bin/python benchmarks/real_mix.py DIR --print                        # the commands only
     .venv/bin/python benchmarks/real_mix.py DIR -o real-mix --judge-only       # judge the fits in OUT/fits

@@ -10,7 +10,7 @@ normal re-normalisation, collation.
 Samples come from ``--source``:
 
 - ``des18`` (default): centre crops of the Des18 strips in ``--folder``
-  (``../shared/data/des18-dev``: 21 real samples, repeated to ``--count``);
+  (``DATA/des18-dev``: 21 real samples, repeated to ``--count``);
 - ``procedural``: ``ProceduralMaterials(count, resolution, seed=0)``.
 
 Timing: each read is the median of ``--repeats`` full passes after one warm-up pass

@@ -16,7 +16,8 @@ from torch.utils._python_dispatch import TorchDispatchMode
 from svbrdf_render import SVBRDF
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED_DATA = REPO.parent / "shared" / "data"
+#: The reference data (README, "Reference data"): $SVBRDF_DATA, else shared/data beside the checkout.
+SHARED_DATA = Path(os.environ.get("SVBRDF_DATA") or REPO.parent / "shared" / "data")
 
 # No test may write to the user's MLflow store (./mlflow.db by default): every run of the suite
 # gets a store of its own, in a temporary folder, before anything imports mlflow.
@@ -70,7 +71,7 @@ def material() -> SVBRDF:
 @pytest.fixture
 def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
-        pytest.skip(f"reference data not found at {SHARED_DATA} (it lives beside the repo)")
+        pytest.skip(f"reference data not found at {SHARED_DATA} (set SVBRDF_DATA to your copy)")
     return SHARED_DATA
 
 

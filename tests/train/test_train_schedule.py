@@ -111,6 +111,8 @@ def test_a_fit_on_a_few_samples_keeps_learning_across_its_budget(tmp_path):
         "epochs",
         **{"optim.decay_every_samples": None, "optim.decay_every_epochs": 1, "optim.decay": 0.1},
     )
-    assert abs(last - middle) < 0.01 * middle, (first, middle, last)
+    # Frozen: the last two thirds differ by the batches' own noise only (about 1%, which
+    # depends on the materials drawn), against a fall of more than 3% while learning.
+    assert abs(last - middle) < 0.02 * middle, (first, middle, last)
     warning = run.data.tags["svbrdf.warning"]
     assert "optim.decay_every_epochs=1" in warning and "of the budget of 60 steps" in warning

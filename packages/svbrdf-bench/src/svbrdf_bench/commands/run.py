@@ -16,8 +16,8 @@ Examples:
   svbrdf-bench run --models ours,no-attn                     # quick preset: < 10 min on 2 CPU cores
   svbrdf-bench run --models ours,no-attn,radn --preset standard --device cuda
   svbrdf-bench run --models no-adv --from-runs ours          # reuse the last finished run of ours
-  svbrdf-bench run --models ours,no-attn --test-data ../shared/data/des18-dev
-  svbrdf-bench run --models ours,no-attn --real-data ../shared/data/real-dev --real-pattern 'luo*'
+  svbrdf-bench run --models ours,no-attn --test-data DATA/des18-dev
+  svbrdf-bench run --models ours,no-attn --real-data DATA/real-dev --real-pattern 'luo*'
   svbrdf-bench run --models ours --no-baselines              # without the mean/photo baselines
   svbrdf-bench run --models ours --from-models fold0.pt --test-data DIR   # + fold0.pt, a reference row
   svbrdf-bench run --models pretrained --test-data DIR       # the model shipped with svbrdf-models

@@ -15,8 +15,8 @@ __all__ = ["COMMANDS", "compare"]
 
 _EPILOG = """\b
 Examples:
-  svbrdf-train data compare ../shared/data/des18-dev
-  svbrdf-train data compare ../shared/data/des18-dev -n 256 -r 128 -o compare.png --json compare.json
+  svbrdf-train data compare DATA/des18-dev
+  svbrdf-train data compare DATA/des18-dev -n 256 -r 128 -o compare.png --json compare.json
 
 \b
 REAL_FOLDER holds Des18 strips (input | normal | diffuse | roughness | specular), read as

@@ -35,7 +35,7 @@ The file appears under --out only when complete.
 
 EPILOG_IMPORT = """\b
 Examples:
-  svbrdf-train data import ../shared/data/des18-dev --out des18-dev.h5
+  svbrdf-train data import DATA/des18-dev --out des18-dev.h5
   svbrdf-train data import Deschaintre2018 --split test --out test.h5     # reads testBlended/
   svbrdf-train data import Deschaintre2018 --split train --full --out train-full.h5
 

@@ -5,7 +5,7 @@ Every data set returns the sample dict of :mod:`svbrdf_train.data.sample` (``inp
 
     from svbrdf_train.data import ProceduralMaterials, Des18Folder, PhotoFolder, ShardDataset
     train = ProceduralMaterials(count=10_000, resolution=256, seed=0)   # no download needed
-    test = Des18Folder("../shared/data/des18-dev", split="test")        # centre 256 crops
+    test = Des18Folder("DATA/des18-dev", split="test")        # centre 256 crops
     photos = PhotoFolder("my-photos/", encoding="srgb", size=256)       # no ground truth
     shards = ShardDataset(["train-0.h5", "train-1.h5"])                # written by `data make`
 

@@ -4,7 +4,7 @@ A Des18 strip is one PNG of five square tiles, ``input | normal | diffuse | roug
 specular`` (DESIGN.md, "Map conventions"); :func:`svbrdf_render.read_des18` decodes it.
 Two folder layouts are accepted:
 
-- a folder of strips, like ``../shared/data/des18-dev`` (``0000004;MatAXMatB;varAXvarB.png``);
+- a folder of strips, like ``DATA/des18-dev`` (``0000004;MatAXMatB;varAXvarB.png``);
 - the published layout, a folder holding ``trainBlended/`` and/or ``testBlended/``; ``split``
   picks the subfolder (passing the subfolder itself works too).
 
@@ -108,7 +108,7 @@ class Des18Folder(Dataset):
     linear photo in ``[0, 1]``, ``maps`` ``(10, crop, crop)``, ``name`` the file name.
 
     Example:
-        >>> data = Des18Folder("../shared/data/des18-dev", split="test", crop=256)
+        >>> data = Des18Folder("DATA/des18-dev", split="test", crop=256)
         >>> data[0]["maps"].shape
         torch.Size([10, 256, 256])
     """

@@ -48,7 +48,7 @@ class PhotoFolder(Dataset):
     :class:`~svbrdf_render.MapFileError` naming it.
 
     Example:
-        >>> phones = PhotoFolder("../shared/data/real-dev", encoding="srgb", pattern="luo2024_*", size=256)
+        >>> phones = PhotoFolder("DATA/real-dev", encoding="srgb", pattern="luo2024_*", size=256)
         >>> phones[0]["input"].shape
         torch.Size([3, 256, 256])
     """
