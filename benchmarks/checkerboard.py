@@ -11,6 +11,8 @@ there); the network's maps score 10-300.
 Usage::
 
     .venv/bin/python benchmarks/checkerboard.py DATA/real-dev --pattern 'deschaintre*' --linear
+    .venv/bin/python benchmarks/checkerboard.py DATA/real-dev --pattern 'deschaintre*' --linear \
+        --model other.pt --refine 0                     # another model's network maps only
 
 DATA/real-dev: real flash photos, 256 px (Deschaintre's linear, Luo's sRGB).
 """
@@ -47,9 +49,10 @@ def main() -> None:
     ap.add_argument("folder", type=Path)
     ap.add_argument("--pattern", default="*.png")
     ap.add_argument("--linear", action="store_true", help="the photos hold linear values")
-    ap.add_argument("--refine", type=int, default=DEFAULT_REFINE_STEPS)
+    ap.add_argument("--refine", type=int, default=DEFAULT_REFINE_STEPS, help="0: the network's maps only")
+    ap.add_argument("--model", default="pretrained", help="model source (default: the shipped model)")
     a = ap.parse_args()
-    model = sm.load_model("pretrained")
+    model = sm.load_model(a.model)
     period = 2 * 256 // model.resolution
     rows = []
     print(f"{'photo':<40} {'normal net':>10} {'refined':>8} {'diffuse net':>11} {'refined':>8}")
@@ -58,7 +61,7 @@ def main() -> None:
         if photo.shape[-1] != 256:
             photo = torch.nn.functional.interpolate(photo[None], size=(256, 256), mode="area")[0]
         net = model.predict(photo).resize(256)
-        refined = model.predict(photo, refine=a.refine)
+        refined = model.predict(photo, refine=a.refine) if a.refine else net
         row = [spike(getattr(m, name)[0], period) for name in ("normal", "diffuse") for m in (net, refined)]
         rows.append(row)
         print(f"{path.name[:40]:<40} {row[0]:10.1f} {row[1]:8.1f} {row[2]:11.1f} {row[3]:8.1f}", flush=True)

@@ -13,7 +13,7 @@ from test_train_fit_cli import _fit as _cli
 
 from conftest import des18_strips, run_cli
 from svbrdf_train.checkpoint import load_checkpoint
-from svbrdf_train.data import Des18Folder, ProceduralMaterials
+from svbrdf_train.data import Des18Folder, PhotoSettings, ProceduralMaterials
 from svbrdf_train.fitdata import Mixture, build_datasets
 from svbrdf_train.recipe import load_recipe
 from svbrdf_train.trainer import FitOptions, fit
@@ -233,3 +233,13 @@ def test_procedural_materials_are_a_plain_source_of_a_mix():
     mix = Mixture([proc], [2.0], count=6, seed=0)
     names = sorted(mix[k]["name"] for k in range(6))
     assert names == sorted(proc[k]["name"] for k in range(6))
+
+
+def test_the_general_recipe_trains_the_resize_generator_on_phone_photos(tmp_path):
+    recipe = load_recipe("ours-general", "smoke", {"data.count": 16})
+    train, val = build_datasets(recipe)
+    assert isinstance(train, ProceduralMaterials) and train.photo == PhotoSettings.preset("phone")
+    assert val.photo == PhotoSettings.preset("phone")
+    result = _smoke_fit(tmp_path, "general", "ours-general")
+    config = load_checkpoint(result.checkpoint)["recipe"]["generator"]["config"]
+    assert (config["upsample"], config["input_norm"], config["input_level"]) == ("resize", "median", True)
