@@ -25,6 +25,11 @@ one chosen on it. Judging: ``svbrdf-bench run --from-runs`` per fold (the full r
 strips together: per-image RMSE of each map and of the renderings, pooled over the two folds,
 with 95% bootstrap intervals and the paired difference against ``mean`` (``OUT/pooled.md``).
 
+These folds split *strips*, not materials: every Des18 strip blends two of the same four
+source materials, so the judging strips show materials each fit trained on, and the figures
+flatter the fits with real strips. ``benchmarks/generalisation.py`` judges by material folds
+(``svbrdf_train.data.materials``) and on materials no strip shows.
+
 Usage::
 
     .venv/bin/python benchmarks/real_mix.py DATA/des18-dev -o real-mix --jobs 2 --threads 1
