@@ -54,6 +54,7 @@ folder, an unknown variant, a fold spec that names no material, a missing fit wi
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import os
 import shlex
@@ -64,15 +65,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 
-def _refine_curve():
-    """benchmarks/refine_curve.py, whose ``score`` (RMSE of each map and of the renderings) and
-    ``MAPS`` (the columns) this benchmark shares."""
+def _sibling(name: str):
+    """Another script of benchmarks/ as a module: refine_curve (``score``, the RMSE of each map
+    and of the renderings, and ``MAPS``, the columns) and real_mix (its job runner)."""
     here = str(Path(__file__).resolve().parent)
     if here not in sys.path:
         sys.path.insert(0, here)
-    import refine_curve
-
-    return refine_curve
+    return importlib.import_module(name)
 
 PROG = "generalisation"
 #: The chain of changes, each variant one change on the one before it.
@@ -216,28 +215,13 @@ def say(message: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {message}", flush=True)
 
 
-def run_fits(fits: list[Fit], jobs: int, env: dict) -> list[str]:
-    """Run the fits, ``jobs`` at a time; the names of those that failed."""
-    queue, running, failed = list(fits), [], []
-    while queue or running:
-        while queue and len(running) < jobs:
-            fit = queue.pop(0)
-            log = open(Path(fit.args[fit.args.index("--out") + 1]).with_suffix(".log"), "w")  # noqa: SIM115
-            say(f"fit {fit.name}: svbrdf-train {shlex.join(fit.args[3:])}")
-            proc = subprocess.Popen(fit.args, env=env, stdout=log, stderr=log)
-            running.append((fit, proc, time.time(), log))
-        time.sleep(1)
-        for item in list(running):
-            fit, proc, start, log = item
-            if proc.poll() is None:
-                continue
-            running.remove(item)
-            log.close()
-            took = (time.time() - start) / 60
-            say(f"{fit.name} ended (exit {proc.returncode}, {took:.1f} min)")
-            if proc.returncode != 0:
-                failed.append(f"{fit.name} (exit {proc.returncode}; log {log.name})")
-    return failed
+def run_fits(fits: list[Fit], jobs: int, env: dict) -> None:
+    """Run the fits, ``jobs`` at a time (real_mix.py's job runner); a failed fit ends the
+    program (exit 1) naming its log."""
+    real_mix = _sibling("real_mix")
+    for fit in fits:
+        say(f"fit {fit.name}: svbrdf-train {shlex.join(fit.args[3:])}")
+    real_mix.run_jobs([real_mix.Job(f.name, f.args) for f in fits], lambda: None, jobs, env, prog=PROG)
 
 
 def export(fit: Fit, out: Path, env: dict) -> Path:
@@ -272,7 +256,7 @@ def score_tests(tests: list[TestSet], models: dict) -> None:
     from svbrdf_render import read_des18, refine_start
     from svbrdf_train.data.materials import per_material
 
-    score = _refine_curve().score
+    score = _sibling("refine_curve").score
     cache: dict[Path, list] = {}
     for test in tests:
         rows: dict[str, list] = {label: [] for label in test.models}
@@ -308,7 +292,7 @@ def comparisons(test: TestSet, fits: list[Fit]) -> list[tuple[str, str]]:
 def table(test: TestSet, fits: list[Fit]) -> str:
     from svbrdf_bench.metrics import bootstrap_ci, paired_difference
 
-    MAPS = _refine_curve().MAPS
+    MAPS = _sibling("refine_curve").MAPS
     first = next(iter(test.results.values()))
     materials = list(first.materials)
     one = test.one_set
@@ -455,10 +439,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     write_folds(args.des18, folds, args.out, env)
     if not args.skip_fit:
-        failed = run_fits(fits, args.jobs, env)
-        if failed:
-            print(f"{PROG}: error: fits failed: {'; '.join(failed)}", file=sys.stderr)
-            return 1
+        run_fits(fits, args.jobs, env)
 
     import svbrdf_models as sm
     import torch

@@ -153,7 +153,10 @@ def plan(args, folds: list[tuple[Path, Path]]) -> tuple[list[Job], Callable[[], 
     return [a, *first], copy
 
 
-def run_jobs(jobs: list[Job], copy: Callable[[], None], parallel: int, env: dict) -> None:
+def run_jobs(jobs: list[Job], copy: Callable[[], None], parallel: int, env: dict, prog: str = "real_mix") -> None:
+    """Run ``jobs``, ``parallel`` at a time, each logging to its ``--out`` folder's ``.log``;
+    a job's ``then`` start when it ends (after ``copy()``). A failed job ends the program
+    (exit 1, naming its log). ``benchmarks/generalisation.py`` runs its fits with it too."""
     queue = list(jobs)
     running: list[tuple[Job, subprocess.Popen, float, object]] = []
     while queue or running:
@@ -175,7 +178,7 @@ def run_jobs(jobs: list[Job], copy: Callable[[], None], parallel: int, env: dict
             took = (time.time() - start) / 60
             print(f"[{time.strftime('%H:%M:%S')}] {job.name} ended (exit {proc.returncode}, {took:.1f} min)")
             if proc.returncode != 0:
-                sys.exit(f"real_mix: error: fit {job.name} failed; its log: {log.name}")
+                sys.exit(f"{prog}: error: fit {job.name} failed; its log: {log.name}")
             if job.then:
                 copy()
                 queue = job.then + queue
