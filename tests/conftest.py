@@ -106,3 +106,55 @@ def run_cli(*args: str, cwd=None, env=None, timeout: float = 300) -> subprocess.
         text=True,
         timeout=timeout,
     )
+
+
+# -- the validators and the browser that the README's set-up installs ------------------------------
+
+#: The repository's glTF validator (tools/gltf-validate: the Khronos validator under Node.js).
+GLTF_VALIDATOR = REPO / "tools" / "gltf-validate"
+CHROMIUM = Path("/usr/bin/chromium")
+
+
+def missing_tool(reason: str):
+    """Skip a test that needs a tool the set-up installs, or fail it when CI is set: a CI run
+    that skipped it would prove nothing."""
+    if os.environ.get("CI"):
+        pytest.fail(f"{reason} (CI is set: the set-up must install it)")
+    pytest.skip(reason)
+
+
+def validate_gltf(path: Path) -> dict:
+    """The Khronos glTF validator's report on ``path``: ``{"issues": ..., "info": ...,
+    "returncode": ...}`` (see tools/gltf-validate/validate.mjs)."""
+    import json
+    import shutil
+
+    node = shutil.which("node")
+    if node is None:
+        missing_tool("node is not installed: the glTF validator runs under Node.js")
+    if not (GLTF_VALIDATOR / "node_modules" / "gltf-validator").is_dir():
+        missing_tool(f"the glTF validator is not installed: run `npm ci` in {GLTF_VALIDATOR}")
+    r = subprocess.run(
+        [node, str(GLTF_VALIDATOR / "validate.mjs"), str(path)], capture_output=True, text=True, timeout=120
+    )
+    if r.returncode not in (0, 1):  # 2: it could not validate the file at all
+        pytest.fail(f"the glTF validator failed on {path}: {r.stderr.strip()}")
+    (report,) = json.loads(r.stdout)
+    report["returncode"] = r.returncode
+    return report
+
+
+def require_materialx():
+    """The MaterialX module (see :func:`missing_tool`)."""
+    try:
+        import MaterialX
+    except ImportError:
+        missing_tool("the materialx package is not installed: pip install materialx")
+    return MaterialX
+
+
+def require_chromium() -> Path:
+    """Debian's Chromium (see :func:`missing_tool`)."""
+    if not CHROMIUM.is_file():
+        missing_tool(f"{CHROMIUM} not found: install it with apt-get install -y chromium")
+    return CHROMIUM

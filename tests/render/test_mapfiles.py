@@ -179,3 +179,64 @@ def test_write_image_is_atomic_and_clamps(tmp_path):
         arr = np.asarray(im)
     assert arr[0, :, 0].tolist() == [0, 128, 255]
     assert [q.name for q in p.parent.iterdir()] == ["x.png"]  # no temporary left behind
+
+
+# -- encodings inside the file and OpenEXR ---------------------------------------------------------
+
+
+@pytest.mark.parametrize("bits", [8, 16])
+@pytest.mark.parametrize("encoding", ["srgb", "linear"])
+def test_png_says_its_encoding_and_keeps_its_values(tmp_path, bits, encoding):
+    from svbrdf_render import read_png_encoding
+
+    x = torch.rand(3, 6, 5)
+    plain = write_image(tmp_path / "plain.png", x, bits=bits)
+    tagged = write_image(tmp_path / "tagged.png", x, bits=bits, encoding=encoding, note="a test")
+    assert read_png_encoding(plain) is None
+    assert read_png_encoding(tagged) == encoding
+    assert torch.equal(read_image(tagged), read_image(plain))  # the tag changes no value
+    with Image.open(tagged) as im:  # still a valid PNG for Pillow, with the gamma it declares
+        im.load()
+        assert im.info["gamma"] == pytest.approx(1 / 2.2 if encoding == "srgb" else 1.0, abs=1e-4)
+        assert im.info["Comment"] == "a test"
+    if bits == 16:  # pypng checks every chunk's CRC
+        with open(tagged, "rb") as f:
+            chunks = [kind for kind, _ in png.Reader(file=f).chunks()]
+        assert chunks[0] == b"IHDR" and chunks.index(b"cICP") < chunks.index(b"IDAT")
+
+
+def test_grey_png_tag_and_bad_encoding(tmp_path):
+    from svbrdf_render import read_png_encoding
+
+    path = write_image(tmp_path / "r.png", torch.rand(1, 4, 4), encoding="linear")
+    assert read_png_encoding(path) == "linear"
+    assert read_image(path, channels=1).shape == (1, 4, 4)
+    with pytest.raises(ValueError, match="encoding"):
+        write_image(tmp_path / "x.png", torch.rand(3, 4, 4), encoding="rec2020")
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_map_folder_auto_reads_the_albedo_tag(tmp_path):
+    from svbrdf_render import linear_to_srgb
+
+    m = random_svbrdf(1, 8, seed=3)
+    write_map_folder(tmp_path, m)
+    write_image(tmp_path / "diffuse.png", linear_to_srgb(m.diffuse[0]), encoding="srgb")
+    back = read_map_folder(tmp_path)  # auto: diffuse decoded from sRGB, specular (untagged) as stored
+    assert float((back.diffuse - m.diffuse).abs().max()) < 0.02
+    assert float((back.specular - m.specular).abs().max()) <= 1 / 255 + 1e-6
+    as_stored = read_map_folder(tmp_path, albedo_encoding="linear")
+    assert float((as_stored.diffuse - m.diffuse).abs().max()) > 0.05
+
+
+def test_exr_round_trip(tmp_path):
+    exr = pytest.importorskip("OpenEXR")
+    from svbrdf_render import write_exr
+
+    x = torch.rand(3, 5, 7) * 4  # linear values above 1 are kept
+    path = write_exr(tmp_path / "x.exr", x)
+    pixels = exr.File(str(path)).channels()["RGB"].pixels
+    assert pixels.shape == (5, 7, 3) and pixels.dtype == np.float16
+    assert np.allclose(pixels.astype(np.float32), x.permute(1, 2, 0).numpy(), rtol=1e-3)
+    grey = write_exr(tmp_path / "g.exr", torch.rand(1, 4, 4), half=False)
+    assert exr.File(str(grey)).channels()["Y"].pixels.dtype == np.float32

@@ -5,6 +5,7 @@ Public API (everything importable from here)::
     from svbrdf_render import SVBRDF, Scene, Camera, PointLight, Flash, render
     from svbrdf_render import training_scene, evaluation_scene, fit_flash, refine_maps
     from svbrdf_render import read_des18, write_des18, read_map_folder, write_map_folder
+    from svbrdf_render import MetalRough, to_metal_rough, from_metal_rough, roundtrip_error
 
 The core needs torch and numpy only; reading and writing image and YAML files needs the
 ``io`` extra (``pip install 'svbrdf-render[io]'``).
@@ -20,12 +21,16 @@ from .mapfiles import (
     read_des18,
     read_image,
     read_map_folder,
+    read_png_encoding,
     srgb_to_linear,
     write_des18,
+    write_exr,
     write_image,
     write_map_folder,
 )
 from .maps import MAP_NAMES, SVBRDF
+from .materialfiles import validate_materialx, write_gltf, write_materialx
+from .metalrough import MetalRough, from_metal_rough, roundtrip_error, to_metal_rough
 from .reference import render_reference
 from .refine import (
     DEFAULT_REFINE_STEPS,
@@ -38,6 +43,8 @@ from .refine import (
 from .renderer import BACKENDS, build_plan, log_radiance, render
 from .sampling import EVAL_CONFIGS, EVAL_SEED, evaluation_scene, training_scene
 from .scene import DES18_DISTANCE, Camera, Flash, PointLight, Scene
+from .tiling import MIN_TILEABLE_SIDE, make_tileable, make_tileable_map, seam_error
+from .viewer import VIEWER_INTENSITY, viewer_scene, write_viewer
 
 #: The package's version, its one source: pyproject.toml reads it (setuptools dynamic version).
 __version__ = "0.1.0"
@@ -63,6 +70,8 @@ __all__ = [
     "FlashFit",
     "MapError",
     "MapFileError",
+    "MetalRough",
+    "MIN_TILEABLE_SIDE",
     "PointLight",
     "SVBRDFError",
     "Scene",
@@ -71,6 +80,7 @@ __all__ = [
     "build_plan",
     "evaluation_scene",
     "fit_flash",
+    "from_metal_rough",
     "log_radiance",
     "read_des18",
     "read_image",
@@ -78,12 +88,25 @@ __all__ = [
     "render",
     "render_reference",
     "resolve_effects",
+    "roundtrip_error",
     "safe_normalize",
     "srgb_to_linear",
     "linear_to_srgb",
     "surface_positions",
+    "to_metal_rough",
     "training_scene",
     "write_des18",
     "write_image",
+    "write_exr",
+    "read_png_encoding",
     "write_map_folder",
+    "write_gltf",
+    "write_materialx",
+    "validate_materialx",
+    "make_tileable",
+    "make_tileable_map",
+    "seam_error",
+    "VIEWER_INTENSITY",
+    "viewer_scene",
+    "write_viewer",
 ]

@@ -8,6 +8,15 @@ Needs the ``io`` extra (Pillow, pypng). Formats:
 - **Map folder**: ``normal.png``, ``diffuse.png``, ``roughness.png``, ``specular.png``
   (``.jpg`` accepted when reading), same size, 8- or 16-bit.
 
+Encodings inside the file: :func:`write_image` with ``encoding="srgb"`` or ``"linear"`` says
+how the stored values are encoded in the PNG's colour chunks, so that viewers and texture
+tools need not guess: ``cICP`` (primaries BT.709, transfer sRGB = 13 or linear = 8, full
+range), with ``sRGB`` + ``gAMA`` 1/2.2 for sRGB and ``gAMA`` 1.0 for linear as the fallback
+older decoders read. A ``tEXt`` ``Comment`` chunk can say what the image holds (a normal
+map's convention, say). :func:`read_png_encoding` reads the tag back. OpenEXR files
+(:func:`write_exr`, the ``exr`` extra: the Academy Software Foundation's ``OpenEXR``
+bindings) are linear by definition.
+
 Handling of unusual files: 16-bit PNGs are read at full precision; an alpha channel
 that is fully opaque is dropped; palette images are expanded; a grey image is accepted
 where one channel is enough (roughness) or replicated for albedos, and refused for
@@ -18,6 +27,7 @@ count, non-square tiles, translucent alpha) is a :class:`MapFileError` naming th
 from __future__ import annotations
 
 import struct
+import zlib
 from pathlib import Path
 from typing import NamedTuple
 
@@ -35,6 +45,9 @@ __all__ = [
     "Des18Sample",
     "read_image",
     "write_image",
+    "write_exr",
+    "read_png_encoding",
+    "ENCODINGS",
     "read_des18",
     "write_des18",
     "read_map_folder",
@@ -45,6 +58,17 @@ __all__ = [
 
 _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 _MAP_EXTENSIONS = (".png", ".jpg", ".jpeg")
+
+#: How an image's stored values are encoded (the ``encoding`` of :func:`write_image`).
+ENCODINGS = ("srgb", "linear")
+
+# cICP: colour primaries 1 (BT.709, sRGB's), transfer 13 (sRGB) or 8 (linear), matrix 0 (RGB),
+# full range. gAMA holds 100000 x the encoding exponent: 1/2.2 for sRGB (the value the PNG
+# specification pairs with an sRGB chunk), 1.0 for linear.
+_COLOUR_CHUNKS = {
+    "srgb": ((b"cICP", bytes([1, 13, 0, 1])), (b"sRGB", b"\x00"), (b"gAMA", struct.pack(">I", 45455))),
+    "linear": ((b"cICP", bytes([1, 8, 0, 1])), (b"gAMA", struct.pack(">I", 100000))),
+}
 
 
 def _pil():
@@ -154,16 +178,63 @@ def read_image(path, *, channels: int | None = 3) -> Tensor:
     return t
 
 
-def write_image(path, image: Tensor, *, bits: int = 8) -> Path:
+def _png_chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+
+def _tag_png(data: bytes, encoding: str | None, note: str | None) -> bytes:
+    """``data`` (a PNG file) with the colour chunks of ``encoding`` and a ``tEXt Comment``
+    holding ``note`` inserted right after IHDR (before any PLTE or IDAT, where they must be)."""
+    chunks = list(_COLOUR_CHUNKS[encoding]) if encoding else []
+    if note:
+        chunks.append((b"tEXt", b"Comment\x00" + note.encode("latin-1", "replace")))
+    end_of_ihdr = len(_PNG_MAGIC) + 8 + 13 + 4
+    extra = b"".join(_png_chunk(kind, body) for kind, body in chunks)
+    return data[:end_of_ihdr] + extra + data[end_of_ihdr:]
+
+
+def read_png_encoding(path) -> str | None:
+    """``"srgb"`` or ``"linear"`` as a PNG's colour chunks say (cICP first, then sRGB, then a
+    gAMA of 1/2.2 or 1.0), or None when it says neither (or is not a PNG)."""
+    with open(path, "rb") as f:
+        data = f.read()
+    if not data.startswith(_PNG_MAGIC):
+        return None
+    found: dict[bytes, bytes] = {}
+    at = len(_PNG_MAGIC)
+    while at + 8 <= len(data):
+        (length,) = struct.unpack(">I", data[at : at + 4])
+        kind = data[at + 4 : at + 8]
+        if kind in (b"IDAT", b"IEND"):
+            break
+        found.setdefault(kind, data[at + 8 : at + 8 + length])
+        at += 12 + length
+    if len(found.get(b"cICP", b"")) == 4:
+        return {13: "srgb", 8: "linear"}.get(found[b"cICP"][1])
+    if b"sRGB" in found:
+        return "srgb"
+    if len(found.get(b"gAMA", b"")) == 4:
+        gamma = struct.unpack(">I", found[b"gAMA"])[0]
+        return {45455: "srgb", 100000: "linear"}.get(gamma)
+    return None
+
+
+def write_image(
+    path, image: Tensor, *, bits: int = 8, encoding: str | None = None, note: str | None = None
+) -> Path:
     """Write ``(C, H, W)`` or ``(H, W)`` values in ``[0, 1]`` (clamped) as an 8/16-bit PNG.
 
-    The parent folder is created; the file is written through
-    :func:`~svbrdf_render.files.atomic_output`, so a failure leaves no half-written image
-    and raises an :class:`~svbrdf_render.errors.OutputError` naming ``path``.
+    ``encoding`` (``"srgb"`` or ``"linear"``) says how the values given are encoded and is
+    written into the file's colour chunks (see the module); the values are stored as given.
+    ``note`` goes into a ``tEXt Comment`` chunk. The parent folder is created; the file is
+    written through :func:`~svbrdf_render.files.atomic_output`, so a failure leaves no
+    half-written image and raises an :class:`~svbrdf_render.errors.OutputError` naming ``path``.
     """
     path = Path(path)
     if bits not in (8, 16):
         raise ValueError(f"write_image: bits must be 8 or 16, got {bits}")
+    if encoding is not None and encoding not in ENCODINGS:
+        raise ValueError(f"write_image: encoding must be one of {ENCODINGS} or None, got {encoding!r}")
     t = image.detach().float().cpu()
     if t.dim() == 2:
         t = t.unsqueeze(0)
@@ -182,6 +253,30 @@ def write_image(path, image: Tensor, *, bits: int = 8) -> Path:
             Image = _pil()
             q = np.round(arr * 255).astype(np.uint8)
             Image.fromarray(q[..., 0] if q.shape[2] == 1 else q).save(tmp, format="PNG")
+        if encoding or note:
+            tmp.write_bytes(_tag_png(tmp.read_bytes(), encoding, note))
+    return path
+
+
+def write_exr(path, image: Tensor, *, half: bool = True) -> Path:
+    """Write ``(C, H, W)`` or ``(H, W)`` linear values as an OpenEXR file (ZIP-compressed,
+    half floats unless ``half=False``; channels ``Y`` or ``R, G, B``), atomically.
+
+    Needs the ``exr`` extra (the ``OpenEXR`` package). Values are not clamped; NaN becomes 0.
+    """
+    exr = require("OpenEXR", "OpenEXR", "writing OpenEXR files", extra="exr")
+    path = Path(path)
+    t = image.detach().float().cpu()
+    if t.dim() == 2:
+        t = t.unsqueeze(0)
+    if t.dim() != 3 or t.shape[0] not in (1, 3):
+        raise ValueError(f"write_exr: expected (1|3, H, W) or (H, W), got {tuple(image.shape)}")
+    # C order: the bindings read the buffer as laid out row by row, whatever numpy's strides say
+    arr = np.ascontiguousarray(t.nan_to_num(0.0).permute(1, 2, 0).numpy(), np.float16 if half else np.float32)
+    channels = {"Y": np.ascontiguousarray(arr[..., 0])} if arr.shape[2] == 1 else {"RGB": arr}
+    header = {"compression": exr.ZIP_COMPRESSION, "type": exr.scanlineimage}
+    with atomic_output(path) as tmp:
+        exr.File(header, channels).write(str(tmp))
     return path
 
 
@@ -269,17 +364,19 @@ def _find_map(folder: Path, name: str) -> Path | None:
     return None
 
 
-def read_map_folder(folder, *, albedo_encoding: str = "linear") -> SVBRDF:
+def read_map_folder(folder, *, albedo_encoding: str = "auto") -> SVBRDF:
     """Read ``normal``, ``diffuse``, ``roughness``, ``specular`` images from a folder.
 
     ``albedo_encoding="srgb"`` decodes diffuse and specular from sRGB (most texture
-    tools save albedos that way); the default takes them as stored, like Des18.
+    tools save albedos that way); ``"linear"`` takes them as stored, like Des18; ``"auto"``
+    (default) does what each PNG's colour chunks say (:func:`read_png_encoding`) and takes
+    an untagged file as stored.
     """
     folder = Path(folder)
     if not folder.is_dir():
         raise MapFileError(folder, "is not a folder of maps")
-    if albedo_encoding not in ("linear", "srgb"):
-        raise ValueError(f"albedo_encoding must be 'linear' or 'srgb', got {albedo_encoding!r}")
+    if albedo_encoding not in ("auto", *ENCODINGS):
+        raise ValueError(f"albedo_encoding must be 'auto', 'linear' or 'srgb', got {albedo_encoding!r}")
     paths = {name: _find_map(folder, name) for name in MAP_NAMES}
     missing = [n for n, p in paths.items() if p is None]
     if missing:
@@ -306,9 +403,12 @@ def read_map_folder(folder, *, albedo_encoding: str = "linear") -> SVBRDF:
                 f"is {t.shape[2]}x{t.shape[1]}, the normal map {size[1]}x{size[0]}",
                 "all four maps must have the same size",
             )
-    if albedo_encoding == "srgb":
-        maps["diffuse"] = srgb_to_linear(maps["diffuse"])
-        maps["specular"] = srgb_to_linear(maps["specular"])
+    for name in ("diffuse", "specular"):
+        encoding = albedo_encoding
+        if encoding == "auto":
+            encoding = read_png_encoding(paths[name]) or "linear"
+        if encoding == "srgb":
+            maps[name] = srgb_to_linear(maps[name])
     return SVBRDF(
         _decode_normal(maps["normal"].unsqueeze(0)),
         maps["diffuse"].unsqueeze(0),
