@@ -36,6 +36,9 @@ from svbrdf_render.examples import example_material
 from svbrdf_render.mapfiles import linear_to_srgb
 
 MAPS = ("normal", "diffuse", "roughness", "specular")
+#: The material folder's files besides the four maps and the figures (svbrdf_models.material).
+MATERIAL = {"basecolor.png", "metallic.png", "metallic_roughness.png", "material.json", "material.gltf",
+            "material.mtlx", "index.html"}  # fmt: skip
 SCENE = Scene.flash(intensity=12.0)
 
 
@@ -138,7 +141,8 @@ def test_command_refines_and_shows_both_versions(tmp_path, photo_file, model, ca
     assert "using the model shipped with svbrdf-models" in got.err and model.describe() in got.err
     assert got.out.split() == [str(out / "tiles")]
     folder = out / "tiles"
-    assert {p.name for p in folder.iterdir()} == {f"{n}.png" for n in (*MAPS, "input", "rerender", "relit")}
+    figures = {f"{n}.png" for n in (*MAPS, "input", "rerender", "relit")}
+    assert {p.name for p in folder.iterdir()} == figures | MATERIAL
     assert read_image(folder / "normal.png").shape == (3, 72, 72)
     assert read_image(folder / "input.png").shape == (3, 72, 72)
     figure = read_image(folder / "rerender.png")
@@ -162,8 +166,8 @@ def test_command_writes_the_refined_maps(tmp_path, photo_file):
     assert _run(photo_file, "-o", out, "--refine", 3, "--relit", "none")[0] == 0
     photo, _ = capture.load_photo(photo_file)
     want = sm.load_model("pretrained").predict(photo, 3)
-    stored = read_image(out / "tiles" / "diffuse.png")
-    assert float((stored - want.diffuse[0]).abs().max()) <= 1 / 255 + 1e-6
+    stored = read_image(out / "tiles" / "diffuse.png")  # sRGB-encoded by default
+    assert float((stored - linear_to_srgb(want.diffuse[0])).abs().max()) <= 1 / 255 + 1e-6
 
 
 def test_command_refine_zero_is_the_network_figure(tmp_path, photo_file, model, capsys):
@@ -248,7 +252,7 @@ def test_command_interrupted_during_refinement_writes_nothing_of_that_photo(
     assert code == 130
     assert f"svbrdf-models: interrupted: {second} not written" in got.err and "Traceback" not in got.err
     assert sorted(p.name for p in out.iterdir()) == ["tiles"]
-    assert len(list((out / "tiles").iterdir())) == 6
+    assert len(list((out / "tiles").iterdir())) == 6 + len(MATERIAL)
 
 
 def test_progress_bar_draws_on_a_terminal_only():

@@ -39,7 +39,10 @@ from svbrdf_train.capture import (
 from svbrdf_train.cli import cli
 from svbrdf_train.errors import DataError
 
-OUTPUTS = ("normal", "diffuse", "roughness", "specular", "input", "rerender")
+OUTPUTS = ("normal", "diffuse", "roughness", "specular", "input", "rerender", "basecolor", "metallic",
+           "metallic_roughness")  # fmt: skip
+#: The material folder's files that are not PNG images.
+RECORDS = {"material.json", "material.gltf", "material.mtlx", "index.html"}
 
 
 # -- photos made here ----------------------------------------------------------------------------
@@ -378,7 +381,7 @@ def test_capture_one_notes_an_upsampled_square_and_writes_everything(tmp_path):
     assert entry["status"] == "ok" and entry["square"] == MIN_SIDE and entry["maps"] == 80
     assert any("upsampled" in n for n in entry["notes"])
     assert entry["rmse"] is not None and 0 <= entry["rmse"] < 1
-    assert {p.name for p in (tmp_path / "out").iterdir()} == {f"{n}.png" for n in OUTPUTS}
+    assert {p.name for p in (tmp_path / "out").iterdir()} == {f"{n}.png" for n in OUTPUTS} | RECORDS
 
 
 # -- the command ------------------------------------------------------------------------------------
@@ -426,7 +429,7 @@ def test_command_captures_the_good_photos_and_reports_the_bad(batch):
     assert result.stdout.split() == [str(f) for f in folders]
     for folder in folders:
         names = {p.name for p in folder.iterdir()}
-        assert names == {f"{n}.png" for n in OUTPUTS} | {"relit.gif"}
+        assert names == {f"{n}.png" for n in OUTPUTS} | {"relit.gif"} | RECORDS
         assert read_image(folder / "normal.png").shape == (3, 32, 32)
         assert read_image(folder / "input.png").shape == (3, 32, 32)
         with Image.open(folder / "relit.gif") as gif:
@@ -479,19 +482,24 @@ def test_command_tiles_directx_16_bit_and_relit_grid(tmp_path, checkpoint):
 
 
 def test_command_albedos_in_srgb_for_texture_tools(tmp_path, checkpoint):
-    """--albedo-encoding srgb writes diffuse and specular sRGB-encoded: the linear run's values
-    through the sRGB curve; the other maps are unchanged."""
+    """Diffuse and specular are written sRGB-encoded by default (as texture tools expect), and
+    linear with --albedo-encoding linear: the sRGB run's values are the linear run's through the
+    sRGB curve, and each file's colour chunks say which; the other maps are unchanged."""
+    from svbrdf_render import read_png_encoding
+
     _, photo = _flash_photo(64)
     path = write_image(tmp_path / "shot.png", linear_to_srgb(photo[0]))
     common = [path, "--checkpoint", checkpoint, "--relit", "none", "--bits", "16"]
-    lin = _invoke(*common, "-o", tmp_path / "lin")
-    srgb = _invoke(*common, "-o", tmp_path / "srgb", "--albedo-encoding", "srgb")
+    lin = _invoke(*common, "-o", tmp_path / "lin", "--albedo-encoding", "linear")
+    srgb = _invoke(*common, "-o", tmp_path / "srgb")
     assert lin.exit_code == 0 and srgb.exit_code == 0, lin.stderr + srgb.stderr
     for name in ("diffuse", "specular"):
         a = read_image(tmp_path / "lin" / "shot" / f"{name}.png")
         b = read_image(tmp_path / "srgb" / "shot" / f"{name}.png")
         assert float((b - linear_to_srgb(a)).abs().max()) < 2e-3, name  # 16-bit steps, curve slope
         assert not torch.equal(a, b)
+        assert read_png_encoding(tmp_path / "lin" / "shot" / f"{name}.png") == "linear"
+        assert read_png_encoding(tmp_path / "srgb" / "shot" / f"{name}.png") == "srgb"
     for name in ("normal", "roughness"):
         assert torch.equal(
             read_image(tmp_path / "lin" / "shot" / f"{name}.png"),

@@ -23,7 +23,8 @@ from svbrdf_train.predict import Predictor
 
 MAPS = ("normal", "diffuse", "roughness", "specular")
 #: What capture writes besides the maps (see test_train_capture.py for their content).
-FIGURES = ("input.png", "rerender.png", "relit.gif")
+FIGURES = ("input.png", "rerender.png", "relit.gif", "basecolor.png", "metallic.png", "metallic_roughness.png",
+           "material.json", "material.gltf", "material.mtlx", "index.html")  # fmt: skip
 EIGHT_BIT = 1 / 255 + 1e-6
 
 
@@ -81,12 +82,13 @@ def _read_maps(folder):
 
 
 def _encoded(svbrdf):
-    """What ``predict`` should store for an in-process prediction (batch of one)."""
+    """What ``predict`` should store for an in-process prediction (batch of one): albedos
+    sRGB-encoded (the default for texture tools)."""
     return {
         "normal": ((F.normalize(svbrdf.normal, dim=1) + 1) / 2)[0],
-        "diffuse": svbrdf.diffuse[0],
+        "diffuse": linear_to_srgb(svbrdf.diffuse[0]),
         "roughness": svbrdf.roughness[0],
-        "specular": svbrdf.specular[0],
+        "specular": linear_to_srgb(svbrdf.specular[0]),
     }
 
 

@@ -28,6 +28,7 @@ __all__ = [
     "HELP_SECTIONS",
     "ProgressBar",
     "capture_batch",
+    "check_material_folders",
     "folder_name",
     "help_text",
     "load_scene",
@@ -56,19 +57,29 @@ ones. A progress bar is drawn on stderr when it is a terminal (nothing when it i
 Squares or --map-size under {min_refine} px are refused. --backend auto (default) refines
 photos from 512x512 up with the compiled renderer (it compiles first, seconds, and is then
 about 30% faster per step there) and smaller ones eagerly.""",
-    """Each photo gets a folder DIR/NAME/:
-  normal.png      tangent-space normal, stored (n+1)/2 (OpenGL y up; --normal-convention directx)
-  diffuse.png     albedo, linear as Des18 stores it (--albedo-encoding srgb for texture tools)
-  roughness.png   grey, alpha = roughness^2
-  specular.png    albedo, encoded like diffuse.png
+    """Each photo gets a material folder DIR/NAME/, every image tagged with its encoding
+(PNG cICP/sRGB/gAMA chunks) and listed in material.json:
+  basecolor.png   metal/rough base colour, sRGB      metallic.png   metalness, linear
+  roughness.png   linear; GGX alpha = roughness^2     metallic_roughness.png  glTF packing
+  normal.png      tangent space, (n+1)/2, OpenGL y up (--normal dx: DirectX, green flipped;
+                  then normal_opengl.png too, for the material files)
+  diffuse.png     the project's diffuse albedo, sRGB (--linear or --albedo-encoding linear:
+  specular.png    as Des18 stores them); specular albedo (F0), encoded like diffuse.png
+  *.exr           with --exr: the maps as linear half floats
+  material.json   maps, encodings, normal convention, units, BRDF, model, refinement, photo
+  material.gltf   glTF 2.0 textured plane (metal/rough), for Blender, game engines, the web
+  material.mtlx   MaterialX document of the same material
+  index.html      viewer: the material under a light that follows the mouse (no network)
   input.png       the square the maps are of (sRGB)
   rerender.png    photo | re-rendering under the fitted flash | |error| heat map; refined:
                   photo | network's | refined re-rendering | both heat maps, one flash
   relit.gif       a point light circling the material (--relit png: a grid, refined: a row
                   per version; none: skipped)
-and DIR/summary.json holds, per photo, the status, notes, the re-rendering RMSE against the
-photo (linear) of the maps written and the flash, with refinement the budget, steps, seconds
-and the RMSE of the network's and the refined maps; and the median RMSE over the photos.""",
+--tileable makes opposite edges match (material.json: seam error before and after). A
+folder that holds another photo's material is refused before any work; the same photo's
+is replaced. DIR/summary.json holds, per photo, the status, notes, the re-rendering RMSE
+against the photo (linear) of the maps written and the flash, with refinement the budget,
+steps, seconds and the RMSE of the network's and the refined maps; and the median RMSE.""",
     """Refused photos (each reported on its own line, the others still done): missing, folders,
 not an image, neither JPEG nor PNG, under {min_side} px on the short side, over {megapixels} megapixels,
 grey, translucent alpha, a crop that does not fit. Processed with a note: EXIF rotation,
@@ -176,6 +187,19 @@ def folder_name(path: Path, used: set[str]) -> str:
         k += 1
         name = f"{path.stem}-{k}"
     return name
+
+
+def check_material_folders(photos, out: Path) -> None:
+    """Before any work: refuse (:class:`DataError`) when the folder a photo would be captured
+    into holds another material (:func:`svbrdf_models.material.check_material_folder`)."""
+    from .material import check_material_folder
+
+    used: set[str] = set()
+    for path in map(Path, photos):
+        if path.is_file():
+            name = folder_name(path, used)
+            used.add(name)
+            check_material_folder(Path(out) / name, path)
 
 
 def capture_batch(predictor, photos, out: Path, options, *, prog: str, summary: dict) -> int:

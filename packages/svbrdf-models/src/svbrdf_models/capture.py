@@ -26,6 +26,7 @@ resolution (upsampled).
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
 import struct
@@ -41,6 +42,7 @@ from torch import Tensor
 from svbrdf_render import (
     DES18_DISTANCE,
     DES18_EFFECTS,
+    MAP_NAMES,
     MIN_REFINE_SIDE,
     SVBRDF,
     Camera,
@@ -55,13 +57,12 @@ from svbrdf_render import (
     render,
     safe_normalize,
     srgb_to_linear,
-    write_image,
-    write_map_folder,
 )
-from svbrdf_render.files import atomic_output, write_text
+from svbrdf_render.files import write_text
 
 from .errors import DataError
 from .figures import HEAT_MAX, error_heatmap, image_grid
+from .material import to_directx
 from .modelfile import square_photo
 from .photos import exif_orientation, orient
 from .refining import BACKEND, check_refine, pick_backend, refine_prediction, rerender, rerender_rmse
@@ -73,6 +74,8 @@ __all__ = [
     "HEAT_MAX",
     "MAX_PIXELS",
     "MIN_SIDE",
+    "MIN_TILEABLE_PHOTO",
+    "NORMAL_ALIASES",
     "NORMAL_CONVENTIONS",
     "PhotoError",
     "RELIT_FORMATS",
@@ -99,6 +102,13 @@ PHOTO_FORMATS = ("JPEG", "MPO", "PNG")
 CLIPPED_SHARE = 0.02
 #: ``--normal-convention`` values: OpenGL (y up, the project's own) or DirectX (y down).
 NORMAL_CONVENTIONS = ("opengl", "directx")
+#: The smallest square (photo pixels) ``--tileable`` takes: the blend bands of
+#: :func:`svbrdf_render.make_tileable` cover a quarter of the side at each border, and the part
+#: they leave as it was must itself hold MIN_TILEABLE_SIDE (64) pixels of real detail.
+MIN_TILEABLE_PHOTO = 128
+
+#: Short names of the normal conventions.
+NORMAL_ALIASES = {"gl": "opengl", "dx": "directx"}
 #: ``--relit`` values: an animated GIF, a PNG grid of the frames, or no preview.
 RELIT_FORMATS = ("gif", "png", "none")
 #: How diffuse.png and specular.png store the albedos: linear (Des18) or sRGB (texture tools).
@@ -344,14 +354,6 @@ def tile_count(size: int, tile: int, overlap: float = 0.5) -> int:
     return len(_positions(size, tile, max(1, round(tile * (1 - overlap))))) ** 2
 
 
-def to_directx(normal: Tensor) -> Tensor:
-    """OpenGL (y up, the project's convention) normals ``(B, 3, H, W)`` to DirectX (y down): y negated.
-
-    Its own inverse. Stored as ``(n + 1) / 2``, this is the green channel ``g -> 1 - g``.
-    """
-    return normal * normal.new_tensor([1.0, -1.0, 1.0]).view(1, 3, 1, 1)
-
-
 # -- judging and showing -------------------------------------------------------------------------
 
 
@@ -412,16 +414,6 @@ def _relit_versions(versions: list[SVBRDF]) -> Tensor:
     return _expose(torch.stack(raw))
 
 
-def _write_gif(path: Path, frames: Tensor, ms: int = 80) -> Path:
-    from PIL import Image
-
-    pixels = (linear_to_srgb(frames) * 255).round().byte().permute(0, 2, 3, 1).numpy()
-    images = [Image.fromarray(p) for p in pixels]
-    with atomic_output(path) as tmp:
-        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=ms, loop=0)
-    return path
-
-
 def _relit_grid(frames: Tensor, names: list[str] | None = None, cols: int = 6) -> Tensor:
     """The relit frames ``(V, n, 3, H, W)`` as a grid: rows of ``cols`` frames; with several
     versions (``names``), one row per version for each group of angles."""
@@ -460,10 +452,14 @@ class CaptureOptions:
         tiles: predict at high resolution from overlapping tiles of the model's resolution.
         map_size: with ``tiles`` or ``refine``, the side of the maps (default: the square's own).
         bits: 8 or 16, the maps' and input.png's PNG depth.
-        normal_convention: ``"opengl"`` or ``"directx"`` (green channel flipped).
+        normal_convention: ``"opengl"`` or ``"directx"`` (green channel flipped); ``"gl"`` and
+            ``"dx"`` are read as those.
         relit: ``"gif"``, ``"png"`` or ``"none"``.
-        albedo_encoding: ``"linear"`` (Des18's convention) or ``"srgb"`` (what base-colour
-            inputs of texture tools such as Blender and Substance expect).
+        albedo_encoding: how diffuse.png and specular.png store values: ``"srgb"`` (default,
+            what colour inputs of texture tools such as Blender and Substance expect) or
+            ``"linear"`` (Des18's convention, for research). basecolor.png is always sRGB.
+        exr: also write the maps as OpenEXR (linear half floats).
+        tileable: make the maps' opposite edges match (:func:`svbrdf_render.tiling.make_tileable`).
         refine: refinement steps after the network (0: the network's maps only).
         refine_seconds: with ``refine``, stop refining a photo after this many seconds.
         scene: with ``refine``, the capture's scene (default: the flash found from the maps).
@@ -477,13 +473,17 @@ class CaptureOptions:
     bits: int = 8
     normal_convention: str = "opengl"
     relit: str = "gif"
-    albedo_encoding: str = "linear"
+    albedo_encoding: str = "srgb"
+    exr: bool = False
+    tileable: bool = False
     refine: int = 0
     refine_seconds: float | None = None
     scene: Scene | None = None
     backend: str = BACKEND
 
     def __post_init__(self):
+        convention = NORMAL_ALIASES.get(self.normal_convention, self.normal_convention)
+        object.__setattr__(self, "normal_convention", convention)
         if self.albedo_encoding not in ALBEDO_ENCODINGS:
             raise DataError(
                 f"albedo encoding must be one of {ALBEDO_ENCODINGS}, got {self.albedo_encoding!r}"
@@ -496,6 +496,8 @@ class CaptureOptions:
             raise DataError(f"relit preview must be one of {RELIT_FORMATS}, got {self.relit!r}")
         if self.bits not in (8, 16):
             raise DataError(f"bits must be 8 or 16, got {self.bits}")
+        if self.exr and importlib.util.find_spec("OpenEXR") is None:
+            raise DataError("--exr needs the OpenEXR package: pip install 'svbrdf-render[exr]'")
         self._check_refine()
 
     def _check_refine(self) -> None:
@@ -526,39 +528,49 @@ class _Judged:
 
 
 def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None, *, progress=None) -> dict:
-    """Capture one photo into ``out_dir``; returns its summary entry (``status`` ``"ok"``).
+    """Capture one photo into the material folder ``out_dir``; returns its summary entry
+    (``status`` ``"ok"``).
 
     ``predictor`` has ``resolution`` and ``predict(photo)`` (a :class:`~svbrdf_models.TrainedModel`,
     or svbrdf-train's ``Predictor``; its ``predict_batch(photos)`` is used for tiles when it has
-    one). Writes normal.png, diffuse.png, roughness.png, specular.png, input.png (the square the
-    maps are of, sRGB), rerender.png (photo | re-rendering | error heat map; with refinement the
-    network's and the refined maps side by side) and relit.gif or relit.png. ``progress(step,
-    total, loss)`` follows the refinement. A photo that cannot be used raises
-    :class:`PhotoError` before anything is written; so does an interrupt: every file is written
-    after all the computing is done.
+    one). Writes the maps (metal/rough and the project's own), material.json, material.gltf,
+    material.mtlx, index.html, input.png (the square the maps are of, sRGB), rerender.png (photo
+    | re-rendering | error heat map; with refinement the network's and the refined maps side by
+    side) and relit.gif or relit.png: see :mod:`svbrdf_models.material`. ``progress(step, total,
+    loss)`` follows the refinement. A photo that cannot be used, or a folder that holds another
+    material, raises before any work; an interrupt or an error leaves ``out_dir`` as it was (the
+    folder is staged and moved in whole).
     """
+    from .material import MaterialContent, check_material_folder, write_material
+
     options = options or CaptureOptions()
     path, out_dir = Path(path), Path(out_dir)
+    check_material_folder(out_dir, path)
     photo, notes = load_photo(path, linear=options.linear, crop=options.crop)
     side = photo.shape[-1]
+    if options.tileable and side < MIN_TILEABLE_PHOTO:
+        raise PhotoError(
+            path,
+            f"the square is {side} px; --tileable needs at least {MIN_TILEABLE_PHOTO} px of photo",
+            "give a larger photo or --crop, or leave out --tileable",
+        )
     photo, svbrdf, tiles = _predict_square(predictor, photo, options, notes, path)
     if options.refine:  # on the model's device, where the network ran
         device = getattr(predictor, "device", torch.device("cpu"))
         judged = _judge_refined(photo, svbrdf, options, progress, device)
     else:
         judged = _judge_network(photo, svbrdf, options)
-    svbrdf = judged.svbrdf
-    if options.normal_convention == "directx":
-        svbrdf = SVBRDF(
-            to_directx(svbrdf.normal), svbrdf.diffuse, svbrdf.roughness, svbrdf.specular, validate=False
-        )
+    svbrdf, frames, tileable = judged.svbrdf, judged.frames, None
+    if options.tileable:
+        svbrdf, tileable = _tileable(svbrdf)
+        if options.relit != "none":  # the preview shows the maps written
+            frames = torch.cat([frames[:-1], _relit_versions([svbrdf])])
     relit = None
     if options.relit == "png":
-        relit = _relit_grid(judged.frames, judged.versions if len(judged.versions) > 1 else None)
+        relit = _relit_grid(frames, judged.versions if len(judged.versions) > 1 else None)
     elif options.relit == "gif":
-        relit = judged.frames[-1]
-    _write_capture(out_dir, svbrdf, photo, judged.figure, relit, options)
-    return {
+        relit = frames[-1]
+    entry = {
         "photo": str(path),
         "folder": str(out_dir),
         "status": "ok",
@@ -567,6 +579,44 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None,
         "maps": int(svbrdf.size[0]),
         "tiles": tiles,
         **judged.entry,
+        "tileable": tileable,
+    }
+    record = _material_record(predictor, path, options, entry)
+    write_material(out_dir, svbrdf, MaterialContent(photo, judged.figure, relit, record), options)
+    return entry
+
+
+def _tileable(svbrdf: SVBRDF) -> tuple[SVBRDF, dict]:
+    """The maps made tileable, and their seam errors before and after (median over channels)."""
+    from svbrdf_render.tiling import make_tileable, seam_error
+
+    def seams(m: SVBRDF) -> dict:
+        return {name: round(float(seam_error(getattr(m, name))[0]), 3) for name in MAP_NAMES}
+
+    before = seams(svbrdf)
+    tiled = make_tileable(svbrdf)
+    return tiled, {"seam_error_before": before, "seam_error_after": seams(tiled)}
+
+
+def _material_record(predictor, path: Path, options: CaptureOptions, entry: dict) -> dict:
+    """material.json's fields that the capture knows: photo, model, refinement, provenance."""
+    from .material import photo_sha256, provenance
+
+    model = {key: getattr(predictor, key, None) for key in ("source", "sha256", "resolution")}
+    model["steps"] = getattr(predictor, "steps", getattr(predictor, "step", None))
+    return {
+        "name": path.stem,
+        "photo": {"file": path.name, "sha256": photo_sha256(path), "square": entry["square"],
+                  "crop": list(options.crop) if options.crop else None,
+                  "encoding": "linear" if options.linear else "srgb"},  # fmt: skip
+        "model": {k: (str(v) if k == "source" and v is not None else v) for k, v in model.items()},
+        "maps_size": entry["maps"],
+        "tiles": entry["tiles"],
+        "rerender_rmse": entry["rmse"],
+        "flash": entry["flash"],
+        "refine": entry["refine"] or {"budget": 0},
+        "tileable": entry["tileable"],
+        "provenance": provenance(),
     }
 
 
@@ -671,28 +721,6 @@ def _rerender_figure(photo: Tensor, renderings: list[Tensor], rmse: list[float],
         columns = ["photo", *(f"{n} re-rendering" for n in names), *(f"{n} {scale}" for n in names)]
     label = "RMSE " + " -> ".join(f"{r:.4f}" for r in rmse)
     return image_grid([shown], columns, [label])
-
-
-def _write_capture(
-    out_dir: Path,
-    svbrdf: SVBRDF,
-    photo: Tensor,
-    figure: Tensor,
-    relit: Tensor | None,
-    options: CaptureOptions,
-) -> None:
-    """Write the maps, input.png, rerender.png and the relit preview (GIF frames or a grid) of one
-    capture."""
-    write_map_folder(out_dir, svbrdf, bits=options.bits)
-    if options.albedo_encoding == "srgb":  # replace the linear albedos written above
-        for name in ("diffuse", "specular"):
-            write_image(out_dir / f"{name}.png", linear_to_srgb(getattr(svbrdf, name)[0]), bits=options.bits)
-    write_image(out_dir / "input.png", linear_to_srgb(photo), bits=options.bits)
-    write_image(out_dir / "rerender.png", figure)
-    if options.relit == "gif":
-        _write_gif(out_dir / "relit.gif", relit)
-    elif options.relit == "png":
-        write_image(out_dir / "relit.png", relit)
 
 
 def write_summary(path, entries: list[dict], **extra) -> dict:

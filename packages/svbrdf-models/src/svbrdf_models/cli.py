@@ -77,7 +77,7 @@ MLflow runs of fits: `svbrdf-train predict --checkpoint/--run`.
 
 def _add_predict(sub) -> None:
     from .batch import help_text
-    from .capture import ALBEDO_ENCODINGS, NORMAL_CONVENTIONS, RELIT_FORMATS
+    from .capture import ALBEDO_ENCODINGS, RELIT_FORMATS
 
     p = sub.add_parser(
         "predict",
@@ -121,7 +121,12 @@ def _add_predict(sub) -> None:
         help="the renderer's backend for refinement (default: auto, compiled from 512x512 up, where "
         "it is faster than its compile time costs)",
     )
-    p.add_argument("--linear", action="store_true", help="the photos hold linear values (default: sRGB)")
+    p.add_argument(
+        "--linear",
+        action="store_true",
+        help="research use, Des18's convention: the photos hold linear values (default: sRGB) and "
+        "diffuse.png/specular.png are written linear (unless --albedo-encoding srgb)",
+    )
     p.add_argument(
         "--crop",
         metavar="X,Y,SIZE",
@@ -136,20 +141,40 @@ def _add_predict(sub) -> None:
         help="with --tiles or --refine: side of the maps (default: the square's own side)",
     )
     p.add_argument(
+        "--normal",
         "--normal-convention",
-        choices=NORMAL_CONVENTIONS,
+        dest="normal_convention",
+        type=_normal_convention,
         default="opengl",
-        help="directx stores the normal's y (green) flipped (default: opengl)",
+        metavar="{opengl,directx,gl,dx}",
+        help="normal.png's convention: directx (dx) stores the normal's y (green) flipped, as "
+        "Unreal and 3ds Max expect (default: opengl, as Blender, Substance, glTF expect)",
     )
     p.add_argument("--bits", type=int, choices=[8, 16], default=8, help="PNG bit depth (default: 8)")
     p.add_argument(
         "--albedo-encoding",
         choices=ALBEDO_ENCODINGS,
-        default="linear",
-        help="how diffuse.png and specular.png store values (default: linear; srgb for texture tools)",
+        help="how diffuse.png and specular.png store values (default: srgb, as texture tools expect; "
+        "linear with --linear). basecolor.png is sRGB whatever this says",
+    )
+    p.add_argument("--exr", action="store_true", help="also write the maps as OpenEXR (linear half floats)")
+    p.add_argument(
+        "--tileable",
+        action="store_true",
+        help="make the maps' opposite edges match, for materials that repeat (a band at the edges "
+        "is blended; material.json gives the seam error before and after)",
     )
     p.add_argument("--relit", choices=RELIT_FORMATS, default="gif", help="relit preview (default: gif)")
     p.add_argument("--device", default="cpu", help="cpu, cuda, cuda:K or auto (default: cpu)")
+
+
+def _normal_convention(text: str) -> str:
+    from .capture import NORMAL_ALIASES, NORMAL_CONVENTIONS
+
+    convention = NORMAL_ALIASES.get(text.lower(), text.lower())
+    if convention not in NORMAL_CONVENTIONS:
+        raise argparse.ArgumentTypeError(f"expected opengl (gl) or directx (dx), got {text!r}")
+    return convention
 
 
 def _crop(text: str) -> tuple[int, int, int]:
@@ -389,11 +414,12 @@ def _cmd_predict(args, registry: Registry, out) -> int:
     """``predict``: the options checked, the model loaded and announced, the photos captured."""
     from svbrdf_render.files import check_output_folder
 
-    from .batch import capture_batch, pick_device
+    from .batch import capture_batch, check_material_folders, pick_device
 
     options = _capture_options(args)
     device = pick_device(args.device)  # a GPU that is not there is named as such
     check_output_folder(args.out, "-o")  # before the model is loaded and the first photo is done
+    check_material_folders(args.photos, args.out)
     model = _load_predict_model(args.model, device, args.map_size if args.tiles else None)
     summary = {"model": model.source, "step": model.steps, "resolution": model.resolution,
                "refine": args.refine, "refine_seconds": args.refine_seconds}  # fmt: skip
@@ -422,7 +448,9 @@ def _capture_options(args):
         bits=args.bits,
         normal_convention=args.normal_convention,
         relit=args.relit,
-        albedo_encoding=args.albedo_encoding,
+        albedo_encoding=args.albedo_encoding or ("linear" if args.linear else "srgb"),
+        exr=args.exr,
+        tileable=args.tileable,
         refine=args.refine,
         refine_seconds=args.refine_seconds,
         scene=None if args.scene is None else load_scene(args.scene),

@@ -75,7 +75,10 @@ def _parse_crop(ctx, param, value):
     "-o", "--out", type=click.Path(path_type=Path, file_okay=False), required=True, help="Output folder."
 )
 @click.option(
-    "--linear", is_flag=True, help="The photos hold linear values (default: sRGB-encoded, as cameras save)."
+    "--linear",
+    is_flag=True,
+    help="Research use, Des18's convention: the photos hold linear values (default: sRGB-encoded, as "
+    "cameras save) and diffuse.png/specular.png are written linear (unless --albedo-encoding srgb).",
 )
 @click.option(
     "--crop",
@@ -92,20 +95,24 @@ def _parse_crop(ctx, param, value):
     "own side).",
 )
 @click.option(
+    "--normal",
     "--normal-convention",
-    type=click.Choice(["opengl", "directx"]),
+    "normal_convention",
+    type=click.Choice(["opengl", "directx", "gl", "dx"], case_sensitive=False),
     default="opengl",
     show_default=True,
-    help="directx stores the normal's y (green) flipped.",
+    help="normal.png's convention: directx (dx) stores the normal's y (green) flipped.",
 )
 @click.option("--bits", type=click.Choice(["8", "16"]), default="8", show_default=True, help="PNG bit depth.")
 @click.option(
     "--albedo-encoding",
     type=click.Choice(["linear", "srgb"]),
-    default="linear",
-    show_default=True,
-    help="How diffuse.png and specular.png store values: linear (Des18) or srgb (base-colour "
-    "inputs of Blender, Substance and most texture tools).",
+    help="How diffuse.png and specular.png store values: srgb (default; what Blender, Substance and "
+    "most texture tools expect) or linear (Des18; the default with --linear). basecolor.png is sRGB.",
+)
+@click.option("--exr", is_flag=True, help="Also write the maps as OpenEXR (linear half floats).")
+@click.option(
+    "--tileable", is_flag=True, help="Make the maps' opposite edges match, for materials that repeat."
 )
 @click.option(
     "--relit",
@@ -149,7 +156,7 @@ def predict(photos, model_source, checkpoint, run_id, out, device, **flags):
     The maps are judged by re-rendering them under a flash fitted to the photo: the RMSE
     against the photo is printed per photo and as the median of the batch.
     """
-    from svbrdf_models.batch import capture_batch, pick_device
+    from svbrdf_models.batch import capture_batch, check_material_folders, pick_device
     from svbrdf_render.files import check_output_folder
 
     from ..errors import CheckpointError
@@ -159,6 +166,7 @@ def predict(photos, model_source, checkpoint, run_id, out, device, **flags):
     options = _options(**flags)
     device = pick_device(device)  # a GPU that is not there is named as such, not blamed on the checkpoint
     check_output_folder(out, "-o")  # before the model is loaded and the first photo is done
+    check_material_folders(photos, out)
     model = _load_model(model_source, checkpoint, run_id, device, options.map_size if options.tiles else None)
     summary = {"model": model.source, "step": model.step, "resolution": model.resolution,
                "refine": options.refine, "refine_seconds": options.refine_seconds}  # fmt: skip
@@ -168,8 +176,8 @@ def predict(photos, model_source, checkpoint, run_id, out, device, **flags):
 
 
 def _options(
-    linear, crop, tiles, map_size, normal_convention, bits, albedo_encoding, relit, refine, refine_seconds,
-    scene, backend,
+    linear, crop, tiles, map_size, normal_convention, bits, albedo_encoding, exr, tileable, relit, refine,
+    refine_seconds, scene, backend,
 ):  # fmt: skip
     """The :class:`~svbrdf_models.capture.CaptureOptions` of the flags (a flag that goes with
     another given alone is a usage error)."""
@@ -187,9 +195,11 @@ def _options(
         tiles,
         map_size,
         int(bits),
-        normal_convention,
+        normal_convention.lower(),
         relit,
-        albedo_encoding=albedo_encoding,
+        albedo_encoding=albedo_encoding or ("linear" if linear else "srgb"),
+        exr=exr,
+        tileable=tileable,
         refine=refine,
         refine_seconds=refine_seconds,
         scene=None if scene is None else load_scene(scene),
