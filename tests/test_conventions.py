@@ -83,6 +83,12 @@ def test_a_built_wheel_carries_py_typed_the_licence_and_the_version(dist, module
         names = set(z.namelist())
         info = f"{module}-{version}.dist-info"
         assert f"{module}/py.typed" in names
+        # every file beside the code (the viewer's page template, the shipped model...): what
+        # is in the source folder and not in the wheel would be missing from a pip install
+        src = REPO / "packages" / dist / "src" / module
+        files = {f"{module}/{p.relative_to(src).as_posix()}" for p in src.rglob("*")
+                 if p.is_file() and p.suffix not in (".py", ".pyc") and "__pycache__" not in p.parts}  # fmt: skip
+        assert files and files <= names, sorted(files - names)
         assert z.read(f"{info}/licenses/LICENSE").decode() == (REPO / "LICENSE").read_text()
         metadata = z.read(f"{info}/METADATA").decode()
     assert f"Version: {version}\n" in metadata and "License-Expression: MIT\n" in metadata
