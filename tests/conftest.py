@@ -158,3 +158,15 @@ def require_chromium() -> Path:
     if not CHROMIUM.is_file():
         missing_tool(f"{CHROMIUM} not found: install it with apt-get install -y chromium")
     return CHROMIUM
+
+
+def load_benchmark(name: str):
+    """The script ``benchmarks/NAME.py`` imported as a module (its functions tested without
+    running it)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, REPO / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module

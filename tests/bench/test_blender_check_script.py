@@ -4,18 +4,15 @@ folders and arguments it refuses (one line, exit 2)."""
 from __future__ import annotations
 
 import copy
-import importlib.util
-import sys
-from pathlib import Path
 
 import pytest
 
+from conftest import load_benchmark
 from svbrdf_models.capture import CaptureOptions, capture_one
 from svbrdf_render import Scene, render, write_image
 from svbrdf_render.examples import example_material
 from svbrdf_render.mapfiles import linear_to_srgb
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "blender_check.py"
 GLTF = {"materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0},
                                                 "metallicRoughnessTexture": {"index": 1}},
                        "normalTexture": {"index": 2}}],
@@ -46,11 +43,7 @@ REPORT = {
 
 @pytest.fixture(scope="module")
 def check():
-    spec = importlib.util.spec_from_file_location("blender_check", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("blender_check")
 
 
 def test_the_expected_import_passes(check):

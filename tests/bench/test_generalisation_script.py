@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "generalisation.py"
+from conftest import load_benchmark
+
 NAMES = (
     "0000004;PolishedMarbleFloor_01Xmetal_bumpy_squares;4X2.png",
     "0000008;PolishedMarbleFloor_01Xleather_tiles;0Xdefault.png",
@@ -21,11 +20,7 @@ NAMES = (
 
 @pytest.fixture(scope="module")
 def gen():
-    spec = importlib.util.spec_from_file_location("generalisation", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("generalisation")
 
 
 @pytest.fixture

@@ -35,6 +35,49 @@ MAP_CHANNELS = {"normal": 3, "diffuse": 3, "roughness": 1, "specular": 3}
 PACKED_CHANNELS = 10
 
 
+def check_map_set(
+    maps: dict[str, Tensor],
+    channels: dict[str, int],
+    bounded: tuple[str, ...],
+    *,
+    what: str,
+    first: str,
+    hint: str,
+) -> None:
+    """Check a set of maps that make one material: each a floating-point ``(B, C, H, W)``
+    tensor with its ``channels``, all of the first map's batch, size, device and dtype, and the
+    ``bounded`` ones in ``[0, 1]`` (one device sync). Raises :class:`MapError` naming the map
+    (``what`` 'NAME'), ``first`` (how the first map is called) and ``hint`` (what to do)."""
+    ref = next(iter(maps.values()))
+    for name, t in maps.items():
+        if not isinstance(t, Tensor):
+            raise MapError(f"{what} '{name}': expected a torch.Tensor, got {type(t).__name__}")
+        want_c = channels[name]
+        if t.dim() != 4 or t.shape[1] != want_c:
+            raise MapError(f"{what} '{name}': expected shape (B, {want_c}, H, W), got {tuple(t.shape)}")
+        if not t.is_floating_point():
+            raise MapError(f"{what} '{name}': expected a floating-point tensor, got {t.dtype}")
+        if (t.shape[0], t.shape[2], t.shape[3]) != (ref.shape[0], ref.shape[2], ref.shape[3]):
+            raise MapError(
+                f"{what} '{name}': batch and size {(t.shape[0], t.shape[2], t.shape[3])} differ "
+                f"from {first}'s {(ref.shape[0], ref.shape[2], ref.shape[3])} (B, H, W)"
+            )
+        if t.device != ref.device:
+            raise MapError(f"{what} '{name}' is on {t.device}, {first} on {ref.device}")
+        if t.dtype != ref.dtype:
+            raise MapError(f"{what} '{name}' is {t.dtype}, {first} {ref.dtype}")
+    for name in bounded:
+        t = maps[name].detach()
+        bad = ~((t >= 0) & (t <= 1))
+        if bool(bad.any()):
+            lo, hi = t.nan_to_num(nan=float("inf")).min(), t.nan_to_num(nan=-1).max()
+            raise MapError(
+                f"{what} '{name}': expected values in [0, 1], found {int(bad.sum())} outside "
+                f"(min {float(lo):.4g}, max {float(hi):.4g}"
+                f"{', NaN present' if bool(t.isnan().any()) else ''}); {hint}"
+            )
+
+
 @dataclass(frozen=True, eq=False)
 class SVBRDF:
     """Four maps of a batch of materials, validated on construction.
@@ -62,39 +105,14 @@ class SVBRDF:
     validate: bool = True
 
     def __post_init__(self):
-        ref = self.normal
-        for name in MAP_NAMES:
-            t = getattr(self, name)
-            if not isinstance(t, Tensor):
-                raise MapError(f"map '{name}': expected a torch.Tensor, got {type(t).__name__}")
-            want_c = MAP_CHANNELS[name]
-            if t.dim() != 4 or t.shape[1] != want_c:
-                raise MapError(
-                    f"map '{name}': expected shape (B, {want_c}, H, W), got {tuple(t.shape)}"
-                )
-            if not t.is_floating_point():
-                raise MapError(f"map '{name}': expected a floating-point tensor, got {t.dtype}")
-            if (t.shape[0], t.shape[2], t.shape[3]) != (ref.shape[0], ref.shape[2], ref.shape[3]):
-                raise MapError(
-                    f"map '{name}': batch and size {(t.shape[0], t.shape[2], t.shape[3])} differ "
-                    f"from the normal map's {(ref.shape[0], ref.shape[2], ref.shape[3])} (B, H, W)"
-                )
-            if t.device != ref.device:
-                raise MapError(f"map '{name}' is on {t.device}, the normal map on {ref.device}")
-            if t.dtype != ref.dtype:
-                raise MapError(f"map '{name}' is {t.dtype}, the normal map {ref.dtype}")
-        if self.validate:
-            for name in ("diffuse", "roughness", "specular"):
-                t = getattr(self, name).detach()
-                bad = ~((t >= 0) & (t <= 1))
-                if bool(bad.any()):
-                    lo, hi = t.nan_to_num(nan=float("inf")).min(), t.nan_to_num(nan=-1).max()
-                    raise MapError(
-                        f"map '{name}': expected values in [0, 1], found {int(bad.sum())} outside "
-                        f"(min {float(lo):.4g}, max {float(hi):.4g}"
-                        f"{', NaN present' if bool(t.isnan().any()) else ''}); clamp the map "
-                        "or check its encoding"
-                    )
+        check_map_set(
+            {name: getattr(self, name) for name in MAP_NAMES},
+            MAP_CHANNELS,
+            ("diffuse", "roughness", "specular") if self.validate else (),
+            what="map",
+            first="the normal map",
+            hint="clamp the map or check its encoding",
+        )
 
     # -- construction -------------------------------------------------------------------
 

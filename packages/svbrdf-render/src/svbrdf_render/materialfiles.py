@@ -98,6 +98,11 @@ def _material_path(path: str | os.PathLike, suffix: str, writer: str) -> Path:
     return path
 
 
+def _image_names(writer: str, **names) -> dict[str, str]:
+    """Each image name checked by :func:`_image_name`, by role."""
+    return {role: _image_name(name, role, writer) for role, name in names.items()}
+
+
 def _image_name(name: Any, role: str, writer: str) -> str:
     """``name`` checked as a relative file name of an image (see the module docstring)."""
     if isinstance(name, os.PathLike):
@@ -231,11 +236,7 @@ def write_gltf(
     """
     writer = "write_gltf"
     path = _material_path(path, ".gltf", writer)
-    images = {
-        "basecolor": _image_name(basecolor, "basecolor", writer),
-        "metallic_roughness": _image_name(metallic_roughness, "metallic_roughness", writer),
-        "normal": _image_name(normal, "normal", writer),
-    }
+    images = _image_names(writer, basecolor=basecolor, metallic_roughness=metallic_roughness, normal=normal)
     if not isinstance(name, str):
         raise SVBRDFError(f"{writer}: name={name!r} is not text; give the material's name as text")
     if isinstance(size, bool) or not isinstance(size, numbers.Real) or not math.isfinite(size) or size <= 0:
@@ -345,12 +346,7 @@ def write_materialx(
     """
     writer = "write_materialx"
     path = _material_path(path, ".mtlx", writer)
-    files = {
-        "basecolor": _image_name(basecolor, "basecolor", writer),
-        "metallic": _image_name(metallic, "metallic", writer),
-        "roughness": _image_name(roughness, "roughness", writer),
-        "normal": _image_name(normal, "normal", writer),
-    }
+    files = _image_names(writer, basecolor=basecolor, metallic=metallic, roughness=roughness, normal=normal)
     if not isinstance(name, str) or not _MTLX_NAME.match(name):
         raise SVBRDFError(
             f"{writer}: name={name!r} is not a MaterialX name; use letters, digits and '_', "

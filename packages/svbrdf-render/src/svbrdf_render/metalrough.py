@@ -105,7 +105,7 @@ from torch import Tensor
 
 from .errors import MapError
 from .mapfiles import linear_to_srgb
-from .maps import MAP_NAMES, SVBRDF
+from .maps import MAP_NAMES, SVBRDF, check_map_set
 from .renderer import render
 from .sampling import evaluation_scene
 from .scene import Scene
@@ -155,37 +155,14 @@ class MetalRough:
     validate: bool = True
 
     def __post_init__(self):
-        ref = self.basecolor
-        for name in METAL_ROUGH_NAMES:
-            t = getattr(self, name)
-            if not isinstance(t, Tensor):
-                raise MapError(f"metal/rough map '{name}': expected a torch.Tensor, got {type(t).__name__}")
-            want = _CHANNELS[name]
-            if t.dim() != 4 or t.shape[1] != want:
-                raise MapError(
-                    f"metal/rough map '{name}': expected shape (B, {want}, H, W), got {tuple(t.shape)}"
-                )
-            if not t.is_floating_point():
-                raise MapError(f"metal/rough map '{name}': expected a floating-point tensor, got {t.dtype}")
-            if (t.shape[0], *t.shape[2:]) != (ref.shape[0], *ref.shape[2:]):
-                raise MapError(
-                    f"metal/rough map '{name}': batch and size {(t.shape[0], *t.shape[2:])} differ from "
-                    f"the base colour's {(ref.shape[0], *ref.shape[2:])} (B, H, W)"
-                )
-            if t.device != ref.device or t.dtype != ref.dtype:
-                raise MapError(
-                    f"metal/rough map '{name}' is {t.dtype} on {t.device}, the base colour "
-                    f"{ref.dtype} on {ref.device}; convert them alike"
-                )
-        if self.validate:
-            for name in ("basecolor", "metallic", "roughness"):
-                t = getattr(self, name).detach()
-                bad = ~((t >= 0) & (t <= 1))
-                if bool(bad.any()):
-                    raise MapError(
-                        f"metal/rough map '{name}': expected values in [0, 1], found {int(bad.sum())} "
-                        "outside; clamp the map, and decode an sRGB base colour to linear first"
-                    )
+        check_map_set(
+            self.maps(),
+            _CHANNELS,
+            ("basecolor", "metallic", "roughness") if self.validate else (),
+            what="metal/rough map",
+            first="the base colour",
+            hint="clamp the map, and decode an sRGB base colour to linear first",
+        )
 
     def maps(self) -> dict[str, Tensor]:
         return {name: getattr(self, name) for name in METAL_ROUGH_NAMES}
