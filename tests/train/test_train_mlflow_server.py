@@ -168,7 +168,9 @@ def test_predict_from_a_run_on_the_server(server, fitted, tmp_path):
     normal = read_image(out / "shot" / "normal.png") * 2 - 1
     assert float((normal - torch.nn.functional.normalize(expected.normal, dim=1)[0]).abs().max()) <= 2 / 255
     written = {p.name for p in (out / "shot").iterdir()}
-    assert written == {f"{n}.png" for n in (*MAPS, "input", "rerender")} | {"relit.gif"}
+    material = {"basecolor.png", "metallic.png", "metallic_roughness.png", "material.json", "material.gltf",
+                "material.mtlx", "index.html"}  # the material folder's (svbrdf_models.material)
+    assert written == {f"{n}.png" for n in (*MAPS, "input", "rerender")} | {"relit.gif"} | material
 
 
 def test_fit_with_an_unreachable_server_is_a_one_line_error(tmp_path):
