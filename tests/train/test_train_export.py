@@ -109,10 +109,61 @@ def test_export_from_run_and_register(fit_dir, tmp_path):
     version = MlflowClient().get_model_version("svbrdf-test-ours", uri.rsplit("/", 1)[1])
     assert version.tags["sha256"] == hashlib.sha256(path.read_bytes()).hexdigest()
     assert version.tags["generator"] == "ours" and version.run_id == run_id
+    # the version is an MLflow model logged in the training run, named after the file's hash
+    assert version.source.startswith("models:/m-")
+    logged = MlflowClient().get_logged_model(version.source.removeprefix("models:/"))
+    assert logged.source_run_id == run_id and logged.tags["svbrdf.sha256"] == version.tags["sha256"]
     sha = version.tags["sha256"]
-    for source in (uri, f"runs:/{run_id}/model/{sha[:8]}/ours.pt", f"runs:/{run_id}/model/{sha[:8]}"):
+    for source in (
+        uri,
+        version.source,
+        f"runs:/{run_id}/model-{sha[:8]}",
+        f"runs:/{run_id}/model-{sha[:8]}/artifacts/ours.pt",
+    ):
         model = sm.load_model(source)
         assert model.source == source and model.sha256 == version.tags["sha256"]
+
+
+def test_the_registered_version_is_an_mlflow_model_that_predicts_the_maps(fit_dir, tmp_path):
+    """mlflow.pyfunc loads what --register made (it failed on the bare file it logged before) and
+    predicts, channels last, the maps the model file predicts; mlflow.pytorch does not load it
+    (the model is a python_function, not a pickled torch module)."""
+    import mlflow
+    import numpy as np
+
+    r = run_cli("export", str(fit_dir), "-o", str(tmp_path / "m.pt"), "--register", "svbrdf-test-pyfunc-x")
+    assert r.returncode == 0, r.stderr
+    uri = r.stdout.strip()
+    photos = np.random.default_rng(0).uniform(0, 1, (2, 40, 36, 3)).astype(np.float32)
+    got = mlflow.pyfunc.load_model(uri).predict(photos)
+    want = sm.load_model(tmp_path / "m.pt").predict(torch.from_numpy(photos).permute(0, 3, 1, 2))
+    for name, t in want.maps().items():
+        assert np.abs(got[name] - t.permute(0, 2, 3, 1).numpy()).max() <= 1e-6
+    with pytest.raises(mlflow.exceptions.MlflowException):
+        mlflow.pytorch.load_model(uri)
+
+
+def test_a_finished_fit_logs_its_generator_as_an_mlflow_model(fit_dir):
+    """The fit's run holds MLflow model ``model`` at its last step: the weights of the checkpoint,
+    loadable by svbrdf_models and by mlflow.pyfunc, in the run's experiment."""
+    import mlflow
+
+    run_id = json.loads((fit_dir / "last.json").read_text())["run_id"]
+    client = mlflow.MlflowClient()
+    run = client.get_run(run_id)
+    ckpt = load_checkpoint(fit_dir / "last.pt")
+    (output,) = [o for o in run.outputs.model_outputs if client.get_logged_model(o.model_id).name == "model"]
+    assert output.step == ckpt["step"]
+    logged = client.get_logged_model(output.model_id)
+    assert logged.source_run_id == run_id and logged.experiment_id == run.info.experiment_id
+    assert str(logged.status) == "READY"
+    assert any(m.key.startswith("val/") for m in logged.metrics or [])  # the last validation's
+    model = sm.load_model(f"runs:/{run_id}/model")
+    for name, w in model.generator.state_dict().items():
+        assert torch.equal(w, ckpt["generator"][name])
+    assert set(mlflow.pyfunc.load_model(f"models:/{logged.model_id}").predict(
+        torch.rand(1, 32, 32, 3).numpy()
+    )) == {"normal", "diffuse", "roughness", "specular"}  # fmt: skip
 
 
 def test_predict_takes_a_registry_uri(fit_dir, tmp_path):

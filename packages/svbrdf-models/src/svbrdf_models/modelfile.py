@@ -26,6 +26,10 @@ provenance   where the weights came from: git sha, steps, training time, data, r
 metrics      figures measured on the weights (name -> float), possibly empty
 ===========  ===================================================================================
 
+An MLflow URI names an MLflow model (:mod:`svbrdf_models.pyfunc`: what fits and ``svbrdf-train
+export --register`` log; its model file is the artifact :data:`PYFUNC_ARTIFACT`), a folder
+holding one ``.pt`` file (versions registered before the MLflow model), or a file.
+
 A URL is fetched with :func:`torch.hub.load_state_dict_from_url` into torch.hub's cache
 (``TORCH_HOME``). Its file name must end in ``-HEX.pt``, HEX being the first 8 or more hex
 digits of the file's SHA-256 (``svbrdf-train export --hash-name`` names files so): the download
@@ -55,6 +59,7 @@ __all__ = [
     "FORMAT",
     "FORMAT_VERSION",
     "PRETRAINED",
+    "PYFUNC_ARTIFACT",
     "TrainedModel",
     "load_model",
     "save_model",
@@ -79,6 +84,8 @@ PRETRAINED = "ours-mix-cpu"
 _PRETRAINED_DIR = Path(__file__).parent / "pretrained"
 _HASH_IN_NAME = re.compile(r"-([0-9a-f]{8,64})\.[A-Za-z0-9]+$")
 _MLFLOW_SCHEMES = ("models:/", "runs:/")
+#: The name of the model file among the artifacts of an MLflow model (:mod:`svbrdf_models.pyfunc`).
+PYFUNC_ARTIFACT = "model_file"
 
 
 @dataclass
@@ -432,13 +439,31 @@ def _from_mlflow(uri: str, device) -> TrainedModel:
                 "check the name/version or run id and MLFLOW_TRACKING_URI"
             ) from None
         if local.is_dir():
-            files = sorted(local.rglob("*.pt"))
-            if len(files) != 1:
-                raise ModelFileError(
-                    f"{uri}: expected one .pt model file there, found {len(files)}; name the file in the URI"
-                )
-            local = files[0]
+            local = _file_in_folder(local, uri)
         return read_model_file(local, device, uri)
+
+
+def _file_in_folder(folder: Path, uri: str) -> Path:
+    """The model file of a downloaded MLflow folder: the one an MLflow model (``MLmodel``, logged
+    by :mod:`svbrdf_models.pyfunc`) names, else the folder's one ``.pt`` file (how versions
+    registered before the pyfunc flavour were logged)."""
+    if (folder / "MLmodel").is_file():
+        from mlflow.models import Model
+
+        flavour = Model.load(str(folder)).flavors.get("python_function") or {}
+        entry = (flavour.get("artifacts") or {}).get(PYFUNC_ARTIFACT)
+        if not entry:
+            raise ModelFileError(
+                f"{uri}: an MLflow model without an svbrdf model file (no artifact {PYFUNC_ARTIFACT!r}); "
+                "log model files with svbrdf_models.pyfunc.log_pyfunc_model"
+            )
+        return folder / entry["path"]
+    files = sorted(folder.rglob("*.pt"))
+    if len(files) != 1:
+        raise ModelFileError(
+            f"{uri}: expected one .pt model file there, found {len(files)}; name the file in the URI"
+        )
+    return files[0]
 
 
 # -- checks shared with training checkpoints ----------------------------------------------------

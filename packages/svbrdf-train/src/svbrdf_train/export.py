@@ -2,7 +2,9 @@
 
 ``svbrdf-train export`` calls :func:`export_contents` on a checkpoint (a file, or the weights an
 MLflow run logged) and writes it with :func:`svbrdf_models.save_model`; ``--register`` then
-logs the file to MLflow and makes it a version of a registered model (:func:`register`).
+logs the file to MLflow as an MLflow model (:mod:`svbrdf_models.pyfunc`) and makes it a version
+of a registered model (:func:`register`). A finished fit logs its generator the same way
+(:func:`log_fit_model`).
 
 The file keeps the generator only (no discriminator, optimiser or random state), its complete
 config, the training resolution and recipe, and where it came from (:func:`provenance`).
@@ -10,6 +12,7 @@ config, the training resolution and recipe, and where it came from (:func:`prove
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import importlib.metadata
 from pathlib import Path
@@ -22,9 +25,13 @@ from svbrdf_models.modelfile import model_dict
 
 from .errors import CheckpointError
 
-__all__ = ["export_contents", "provenance", "describe_data", "half_effect", "register", "MODEL_ARTIFACT"]
+__all__ = [
+    "export_contents", "provenance", "describe_data", "half_effect", "register", "log_fit_model",
+    "MODEL_ARTIFACT",
+]  # fmt: skip
 
-#: Where ``--register`` logs the model file in its MLflow run.
+#: The name of the MLflow model a finished fit logs in its run (``runs:/RUN_ID/model``);
+#: ``--register`` logs ``model-<SHA-256 prefix>``, one name per file.
 MODEL_ARTIFACT = "model"
 
 
@@ -141,16 +148,76 @@ def export_contents(
     )
 
 
+def log_fit_model(run, metrics: dict[str, float]) -> str | None:
+    """A finished fit's generator as the MLflow model ``model`` of its run (``run``: a
+    :class:`svbrdf_train.hooks.Run`), made as ``svbrdf-train export`` makes a model file, with
+    the last validation ``metrics``; its URI (``models:/MODEL_ID``).
+
+    A failure (the store, the disk) does not fail the finished fit: it is said on the terminal
+    and in the run's tags, and None is returned, as it is for a fit that is not tracked.
+    """
+    import tempfile
+
+    from svbrdf_models.modelfile import save_model
+    from svbrdf_models.pyfunc import log_pyfunc_model
+
+    if run.run_id is None:
+        return None
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / f"{run.recipe.name}.pt"
+            save_model(path, export_contents(run.state([]), str(run.ckpt_path), metrics=metrics))
+            return log_pyfunc_model(path, MODEL_ARTIFACT, run_id=run.run_id, step=run.gan.step).model_uri
+    except Exception as e:  # MLflow's and the disk's errors alike; the checkpoint is saved
+        why = (str(e).strip().splitlines() or [""])[0][:200]
+        text = (
+            f"the trained model was not logged to MLflow ({type(e).__name__}: {why}); "
+            f"make it with `svbrdf-train export {run.out} -o MODEL.pt --register NAME`"
+        )
+        run.progress.message(text)
+        with contextlib.suppress(Exception):  # the store may be what failed
+            run.tracker.set_tags({"svbrdf.warning.model": text})
+        return None
+
+
 def register(
     path: Path, contents: dict[str, Any], sha256: str, name: str, run_id: str | None
 ) -> tuple[str, str]:
-    """Log the model file to MLflow and register it as a new version of ``name``.
+    """Log the model file as an MLflow model and register it as a new version of ``name``.
 
-    The file goes into ``model/<SHA-256 prefix>/`` of the training run (``run_id``) when the
-    store has it, else into a new run of experiment ``svbrdf-models`` holding the provenance;
-    the version carries the generator, its config and the metrics as tags. Returns
-    ``(model URI, run id)``.
+    The MLflow model (:mod:`svbrdf_models.pyfunc`: the file, a signature, an input example and
+    requirements; ``mlflow.pyfunc.load_model`` and ``mlflow models serve`` take it) is logged as
+    ``model-<SHA-256 prefix>`` of the training run (``run_id``) when the store has it, else of a
+    new run of experiment ``svbrdf-models`` holding the provenance; the version carries the
+    generator, its config and the metrics as tags. Returns ``(model URI, run id)``.
     """
+    from mlflow.exceptions import MlflowException
+
+    from svbrdf_models.pyfunc import log_pyfunc_model
+
+    client, run_id = _export_run(contents, run_id)
+    logged = log_pyfunc_model(path, f"{MODEL_ARTIFACT}-{sha256[:8]}", run_id=run_id)
+    try:
+        client.create_registered_model(name, description="svbrdf generators (svbrdf-train export --register)")
+    except MlflowException:
+        pass  # it exists: a new version is added
+    info = contents["provenance"]
+    version = client.create_model_version(
+        name,
+        source=logged.model_uri,
+        run_id=run_id,
+        tags=_version_tags(contents, sha256),
+        description=f"{path.name}: {contents['generator']['name']} at {contents['resolution']} px, "
+        f"{info['steps']} steps; SHA-256 {sha256}",
+        model_id=logged.model_id,
+    )
+    return f"models:/{name}/{version.version}", run_id
+
+
+def _export_run(contents: dict[str, Any], run_id: str | None):
+    """An MlflowClient and the run to log the model in: the training run ``run_id`` when the store
+    has it, else a new finished run of experiment ``svbrdf-models`` holding the file's metrics
+    (at its training step, so that the logged model shows them)."""
     import mlflow
     from mlflow.exceptions import MlflowException
 
@@ -158,29 +225,24 @@ def register(
 
     uri = mlflow.get_tracking_uri()
     client = open_client(uri)
-    run = None
     if run_id:
         try:
-            run = client.get_run(run_id)
+            return client, client.get_run(run_id).info.run_id
         except MlflowException:
-            run = None
-    if run is None:
-        exp_id = experiment_id(client, uri, "svbrdf-models")
-        run = client.create_run(exp_id, run_name=f"export-{contents['generator']['name']}")
-        client.log_param(run.info.run_id, "generator", contents["generator"]["name"])
-        for key, value in contents["metrics"].items():
-            client.log_metric(run.info.run_id, key.replace(":", "_"), value)
-        client.set_terminated(run.info.run_id)
-    run_id = run.info.run_id
-    # one folder per file: a registered version's source is a folder, downloaded whole
-    folder = f"{MODEL_ARTIFACT}/{sha256[:8]}"
-    client.log_artifact(run_id, str(path), folder)
-    try:
-        client.create_registered_model(name, description="svbrdf generators (svbrdf-train export --register)")
-    except MlflowException:
-        pass  # it exists: a new version is added
+            pass
+    exp_id = experiment_id(client, uri, "svbrdf-models")
+    run = client.create_run(exp_id, run_name=f"export-{contents['generator']['name']}")
+    client.log_param(run.info.run_id, "generator", contents["generator"]["name"])
+    for key, value in contents["metrics"].items():
+        client.log_metric(run.info.run_id, key.replace(":", "_"), value, step=contents["provenance"]["steps"])
+    client.set_terminated(run.info.run_id)
+    return client, run.info.run_id
+
+
+def _version_tags(contents: dict[str, Any], sha256: str) -> dict[str, str]:
+    """A registered version's tags: what the file is, where from, its config and metrics."""
     info = contents["provenance"]
-    tags = {
+    return {
         "generator": contents["generator"]["name"],
         "resolution": str(contents["resolution"]),
         "precision": contents["precision"],
@@ -192,12 +254,3 @@ def register(
         **{f"config.{k}": str(v) for k, v in contents["generator"]["config"].items()},
         **{f"metric.{k}": f"{v:.6g}" for k, v in contents["metrics"].items()},
     }
-    version = client.create_model_version(
-        name,
-        source=f"runs:/{run_id}/{folder}",
-        run_id=run_id,
-        tags=tags,
-        description=f"{path.name}: {contents['generator']['name']} at {contents['resolution']} px, "
-        f"{info['steps']} steps; SHA-256 {sha256}",
-    )
-    return f"models:/{name}/{version.version}", run_id

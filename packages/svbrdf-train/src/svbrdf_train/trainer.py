@@ -126,6 +126,10 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
 
         run.tracker.set_tags({"svbrdf.stop": message, "svbrdf.steps": run.gan.step})
         run.tracker.log_metrics(summary_metrics(run), run.gan.step)
+        if status == "FINISHED":  # the generator as an MLflow model of the run (pyfunc)
+            from .export import log_fit_model
+
+            log_fit_model(run, validation.metrics)
     run.tracker.finish(status)
     return FitResult(
         status=status,
@@ -192,7 +196,10 @@ def _start_tracking(run: Run, options: FitOptions, real_name: str | None) -> Non
         run.tracker = open_tracker(run, options.experiment, options.run_name, options.parent_run)
         run.run_id = run.tracker.run_id
         if run.start_step == 0:
+            from .tracking import log_fit_inputs
+
             run.tracker.log_artifact(config_file, "config")
+            log_fit_inputs(run.tracker, run.recipe, parent_run=options.parent_run)
     run.progress.message(plan(run, real_name))
 
 

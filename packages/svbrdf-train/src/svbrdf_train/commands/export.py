@@ -29,10 +29,11 @@ export measures and prints what the rounding moves in the maps (RMSE and largest
 map on 8 procedural photos) and records it in the file.
 --hash-name names the file NAME-<8 hex digits of its SHA-256>.pt, the name torch.hub checks a
 download against: publish it under that name for load_model(URL).
---register NAME logs the file to MLflow (the training run when the store has it) and adds it
-as a new version of registered model NAME, tagged with its config, metrics and SHA-256; the
-UI lists it under Models, and predict --model / svbrdf-bench run --from-models take the URI
-it prints.
+--register NAME logs the file to MLflow as a model of the python_function flavour (in the
+training run when the store has it) and adds it as a new version of registered model NAME,
+tagged with its config, metrics and SHA-256; the UI lists it under Models,
+mlflow.pyfunc.load_model(URI).predict(photos) and `mlflow models serve -m URI --env-manager
+local` run it, and predict --model / svbrdf-bench run --from-models take the URI it prints.
 """
 
 
@@ -113,7 +114,7 @@ def export(checkpoint, run_id, out, half, hash_name, register_as, metrics):
         )
     if register_as:
         uri, logged_in = register(out, contents, sha, register_as, info.get("run_id"))
-        click.echo(f"registered as {uri} (file logged in MLflow run {logged_in})", err=True)
+        click.echo(f"registered as {uri} (model logged in MLflow run {logged_in})", err=True)
         click.echo(uri)
     else:
         click.echo(str(out))
