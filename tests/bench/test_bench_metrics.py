@@ -233,6 +233,49 @@ def test_bootstrap_rejects_empty_or_non_finite_values():
         bootstrap_ci([1.0, 2.0], level=1.0)
 
 
+def _hand_written_bootstrap(v, *, n_boot=2000, level=0.95, seed=0):
+    """The percentile bootstrap the bench drew by hand before ``scipy.stats.bootstrap`` (kept
+    here as the reference): ``n_boot`` rows of indices from ``default_rng(seed)``, the mean of
+    each row, and their ``(1 - level) / 2`` and ``(1 + level) / 2`` quantiles."""
+    v = np.asarray(v, dtype=np.float64)
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, v.size, size=(n_boot, v.size))
+    means = v[idx].mean(axis=1)
+    tail = (1 - level) / 2
+    low, high = np.quantile(means, [tail, 1 - tail])
+    return float(v.mean()), float(low), float(high)
+
+
+@pytest.mark.parametrize(
+    ("n", "n_boot", "level", "seed"),
+    [(2, 2000, 0.95, 0), (4, 2000, 0.95, 0), (9, 2000, 0.95, 3), (21, 2000, 0.95, 0), (60, 500, 0.5, 7)],
+)
+def test_scipy_bootstrap_gives_the_hand_written_figures(n, n_boot, level, seed):
+    """Same seed, same figures: SciPy draws the same indices from the same generator; only the
+    quantile's last bits may differ."""
+    v = np.random.default_rng(100 + n).gamma(2.0, 0.03, n)  # skewed, like per-material RMSEs
+    mean, low, high = bootstrap_ci(v, n_boot=n_boot, level=level, seed=seed)
+    ref_mean, ref_low, ref_high = _hand_written_bootstrap(v, n_boot=n_boot, level=level, seed=seed)
+    assert mean == ref_mean
+    assert low == pytest.approx(ref_low, rel=1e-12) and high == pytest.approx(ref_high, rel=1e-12)
+    assert low < high  # not a degenerate draw
+
+
+@pytest.mark.parametrize("n", [4, 9, 60])
+def test_paired_difference_resamples_the_same_images_for_both(n):
+    """The paired SciPy bootstrap gives the hand-written bootstrap of ``a - b``; two independent
+    resamplings (unpaired) would give a far wider interval when images differ more than models."""
+    rng = np.random.default_rng(200 + n)
+    base = rng.uniform(0.05, 0.3, n)
+    a, b = base + rng.normal(0.01, 0.004, n), base + rng.normal(0, 0.004, n)
+    d = paired_difference(a, b, seed=5)
+    ref_mean, ref_low, ref_high = _hand_written_bootstrap(a - b, seed=5)
+    assert d.mean == pytest.approx(ref_mean, rel=1e-12)
+    assert d.low == pytest.approx(ref_low, rel=1e-12) and d.high == pytest.approx(ref_high, rel=1e-12)
+    unpaired_width = bootstrap_ci(a)[2] - bootstrap_ci(a)[1]
+    assert d.high - d.low < unpaired_width / 3
+
+
 def test_paired_difference_of_two_noisy_copies_is_within_noise():
     rng = np.random.default_rng(3)
     base = rng.uniform(0.05, 0.3, 60)  # per-image difficulty varies far more than the noise

@@ -272,11 +272,89 @@ def test_progress_bar_draws_on_a_terminal_only():
     assert "10/10 [####################]" in text and "loss 0.0500" in text
 
 
+def test_the_status_line_redraws_in_place_with_messages_above_it():
+    """The one progress display (the refinement bar and a fit's step line draw through it):
+    on a terminal, redraws in place at most every ``tty_every_s`` (unless forced), blanks the end
+    of a longer line, clears itself for a message and redraws at once after it; into a pipe,
+    whole lines or nothing, never a ``\\r``."""
+    from svbrdf_models.progress import StatusLine
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    tty = Tty()
+    line = StatusLine(tty, tty_every_s=3600)
+    assert line.show("step 10/100 long")
+    assert not line.show("too soon") and line.show("step 11", force=True)
+    line.message("a note")
+    assert line.show("step 12")  # the first after a message is not held back
+    line.close()
+    assert tty.getvalue() == (
+        "\rstep 10/100 long" + "\rstep 11" + " " * 9 + "\r" + " " * 7 + "\r" + "a note\n" + "\rstep 12\n"
+    )
+    pipe, silent = io.StringIO(), io.StringIO()
+    lines, quiet = StatusLine(pipe, file_every_s=0.0), StatusLine(silent)
+    for status in (lines, quiet):
+        status.show("step 1")
+        status.message("a note")
+        status.show("step 2")
+        status.close()
+    assert pipe.getvalue() == "step 1\na note\nstep 2\n" and silent.getvalue() == "a note\n"
+    assert isinstance(ProgressBar("shot.png", pipe).line, StatusLine)
+
+
 def test_help_reads_the_default_budget_and_limits(capsys):
     assert main(["predict", "--help"]) == 0
     text = capsys.readouterr().out
     assert f"default: {DEFAULT_REFINE_STEPS}" in text and f"under {MIN_REFINE_SIDE} px" in text
     assert "130" in text and "Exit status: 0 every photo captured" in text
+
+
+# -- EXIF orientation ----------------------------------------------------------------------------
+
+
+def _png16_with_orientation(path, pixels, orientation: int):
+    """A 16-bit RGB PNG (written by pypng) with an eXIf chunk holding ``orientation``."""
+    import struct
+    import zlib
+
+    import png
+    from PIL import Image
+
+    h, w, _ = pixels.shape
+    buf = io.BytesIO()
+    png.Writer(w, h, bitdepth=16, greyscale=False).write(buf, pixels.reshape(h, w * 3).tolist())
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    body = exif.tobytes()[6:]  # without the "Exif\0\0" header JPEG's APP1 has and PNG's eXIf has not
+    chunk = struct.pack(">I", len(body)) + b"eXIf" + body + struct.pack(">I", zlib.crc32(b"eXIf" + body))
+    data, end_of_ihdr = buf.getvalue(), 8 + 8 + 13 + 4
+    path.write_bytes(data[:end_of_ihdr] + chunk + data[end_of_ihdr:])
+    return path
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_a_16_bit_photo_is_oriented_as_pillow_orients_each_channel(tmp_path, orientation):
+    """Pillow holds no 16-bit RGB image, so ``PIL.ImageOps.exif_transpose`` cannot turn such a
+    photo whole; load_photo turns the decoded tensor (``photos.orient``). Channel by channel, as
+    16-bit grey images, Pillow turns it the same way, to the last of the 65536 levels."""
+    import numpy as np
+    from PIL import Image, ImageOps
+
+    pixels = np.random.default_rng(orientation).integers(0, 65536, (72, 96, 3), dtype=np.uint16)
+    path = _png16_with_orientation(tmp_path / "shot.png", pixels, orientation)
+    got, notes = capture.load_photo(path, linear=True)
+    channels = []
+    for c in range(3):
+        grey = Image.fromarray(pixels[..., c])  # mode I;16
+        grey.getexif()[0x0112] = orientation
+        channels.append(np.asarray(ImageOps.exif_transpose(grey), dtype=np.float32) / 65535)
+    shown = torch.from_numpy(np.stack(channels))
+    assert shown.shape[1:] == ((96, 72) if orientation >= 5 else (72, 96))
+    assert torch.equal(got, square_photo(shown, None))
+    assert (f"EXIF orientation {orientation} applied" in notes) == (orientation != 1)
+    assert "16-bit PNG read at full precision" in notes
 
 
 # -- the photo tool stands alone -----------------------------------------------------------------

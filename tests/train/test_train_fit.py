@@ -219,3 +219,95 @@ def test_gradient_norms_are_logged(tmp_path):
     metrics = _client().get_run(result.run_id).data.metrics
     assert metrics["train/grad_norm"] > 0 and math.isfinite(metrics["train/grad_norm"])
     assert metrics["train/d_grad_norm"] > 0
+
+
+# -- what the MLflow UI shows of a fit: its data, its source, a view of its runs, system metrics ---
+
+
+def _inputs(run) -> dict[str, list]:
+    """A run's dataset inputs by context (the tag mlflow.data.context)."""
+    out: dict[str, list] = {}
+    for d in run.inputs.dataset_inputs:
+        context = {t.key: t.value for t in d.tags}["mlflow.data.context"]
+        out.setdefault(context, []).append(d.dataset)
+    return out
+
+
+def test_a_fit_logs_its_data_as_datasets_its_source_and_a_view_of_its_runs(tmp_path):
+    """The UI's Datasets, Source and Created by of a fit: its procedural training set (the recipe's
+    seed and samples per epoch) and validation set (the next seed), described, not stored; the
+    command and the commit; and, a fit of its own, the experiment's saved view whose columns are
+    the validation figures the fit logged."""
+    import json
+
+    from svbrdf_train.tracking import FIT_COLUMNS, FIT_VIEW, VIEW_TAG_PREFIX, git_revision
+
+    result, recipe = _fit(tmp_path, "radn")
+    client = _client()
+    run = client.get_run(result.run_id)
+    inputs = _inputs(run)
+    assert sorted(inputs) == ["training", "validation"]
+    (train,), (val,) = inputs["training"], inputs["validation"]
+    d, r = recipe.data, recipe.train.resolution
+    for dataset, seed, count in ((train, d.seed, d.count), (val, d.seed + 1, d.validation)):
+        assert dataset.source_type == "code"
+        source = json.loads(dataset.source)["tags"]
+        assert (source["seed"], source["count"], source["resolution"]) == (str(seed), str(count), str(r))
+        shapes = [c["tensor-spec"]["shape"] for c in json.loads(dataset.schema)["mlflow_colspec"]]
+        assert shapes == [[-1, 3, r, r], [-1, 10, r, r]]
+    assert train.digest != val.digest
+    tags = run.data.tags
+    assert tags["mlflow.source.name"] == "svbrdf-train fit" and tags["mlflow.source.type"] == "LOCAL"
+    sha, _ = git_revision()
+    assert tags["mlflow.source.git.commit"] == sha
+    view = client.get_experiment(run.info.experiment_id).tags[VIEW_TAG_PREFIX + FIT_VIEW]
+    state = json.loads(json.loads(view)["state"])
+    assert state["selectedColumns"] == [f"metrics.`{c}`" for c in FIT_COLUMNS]
+    assert {c for c in FIT_COLUMNS if c.startswith("val/")} <= set(run.data.metrics)
+
+
+def test_the_data_of_a_fit_on_files_is_fingerprinted_by_its_files(tmp_path):
+    """Training files (Des18 strips) are described by MLflow's local source and a digest of their
+    names and sizes (not read: shards run to gigabytes); a real validation folder by its bytes."""
+    from conftest import des18_strips
+    from svbrdf_train.tracking import fit_datasets
+
+    strips = des18_strips(tmp_path / "strips", count=2, size=32)
+    real = des18_strips(tmp_path / "real", count=2, size=32)
+    recipe = load_recipe("radn", "smoke", {"data.source": "des18", "data.path": str(strips),
+                                           "data.real_validation": str(real)})  # fmt: skip
+    (train, c1), (val, c2) = fit_datasets(recipe)
+    assert (c1, c2) == ("training", "validation")
+    assert train.source.to_dict()["uri"] == str(strips.resolve()) and train.name == "strips"
+    first = sorted(strips.iterdir())[0]
+    data = bytearray(first.read_bytes())
+    data[-1] ^= 0xFF  # one byte changed, same size: the training digest (names and sizes) keeps
+    first.write_bytes(bytes(data))
+    (again, _), (val_again, _) = fit_datasets(recipe)
+    assert again.digest == train.digest and val_again.digest == val.digest
+    real_file = sorted(real.iterdir())[0]
+    data = bytearray(real_file.read_bytes())
+    data[-1] ^= 0xFF  # the real validation set is hashed by content
+    real_file.write_bytes(bytes(data))
+    (strips / "extra.png").write_bytes(b"x")  # a file more: the training digest changes
+    (moved, _), (val_moved, _) = fit_datasets(recipe)
+    assert moved.digest != train.digest and val_moved.digest != val.digest
+
+
+def test_system_metrics_only_with_the_flag(tmp_path):
+    """--system-metrics logs MLflow's system/... metrics to the fit's run; without it, none."""
+    import json
+
+    from conftest import run_cli
+
+    common = ("--recipe", "radn", "--size", "smoke", "--experiment", "tests-system-metrics", "-q", "--force")
+    env = {"MLFLOW_SYSTEM_METRICS_SAMPLING_INTERVAL": "0.2", "OMP_NUM_THREADS": "1"}
+    runs = {}
+    for flag in (True, False):
+        out = tmp_path / str(flag)
+        done = run_cli("fit", *common, "--out", str(out), *(["--system-metrics"] if flag else []), env=env)
+        assert done.returncode == 0, done.stderr[-2000:]
+        runs[flag] = _client().get_run(json.loads((out / "last.json").read_text())["run_id"])
+    on = {k for k in runs[True].data.metrics if k.startswith("system/")}
+    assert "system/cpu_utilization_percentage" in on and "system/system_memory_usage_megabytes" in on
+    assert not any(k.startswith("system/") for k in runs[False].data.metrics)

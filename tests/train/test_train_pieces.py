@@ -122,6 +122,24 @@ def test_progress_off_a_terminal_prints_whole_lines_and_quiet_prints_none():
     assert quiet.getvalue() == "still said\n"
 
 
+def test_a_fit_draws_its_progress_with_the_photo_tools_status_line():
+    """One progress display: the fit's line is a StatusLine's, like the refinement bar's."""
+    from svbrdf_models.progress import StatusLine
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    out = Tty()
+    p = Progress(10, stream=out)
+    assert isinstance(p.status, StatusLine) and p.tty
+    p.update(1, {"loss": 1.0}, 5.0, 1.0)
+    p.message("hello")
+    p.close()
+    first = p.line(1, {"loss": 1.0}, 5.0, 1.0)
+    assert out.getvalue() == f"\r{first}\r{' ' * len(first)}\rhello\n"
+
+
 @pytest.mark.parametrize(("seconds", "text"), [(0, "0s"), (59.4, "59s"), (75, "1m15s"), (4000, "1h06m")])
 def test_format_duration(seconds, text):
     assert format_duration(seconds) == text
@@ -160,3 +178,27 @@ def test_every_listed_recipe_loads_at_every_size():
     for name in list_recipes():
         for size in ("paper", "cpu", "smoke"):
             assert load_recipe(name, size).size == size
+
+
+# -- the lock on a new tracking store -------------------------------------------------------------
+
+
+def test_a_new_sqlite_store_is_locked_against_other_openers_and_released(tmp_path):
+    """``_store_lock`` (filelock) holds ``<db>.lock`` exclusively: an ``fcntl.flock`` on the same
+    file, as the hand-written lock took it, cannot take it meanwhile, and can once it is released.
+    Stores that are not SQLite files get no lock file."""
+    fcntl = pytest.importorskip("fcntl")
+    from svbrdf_train.tracking import _store_lock
+
+    db = tmp_path / "new" / "mlflow.db"
+    lock = db.with_name("mlflow.db.lock")
+    with _store_lock(f"sqlite:///{db}"):
+        assert lock.is_file()
+        with open(lock, "a") as other, pytest.raises(BlockingIOError):
+            fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    with open(lock, "a") as other:
+        fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)  # released: taken at once
+        fcntl.flock(other, fcntl.LOCK_UN)
+    with _store_lock((tmp_path / "runs").as_uri()), _store_lock("http://127.0.0.1:5000"):
+        pass
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["mlflow.db.lock", "new"]

@@ -7,7 +7,7 @@ global backend state); matplotlib is imported on first use, not at import time.
 from __future__ import annotations
 
 import math
-from collections.abc import Collection, Mapping, Sequence
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from pathlib import Path
 
 from torch import Tensor
@@ -19,6 +19,7 @@ __all__ = [
     "learning_curves_figure",
     "pareto",
     "pareto_front",
+    "dominated_by",
     "comparison_grid",
     "accuracy_vs_capture_time",
 ]
@@ -109,23 +110,62 @@ def _check_points(points: Mapping[str, tuple[float, float, float, float]], what:
             raise BenchError(f"{what}: model {name!r} is at ({p[0]}, {p[1]}); expected finite x and y")
 
 
-def pareto_front(points: Mapping[str, tuple[float, float, float, float]]) -> list[str]:
-    """Names of the models no other one dominates (lower or equal x and y, one strictly lower), by x.
+def _noise_pairs(within_noise: Iterable[Iterable[str]]) -> set[frozenset[str]]:
+    pairs = set()
+    for pair in within_noise:
+        pair = frozenset(pair)
+        if len(pair) != 2:
+            raise BenchError(f"pareto: within_noise takes pairs of two model names, got {sorted(pair)}")
+        pairs.add(pair)
+    return pairs
 
-    ``points`` maps a name to ``(x, y, y_low, y_high)``; lower is better on both axes. Models
-    at the same place do not dominate each other: both are on the front. Ties in x are
-    ordered by y, then name.
+
+def dominated_by(
+    points: Mapping[str, tuple[float, float, float, float]], *, within_noise: Iterable[Iterable[str]] = ()
+) -> dict[str, str | None]:
+    """Each model -> a model that dominates it (the fastest such), or None: it is on the front.
+
+    ``points`` maps a name to ``(x, y, y_low, y_high)``; lower is better on both axes. B dominates
+    A when B is no slower (``x_B <= x_A``), no worse in y, and better in one: strictly faster, or
+    lower in y where their y cannot be told apart is not lower. ``within_noise`` names the pairs
+    whose y difference lies within noise (e.g. a paired bootstrap interval that contains 0): for
+    them y counts as equal, so a faster model dominates a slower one whatever their means say,
+    and a model is on the front only if it is faster than, or better beyond noise than, every
+    model at least as fast. (Noise is not transitive: C may be better than A beyond noise yet
+    dominated by B, faster than C and within noise of it.) Models at the same place, or at the
+    same x within noise, do not dominate each other.
     """
     _check_points(points, "pareto_front")
+    noise = _noise_pairs(within_noise)
     xy = {name: (float(p[0]), float(p[1])) for name, p in points.items()}
 
-    def dominated(name: str) -> bool:
-        x, y = xy[name]
-        return any(
-            ox <= x and oy <= y and (ox < x or oy < y) for other, (ox, oy) in xy.items() if other != name
-        )
+    def dominates(b: str, a: str) -> bool:
+        (xa, ya), (xb, yb) = xy[a], xy[b]
+        tied = frozenset((a, b)) in noise
+        no_worse = tied or yb <= ya
+        better_y = not tied and yb < ya
+        return xb <= xa and no_worse and (xb < xa or better_y)
 
-    return sorted((n for n in xy if not dominated(n)), key=lambda n: (xy[n][0], xy[n][1], n))
+    out: dict[str, str | None] = {}
+    for name in xy:
+        by = [b for b in xy if b != name and dominates(b, name)]
+        out[name] = min(by, key=lambda b: (xy[b][0], xy[b][1], b)) if by else None
+    return out
+
+
+def pareto_front(
+    points: Mapping[str, tuple[float, float, float, float]], *, within_noise: Iterable[Iterable[str]] = ()
+) -> list[str]:
+    """Names of the models no other one dominates (:func:`dominated_by`), by x.
+
+    ``points`` maps a name to ``(x, y, y_low, y_high)``; lower is better on both axes. Without
+    ``within_noise`` a model is dominated by one with lower or equal x and y, one strictly
+    lower; pairs named in ``within_noise`` count as equal in y. Models at the same place do
+    not dominate each other: both are on the front. Ties in x are ordered by y, then name.
+    """
+    xy = {name: (float(p[0]), float(p[1])) for name, p in points.items()}
+    by = dominated_by(points, within_noise=within_noise)
+    return sorted((n for n in xy if by[n] is None), key=lambda n: (xy[n][0], xy[n][1], n))
 
 
 def pareto(
@@ -135,15 +175,18 @@ def pareto(
     xlabel: str = "inference latency per image at 256x256 (ms)",
     ylabel: str = "render RMSE",
     logx: bool = False,
+    within_noise: Iterable[Iterable[str]] = (),
 ) -> Path:
     """Accuracy against cost, ``{name: (x, y, y_low, y_high)}``, as a PNG at ``path``.
 
     Each model is a labelled point with its interval (e.g. the 95% bootstrap) as a vertical
-    error bar; the Pareto front (:func:`pareto_front`) is drawn as a step line. ``logx`` puts
+    error bar; the Pareto front (:func:`pareto_front`, with ``within_noise``: the pairs whose y
+    cannot be told apart) is drawn as a step line, the dominated points in grey. ``logx`` puts
     x on a log scale (for latencies spanning decades).
     """
     _check_points(points, "pareto")
-    front = pareto_front(points)
+    within_noise = _noise_pairs(within_noise)
+    front = pareto_front(points, within_noise=within_noise)
     fig = _figure()
     ax = fig.add_subplot()
     for name, (x, y, lo, hi) in points.items():
@@ -171,6 +214,10 @@ def pareto(
         alpha=0.8,
         label="Pareto front: " + ", ".join(front),
     )
+    if len(front) < len(points):
+        noise = " within noise" if within_noise else ""
+        label = f"dominated: a faster model is as good{noise}"
+        ax.plot([], [], "o", color="tab:gray", markersize=5, label=label)
     if logx:
         ax.set_xscale("log")
     ax.margins(x=0.08, y=0.08)  # room for the labels of the outer points

@@ -29,7 +29,8 @@ class Preset:
     validate_every: int
     """Validation period in steps: the points of the learning curves."""
     latency_repeats: int
-    """Timed inference runs per model (median reported, after warm-up)."""
+    """Timed inference runs per model, after 3 warm-up runs: the median and interquartile range
+    are reported (quartiles of fewer than about 20 runs move with a single outlier)."""
     expected: str
     """What the preset takes, for the help text and the report."""
     overrides: tuple[str, ...] = ()
@@ -43,7 +44,7 @@ PRESETS = {
         minutes=2.0,
         test_count=32,
         validate_every=25,
-        latency_repeats=10,
+        latency_repeats=50,
         expected="under 10 min for two models on a 2-core CPU (2 min of training each)",
         # The cpu size's 2 epochs of 2000 samples end before 2 minutes for the faster models,
         # and then the budgets would not be equal: 10x the samples lets the clock decide.
@@ -55,7 +56,7 @@ PRESETS = {
         minutes=30.0,
         test_count=256,
         validate_every=250,
-        latency_repeats=30,
+        latency_repeats=100,
         expected="about 35 min per model on one H100 (30 min of training each); days on a CPU",
     ),
     "paper": Preset(
@@ -64,7 +65,7 @@ PRESETS = {
         minutes=None,
         test_count=1000,
         validate_every=2000,
-        latency_repeats=50,
+        latency_repeats=200,
         expected="the paper's 20 epochs: 4-7.5 h per model on one H100 (svbrdf README), weeks on a CPU",
     ),
 }

@@ -16,8 +16,9 @@ Rows:
 
 Columns: median ``forward`` and ``forward+backward`` time (ms, ``loss = out.mean()``; the
 maps require grad in both, as in training) over ``repeats`` timed calls after two warm-up
-calls; ``first_call_s``, the first warm-up call (forward+backward; it compiles on the
-compiled backend); the max abs and max relative difference of the rendering from a
+calls, and their interquartile ranges (``*_iqr_ms``, :mod:`svbrdf_bench.timing`);
+``first_call_s``, the first warm-up call (forward+backward; it compiles on the compiled
+backend); the max abs and max relative difference of the rendering from a
 reference, the eager float64 rendering of the same maps (cast from the float32 ones)
 under the same scene and effects; and the max difference of the gradients of
 ``out.mean()`` with respect to the four maps, relative to the largest reference gradient.
@@ -29,13 +30,15 @@ The noise effect draws different numbers in float32 and float64 from one seed, s
 still measured: the noise is additive).
 
 Timing: the rows take turns, ``repeats`` rounds (each round times every row's forward, then
-every row's forward+backward), so that a burst of other work slows every row alike.
+every row's forward+backward), so that a burst of other work slows every row alike. Each call
+is read on the clock of ``torch.utils.benchmark`` (:func:`svbrdf_bench.timing.time_once`), and
+the machine's load over the rounds is read once and kept on every row (``Row.load``);
+:func:`timing_warning` says in words when it makes the times unreliable.
 """
 
 from __future__ import annotations
 
 import math
-import statistics
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -55,6 +58,7 @@ from svbrdf_render import (
 from svbrdf_render.examples import EXAMPLES, example_material
 
 from .errors import BenchError
+from .timing import CPU_WAIT_LIMIT, Load, LoadProbe, summarize, time_once
 
 __all__ = [
     "DTYPES",
@@ -64,6 +68,7 @@ __all__ = [
     "format_table",
     "measure",
     "metric_key",
+    "timing_warning",
     "to_records",
 ]
 
@@ -82,7 +87,8 @@ _REL_FLOOR = 1e-4
 class Row:
     """One way of rendering, timed and compared with the float64 reference.
 
-    Times in ms (``first_call_s`` in s); errors are NaN where not measured (see ``note``).
+    Times in ms (``first_call_s`` in s): medians, and interquartile ranges (``*_iqr_ms``);
+    errors are NaN where not measured (see ``note``).
     """
 
     dtype: str
@@ -90,6 +96,8 @@ class Row:
     effects: str  # "des18", "-fresnel", "+noise", ...
     forward_ms: float = math.nan
     forward_backward_ms: float = math.nan
+    forward_iqr_ms: float = math.nan
+    forward_backward_iqr_ms: float = math.nan
     first_call_s: float = math.nan
     max_abs_error: float = math.nan
     max_rel_error: float = math.nan
@@ -97,6 +105,8 @@ class Row:
     note: str = ""
     forward_samples: list[float] = field(default_factory=list, repr=False)
     forward_backward_samples: list[float] = field(default_factory=list, repr=False)
+    load: Load | None = field(default=None, repr=False)
+    """The machine's load over the timed rounds (the same for every row of one table)."""
 
 
 # -- inputs ---------------------------------------------------------------------------------
@@ -301,9 +311,7 @@ def measure(
 
     def timed(fn: Callable[[], object]) -> float:
         _sync(dev)
-        t0 = time.perf_counter()
-        fn()
-        return 1e3 * (time.perf_counter() - t0)
+        return time_once(fn)
 
     # -- warm-up: the first call compiles (compiled backend) --------------------------------
     compile_failed = False
@@ -342,6 +350,7 @@ def measure(
 
     # -- timing: the rows take turns -------------------------------------------------------
     live = [c for c in cases if c.ok]
+    probe = LoadProbe(torch.get_num_threads())
     for r in range(repeats):
         for case in live:
             case.row.forward_samples.append(timed(lambda case=case: forward(case)))
@@ -350,9 +359,14 @@ def measure(
         for case in live:
             _clear(case.maps)
         say(f"round {r + 1}/{repeats} timed ({len(live)} rows)")
+    load = probe.read()
     for case in live:
-        case.row.forward_ms = statistics.median(case.row.forward_samples)
-        case.row.forward_backward_ms = statistics.median(case.row.forward_backward_samples)
+        fwd, both = summarize(case.row.forward_samples), summarize(case.row.forward_backward_samples)
+        case.row.forward_ms, case.row.forward_iqr_ms = fwd.median_ms, fwd.iqr_ms
+        case.row.forward_backward_ms, case.row.forward_backward_iqr_ms = both.median_ms, both.iqr_ms
+        case.row.load = load
+    if live:
+        say(f"load while timing: {load.words()}")
 
     # -- accuracy: against the eager float64 rendering, one reference per effect set -------
     by_effects: dict[str, list[_Case]] = {}
@@ -387,6 +401,8 @@ COLUMNS = (
     ("effects", "effects"),
     ("forward_ms", "fwd ms"),
     ("forward_backward_ms", "fwd+bwd ms"),
+    ("forward_iqr_ms", "fwd IQR ms"),
+    ("forward_backward_iqr_ms", "fwd+bwd IQR ms"),
     ("first_call_s", "first call s"),
     ("max_abs_error", "max abs err"),
     ("max_rel_error", "max rel err"),
@@ -420,11 +436,33 @@ def format_table(rows: Sequence[Row]) -> str:
     return "\n".join(lines)
 
 
+def timing_warning(rows: Sequence[Row]) -> str | None:
+    """A sentence when the load over the timed rounds makes the times unreliable, else None."""
+    load = next((r.load for r in rows if r.load is not None), None)
+    if load is None or not load.unreliable:
+        return None
+    return (
+        f"warning: the times are unreliable: the machine was busy while they were measured ({load.words()}); "
+        f"above {100 * CPU_WAIT_LIMIT:.0f}% of the time waiting for a CPU a time is inflated by more than "
+        "the spread expected on an idle machine, by an amount that depends on what else ran"
+    )
+
+
 def to_records(rows: Sequence[Row]) -> list[dict]:
-    """Plain dicts (CSV/JSON): the table's columns, NaN as None, plus the timing samples."""
+    """Plain dicts (CSV/JSON): the table's columns, NaN as None, the timing samples, and the load
+    over the timed rounds (``load_cpu_wait``, ``load_other_cpus``, ``load_average``,
+    ``load_unreliable``; None where not read)."""
     out = []
     for r in rows:
         d = asdict(r)
+        d.pop("load")
+        load = r.load
+        d |= {
+            "load_cpu_wait": load.cpu_wait if load else None,
+            "load_other_cpus": load.other_cpus if load else None,
+            "load_average": load.load_average if load else None,
+            "load_unreliable": load.unreliable if load else None,
+        }
         for k, v in d.items():
             if isinstance(v, float) and math.isnan(v):
                 d[k] = None

@@ -11,6 +11,14 @@ headline repeats in words; the time table (training time on the budget clock and
 throughput, latency, parameters, memory); and what each trained model's extra accuracy costs
 against each other one, saying when the difference lies within noise.
 
+Timings are medians with their interquartile range, ``19.3 [0.8]`` (:mod:`svbrdf_bench.timing`);
+when the machine's load while a latency was measured makes it unreliable (a thread of the timing
+waited for a CPU more than :data:`~svbrdf_bench.timing.CPU_WAIT_LIMIT` of the time), the report
+says so in words at its top. The Pareto front of render RMSE against latency is noise-aware: a
+model is dominated when a faster one's render RMSE is lower or within noise of its own (the
+same 95% paired bootstrap as the other comparisons), so it is on the front only if it is faster
+or better beyond noise (:meth:`Report.latency_front`).
+
 Reference rows (model files trained elsewhere: ``--from-models``, ``--models pretrained``) stand in
 every table under a label that gives their budget and says they are not equal-budget; where the
 report speaks of budgets and costs (the header, the clock, the time table, what accuracy costs,
@@ -81,6 +89,7 @@ from .layout import (
     refine_steps,
     train_run_id,
 )
+from .timing import CPU_WAIT_LIMIT, LATENCY_METRIC, SPREAD_LIMIT, Load
 
 __all__ = [
     "Report",
@@ -117,16 +126,23 @@ TIME_COLUMNS = (
     (STEPS_WALL_METRIC, "train wall (s)", "{:.1f}"),
     (STEPS_METRIC, "steps", "{:.0f}"),
     ("time/train_samples_per_s", "train samples/s", "{:.1f}"),
-    ("time/train_ms_per_step", "train ms/step", "{:.0f}"),
-    ("time/latency_ms", "latency 256px (ms)", "{:.1f}"),
+    ("time/train_ms_per_step", "train ms/step [IQR]", "{:.0f}"),
+    ("time/latency_ms", "latency 256px (ms) [IQR]", "{:.1f}"),
     ("model/params", "params (M)", "{:.2f}"),
     ("memory/peak_rss_mb", "peak RSS (MB)", "{:.0f}"),
     ("memory/peak_cuda_mb", "peak GPU (MB)", "{:.0f}"),
     (SECONDS_PER_IMAGE, "s/image (net + refine)", "{:.3g}"),
 )
+#: Time columns shown as median [IQR]: column -> (the median's figure, the IQR's figure); a row
+#: without the IQR (an older run) shows the column's own figure alone.
+_SPREADS = {
+    "time/latency_ms": ("time/latency_ms", "time/latency_iqr_ms"),
+    "time/train_ms_per_step": ("time/train_ms_per_step_median", "time/train_ms_per_step_iqr"),
+}
 #: Figures a refined row shows from the row it refined (the same model, the same training).
 _INHERITED = ("time/train_s", STEPS_WALL_METRIC, STEPS_METRIC, "time/train_samples_per_s",
-              "time/train_ms_per_step", "memory/peak_rss_mb", "memory/peak_cuda_mb")  # fmt: skip
+              "time/train_ms_per_step", "time/train_ms_per_step_median", "time/train_ms_per_step_iqr",
+              "memory/peak_rss_mb", "memory/peak_cuda_mb")  # fmt: skip
 
 
 @dataclass
@@ -208,6 +224,8 @@ class Report:
     sample_names: list[str] = field(default_factory=list)
     #: How the samples were grouped: ``des18`` or ``file`` (with :attr:`groups`).
     group_by: str | None = None
+    #: :meth:`latency_front`'s last answer, with the rows it was computed for.
+    _front_cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     # -- per material -------------------------------------------------------------------------
 
@@ -524,6 +542,139 @@ class Report:
                 )
         return out
 
+    # -- timings ------------------------------------------------------------------------------
+
+    def _timed(self) -> list[ModelEntry]:
+        """The rows with a latency, as the time table and the Pareto plot show them."""
+        return [e for e in self.models if not math.isnan(e.figures.get("time/latency_ms", math.nan))]
+
+    def latency_loads(self) -> dict[str, Load | None]:
+        """Per row with a latency (by its short name): the load while it was measured (None: not
+        recorded, a run from before the load was read)."""
+        return {e.short: Load.from_metrics(e.figures, LATENCY_METRIC) for e in self._timed()}
+
+    def timing_warning(self) -> str | None:
+        """A warning in words when the load while a latency was measured makes it unreliable."""
+        loads = {k: v for k, v in self.latency_loads().items() if v is not None and v.unreliable}
+        if not loads:
+            return None
+        worst_name, worst = max(loads.items(), key=_worst_load)
+        return (
+            f"TIMINGS UNRELIABLE: the machine was busy while the latency of {', '.join(loads)} was measured "
+            f"(worst, {worst_name}: {worst.words()}). A time measured while its thread waits for a CPU "
+            f"more than {100 * CPU_WAIT_LIMIT:.0f}% of the time is inflated by more than "
+            f"{100 * CPU_WAIT_LIMIT / (1 - CPU_WAIT_LIMIT):.0f}%, more than the spread expected on an idle "
+            f"machine (an IQR under {100 * SPREAD_LIMIT:.0f}% of the median), "
+            "and by an amount that depends on what else ran at that moment: these latencies, their ratios "
+            "and the Pareto front cannot be compared. Rerun on an idle machine (`svbrdf-bench run "
+            "--from-runs ...` times the fits again without retraining them)."
+        )
+
+    def timing_notes(self) -> list[str]:
+        """How the times were measured, the load while they were, and which spreads are wide."""
+        timed = self._timed()
+        if not timed:
+            return []
+        runs = sorted({int(e.figures[f"{LATENCY_METRIC}_runs"]) for e in timed
+                       if f"{LATENCY_METRIC}_runs" in e.figures})  # fmt: skip
+        how = f"{'/'.join(map(str, runs))} timed runs" if runs else "timed runs"
+        lines = [
+            f"latency: median [interquartile range] of {how} on one 256x256 image, after 3 warm-up runs; "
+            "train ms/step: median [IQR] over the fit's logging windows (budget clock), where logged"
+        ]
+        loads = self.latency_loads()
+        read = {k: v for k, v in loads.items() if v is not None}
+        if not read:
+            lines.append("the machine's load while timing was not recorded (an older run): nothing checks "
+                         "these latencies")  # fmt: skip
+        elif self.timing_warning() is None:
+            worst_name, worst = max(read.items(), key=_worst_load)
+            verdict = (
+                f"under the {100 * CPU_WAIT_LIMIT:.0f}% limit of time waiting for a CPU"
+                if worst.cpu_wait is not None
+                else "not above one runnable task per CPU"
+                if worst.unreliable is False
+                else "not measurable on this system"
+            )
+            lines.append(f"load while timing (worst, {worst_name}): {worst.words()}; {verdict}")
+        wide = []
+        for e in timed:
+            median, iqr = e.figures["time/latency_ms"], e.figures.get("time/latency_iqr_ms", math.nan)
+            if median > 0 and iqr / median > SPREAD_LIMIT:
+                wide.append(f"{e.short} ({100 * iqr / median:.0f}%)")
+        if wide:
+            lines.append(
+                f"wide spread (IQR over {100 * SPREAD_LIMIT:.0f}% of the median latency): {', '.join(wide)}"
+            )
+        return lines
+
+    def latency_front(self) -> dict:
+        """The Pareto front of render RMSE against latency, with noise.
+
+        Returns ``points`` (``{name: (latency ms, render RMSE, low, high)}``: the rows with both),
+        ``within_noise`` (the pairs of them whose 95% paired bootstrap interval of the render RMSE
+        difference contains 0, as in "what accuracy costs"), ``front`` (names, by latency) and
+        ``dominated`` (``{name: the fastest row that dominates it}``, see
+        :func:`svbrdf_bench.plots.dominated_by`).
+        """
+        from .metrics import paired_difference
+        from .plots import dominated_by
+
+        key = tuple((e.run_id, e.figures.get("time/latency_ms")) for e in self.models)
+        if self._front_cache.get("key") == key:  # the report text and the plot ask alike
+            return self._front_cache["front"]
+        rows, points = {}, {}
+        for e in self._timed():
+            ci = self.interval(e, "rmse", "render")
+            if ci is not None:
+                name = e.short if e.is_reference else e.label
+                rows[name], points[name] = e, (e.figures["time/latency_ms"], *ci)
+        if not points:
+            return {"points": {}, "within_noise": [], "front": [], "dominated": {}}
+        names = list(points)
+        ties = []
+        for i, a in enumerate(names):
+            for b in names[i + 1 :]:
+                va, vb = self.values(rows[a], "rmse/render"), self.values(rows[b], "rmse/render")
+                if len(va) == len(vb) and paired_difference(va, vb).within_noise:
+                    ties.append((a, b))
+        by = dominated_by(points, within_noise=ties)
+        front = sorted((n for n in names if by[n] is None), key=lambda n: (points[n][0], points[n][1], n))
+        out = {
+            "points": points,
+            "within_noise": ties,
+            "front": front,
+            "dominated": {n: b for n, b in by.items() if b is not None},
+        }
+        self._front_cache.update(key=key, front=out)
+        return out
+
+    def _front_lines(self) -> list[str]:
+        """The front in words: who is on it, and why each other row is not."""
+        pf = self.latency_front()
+        if len(pf["points"]) < 2:
+            return []
+        ties = {frozenset(p) for p in pf["within_noise"]}
+        why = []
+        for name, by in pf["dominated"].items():
+            (xa, ya), (xb, yb) = pf["points"][name][:2], pf["points"][by][:2]
+            speed = "faster" if xb < xa else "as fast"
+            accuracy = (
+                "within noise of it in render RMSE" if frozenset((name, by)) in ties
+                else "more accurate beyond noise" if yb < ya else "as accurate"
+            )  # fmt: skip
+            why.append(f"{name} ({by} is {speed} and {accuracy})")
+        lines = [
+            "Latency against render RMSE: on the Pareto front (faster than, or more accurate beyond noise "
+            f"than, every row at least as fast; 95% paired bootstrap): {', '.join(pf['front'])}"
+            + (f"; dominated: {'; '.join(why)}" if why else "")
+            + "."
+        ]
+        if self.timing_warning():
+            lines.append("The latencies were measured on a busy machine (see the warning above), and so was "
+                         "this front.")  # fmt: skip
+        return lines
+
     # -- text -------------------------------------------------------------------------------
 
     def _accuracy_table(self, metric: str, title: str, sense: str, markdown: bool) -> list[str]:
@@ -573,6 +724,10 @@ class Report:
                 v = e.figures.get(key, math.nan)
                 if key == "model/params":
                     v = v / 1e6
+                median, iqr = (e.figures.get(k, math.nan) for k in _SPREADS.get(key, (key, "")))
+                if not (math.isnan(median) or math.isnan(iqr)):  # median [IQR]
+                    cells.append(f"{fmt.format(median)} [{fmt.format(iqr)}]")
+                    continue
                 cells.append("-" if v is None or math.isnan(v) else fmt.format(v))
             rows.append(cells)
         table = _table("Time and memory", ["model", *(c[1] for c in cols)], rows, markdown)
@@ -693,8 +848,12 @@ class Report:
         refine = self._refine_table(markdown)
         lines += [*refine, ""] if refine else []
         lines += [*self._time_table(markdown), ""]
+        notes = self.timing_notes()
+        lines += [*(f"- {n}" if markdown else n for n in notes), ""] if notes else []
         if len(self.costed) > 1:
             lines += [*self._cost_lines(markdown), ""]
+        front = self._front_lines()
+        lines += [*front, ""] if front else []
         return lines
 
     def terminal(self) -> str:
@@ -705,6 +864,7 @@ class Report:
             f"test set: {self.test_set}; {self.lpips_note}",
             self.averaging_note(),
             self.clock_note(),
+            *([warning] if (warning := self.timing_warning()) else []),
             *self.init_notes(),
             *([note] if note else []),
             *([refine] if refine else []),
@@ -718,6 +878,7 @@ class Report:
             f"# Benchmark: {', '.join(e.name for e in self.models)}",
             "",
             *(line for h in self.headline() for line in (f"**{h}**", "")),
+            *(line for w in [self.timing_warning()] if w for line in (f"**{w}**", "")),
             f"- preset: {self.preset} ({self.budget_words()})",
             f"- {self.clock_note()}",
             *(f"- {line}" for line in self.init_notes()),
@@ -765,6 +926,12 @@ class Report:
             for key, _, _ in TIME_COLUMNS:
                 if key in e.figures:
                     rec[key.replace("/", "_")] = e.figures[key]
+            for key in sorted(e.figures):  # spreads and the load while timing
+                if key.startswith((f"{LATENCY_METRIC}_", "time/train_ms_per_step_")) and key not in rec:
+                    rec[key.replace("/", "_")] = e.figures[key]
+            load = Load.from_metrics(e.figures, LATENCY_METRIC)
+            if load is not None:
+                rec["time_latency_unreliable"] = load.unreliable
             real = e.per_sample.get(REAL_RERENDER)
             if real is not None and len(real):
                 rec["real_rerender_rmse_median"] = float(np.median(real))
@@ -791,6 +958,11 @@ REAL_REFINED_CAVEAT = (
     "re-render RMSE here holds by construction and is no evidence of accuracy (accuracy is measured "
     "on the test set only, against true maps)."
 )
+
+
+def _worst_load(item: tuple[str, Load]) -> tuple[float, float]:
+    """Sort key of ``(row, load)``: the longest wait for a CPU, then the load average."""
+    return (item[1].cpu_wait or 0.0, item[1].load_average or 0.0)
 
 
 def _ratio(x: float) -> str:
@@ -1003,14 +1175,9 @@ def write_report(
             )
         )
         files["learning_curves"] = "learning_curves.png"
-    points = {}
-    for e in report.models:
-        ci = report.interval(e, "rmse", "render")
-        latency = e.figures.get("time/latency_ms", math.nan)
-        if ci is not None and not math.isnan(latency):
-            points[e.short if e.is_reference else e.label] = (latency, *ci)
-    if points:
-        written.append(pareto(points, out / "pareto.png"))
+    front = report.latency_front()
+    if front["points"]:
+        written.append(pareto(front["points"], out / "pareto.png", within_noise=front["within_noise"]))
         files["pareto"] = "pareto.png"
     series, baselines = _capture_series(report)
     if series:
@@ -1049,6 +1216,10 @@ def write_report(
                 "models": records,
                 "against_mean": against,
                 "costs": costs,
+                "timing_warning": report.timing_warning(),
+                "timing_notes": report.timing_notes(),
+                "latency_front": {"front": front["front"], "dominated": front["dominated"],
+                                  "within_noise": [list(p) for p in front["within_noise"]]},  # fmt: skip
                 "per_strip": report.per_strip_json(),
             },
             indent=2,

@@ -128,42 +128,37 @@ class ProgressBar:
     ``NAME: refining  37/100 [#######.............] 1.2 s loss 0.0812``.
 
     Silent when ``enabled`` is false (by default: when ``stream`` is not a terminal, so logs and
-    pipes get no control characters). :meth:`close` ends the line. At most ~20 redraws a second.
+    pipes get no control characters; ``enabled=True`` there prints whole lines). :meth:`close`
+    ends the line. At most ~10 redraws a second,
+    and always the last step. Drawn by :class:`svbrdf_models.progress.StatusLine`, the display a
+    fit's progress uses too.
     """
 
     def __init__(self, name: str, stream=None, enabled: bool | None = None, width: int = 20):
-        self.stream = stream if stream is not None else sys.stderr
-        if enabled is None:
-            isatty = getattr(self.stream, "isatty", None)
-            enabled = bool(isatty and isatty())
-        self.enabled = enabled
+        from .progress import StatusLine
+
+        # enabled=True off a terminal: a whole line per redraw (no \r in a file)
+        self.line = StatusLine(stream, enabled=enabled is not False, file_every_s=0.1 if enabled else None)
+        self.stream = self.line.stream
+        self.enabled = self.line.enabled
         self.name = name
         self.width = width
         self.start = time.perf_counter()
-        self.drawn = 0.0
-        self.used = False
 
     def __call__(self, step: int, total: int, loss: float) -> None:
-        if not self.enabled:
+        if not self.line.due(force=step >= total):
             return
-        now = time.perf_counter()
-        if step < total and now - self.drawn < 0.05:
-            return
-        self.drawn, self.used = now, True
         filled = round(self.width * step / max(total, 1))
         bar = "#" * filled + "." * (self.width - filled)
         digits = len(str(total))
-        self.stream.write(
-            f"\r{self.name}: refining {step:>{digits}}/{total} [{bar}] {now - self.start:.1f} s "
-            f"loss {loss:.4f}"
+        seconds = time.perf_counter() - self.start
+        self.line.show(
+            f"{self.name}: refining {step:>{digits}}/{total} [{bar}] {seconds:.1f} s loss {loss:.4f}",
+            force=True,
         )
-        self.stream.flush()
 
     def close(self) -> None:
-        if self.used:
-            self.stream.write("\n")
-            self.stream.flush()
-            self.used = False
+        self.line.close()
 
 
 def load_scene(path):

@@ -39,7 +39,10 @@ def file_orientation(path: str | Path) -> int:
 
 
 def orient(image: Tensor, orientation: int) -> Tensor:
-    """Apply an EXIF orientation (1-8) to ``(C, H, W)``: what ``PIL.ImageOps.exif_transpose`` does."""
+    """Apply an EXIF orientation (1-8) to ``(C, H, W)``: what ``PIL.ImageOps.exif_transpose`` does
+    to a Pillow image. The photo is turned after decoding, as a tensor, because Pillow holds no
+    16-bit RGB image (16-bit PNGs are read at full precision by pypng); the tests hold the two
+    equal for every orientation, 8- and 16-bit."""
     ops = {
         1: lambda t: t,
         2: lambda t: t.flip(-1),

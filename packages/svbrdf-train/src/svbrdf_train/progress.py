@@ -2,18 +2,19 @@
 
 On a terminal the line is redrawn in place (at most 10 times a second); into a file or a
 pipe (CI logs, ``nohup``) a full line is printed every ``every_s`` seconds instead, so logs
-stay readable. :class:`Interrupt` turns Ctrl-C and SIGTERM into a request the fit answers
-after its current step, on the same line.
+stay readable. The drawing is :class:`svbrdf_models.progress.StatusLine`'s, the one the photo
+tool's refinement bar uses too. :class:`Interrupt` turns Ctrl-C and SIGTERM into a request the
+fit answers after its current step, on the same line.
 """
 
 from __future__ import annotations
 
 import contextlib
 import signal
-import sys
-import time
 from collections.abc import Mapping
 from typing import Any, TextIO
+
+from svbrdf_models.progress import StatusLine
 
 __all__ = ["Progress", "Interrupt", "format_duration"]
 
@@ -51,13 +52,8 @@ class Progress:
         every_s: float = 10.0,
     ):
         self.total, self.start, self.budget_s = total, start, budget_s
-        self.enabled = enabled and messages
-        self.messages = messages
-        self.stream = stream or sys.stderr
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
-        self.every_s = every_s if not self.tty else 0.1
-        self._last = 0.0
-        self._width = 0
+        self.status = StatusLine(stream, enabled=enabled, messages=messages, file_every_s=every_s)
+        self.stream, self.tty, self.enabled = self.status.stream, self.status.tty, self.status.enabled
 
     def line(self, step: int, losses: Mapping[str, float], samples_per_s: float, train_s: float) -> str:
         pct = 100.0 * step / max(self.total, 1)
@@ -85,37 +81,14 @@ class Progress:
         *,
         force: bool = False,
     ) -> None:
-        if not self.enabled:
-            return
-        now = time.monotonic()
-        if not force and now - self._last < self.every_s:
-            return
-        self._last = now
-        text = self.line(step, losses, samples_per_s, train_s)
-        if self.tty:
-            pad = max(0, self._width - len(text))
-            self.stream.write("\r" + text + " " * pad)
-            self._width = len(text)
-        else:
-            self.stream.write(text + "\n")
-        self.stream.flush()
+        self.status.show(lambda: self.line(step, losses, samples_per_s, train_s), force=force)
 
     def message(self, text: str) -> None:
         """A line of its own, above the progress line."""
-        if not self.messages:
-            return
-        if self.tty and self._width:
-            self.stream.write("\r" + " " * self._width + "\r")
-            self._width = 0
-            self._last = 0.0
-        self.stream.write(text + "\n")
-        self.stream.flush()
+        self.status.message(text)
 
     def close(self) -> None:
-        if self.enabled and self.tty and self._width:
-            self.stream.write("\n")
-            self.stream.flush()
-            self._width = 0
+        self.status.close()
 
 
 class Interrupt:

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from svbrdf_train.commands.fit import system_metrics_option
 from svbrdf_train.commands.options import experiment_option
 
 from ..presets import PRESETS
@@ -76,7 +77,11 @@ report.md, results.csv, results.json, costs.csv, against_mean.csv, learning_curv
 pareto.png, comparison.png (and accuracy_vs_capture_time.png with --refine; real_comparison.png
 with --refine and --real-data). MLflow: one parent
 run, one child per model, reference row, baseline and refined row; `svbrdf-bench report
-PARENT_RUN_ID` rebuilds the report later.
+PARENT_RUN_ID` rebuilds the report later. The parent's description gives the verdict and links
+the report (logged under report/), its metrics hold each row's figures (ours/rmse_render with
+ours/rmse_render_lower and _upper, the 95% interval; SSIM and latency likewise); every run
+records the test set as its dataset. The last line printed is the UI's address of the saved
+view "svbrdf: benchmarks (test figures)": each benchmark's rows and figures, grouped.
 """
 )
 
@@ -199,6 +204,7 @@ def _split(value: str | None) -> list[str]:
     is_flag=True,
     help="Leave out the untrained baselines `mean` and `photo` (and the comparison with `mean`).",
 )
+@system_metrics_option()
 def run(
     models,
     preset,

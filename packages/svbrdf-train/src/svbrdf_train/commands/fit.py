@@ -58,6 +58,31 @@ def _data_overrides(items: tuple[str, ...]) -> dict:
     )
 
 
+def system_metrics_option():
+    """``--system-metrics``: MLflow's system metrics on the runs this command makes (off by default).
+
+    The flag sets MLflow's own switch (``MLFLOW_ENABLE_SYSTEM_METRICS_LOGGING=true``, see
+    :func:`svbrdf_train.tracking.enable_system_metrics`) while the options are read, so the
+    command's function takes no argument for it, and the processes it starts inherit it.
+    """
+
+    def turn_on(ctx, param, value):
+        if value:
+            from ..tracking import enable_system_metrics
+
+            enable_system_metrics()
+
+    return click.option(
+        "--system-metrics",
+        is_flag=True,
+        expose_value=False,
+        callback=turn_on,
+        help="Log the machine's CPU, memory, disk, network (and GPU) use every 10 s as system/... "
+        "metrics of the MLflow runs this command makes (MLflow's system metrics; same as "
+        "MLFLOW_ENABLE_SYSTEM_METRICS_LOGGING=true).",
+    )
+
+
 @click.command("fit", epilog=EPILOG)
 @click.option(
     "--recipe",
@@ -121,6 +146,7 @@ def _data_overrides(items: tuple[str, ...]) -> dict:
     "new fit and run: the generator's, and the discriminator's if it is the same. To fine-tune.",
 )
 @click.option("--no-track", is_flag=True, help="Do not log to MLflow (local files only).")
+@system_metrics_option()
 @click.option("-q", "--quiet", is_flag=True, help="No progress line.")
 @click.pass_context
 def fit(
