@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import collections
+import contextlib
 import os
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import pytest
@@ -170,3 +172,58 @@ def load_benchmark(name: str):
     sys.modules[spec.name] = module  # its dataclasses look their module up
     spec.loader.exec_module(module)
     return module
+
+
+def free_port() -> int:
+    """A TCP port free on loopback now."""
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def _answers(url: str) -> bool:
+    import urllib.request
+
+    try:
+        with urllib.request.urlopen(url, timeout=5) as response:
+            return response.status == 200
+    except OSError:
+        return False
+
+
+def stop_process_group(proc: subprocess.Popen) -> None:
+    """End a server started with ``start_new_session=True`` and the workers it started."""
+    import signal
+
+    if proc.poll() is not None:
+        return
+    os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=30)
+
+
+@contextlib.contextmanager
+def serving(command: list[str], ready_url: str, log_path: Path, *, env=None, cwd=None, timeout: float = 120,
+            on_failure=pytest.fail):  # fmt: skip
+    """Run a server (``command``, in its own process group, output to ``log_path``) until
+    ``ready_url`` answers 200, yield the process, and stop the whole group afterwards. A server
+    that exits or stays silent for ``timeout`` s is ``on_failure(message with its log's tail)``
+    (pytest.fail, or pytest.skip where the test's subject is not the server)."""
+    with open(log_path, "w") as log:
+        proc = subprocess.Popen(command, cwd=cwd, env=env, stdout=log, stderr=subprocess.STDOUT,
+                                start_new_session=True)  # fmt: skip
+    try:
+        deadline = time.monotonic() + timeout
+        while not _answers(ready_url):
+            if proc.poll() is not None or time.monotonic() > deadline:
+                why = f"exited with code {proc.returncode}" if proc.poll() is not None else f"silent {timeout:g} s"
+                on_failure(f"{command[:4]} {why}:\n{Path(log_path).read_text()[-2000:]}")
+            time.sleep(0.5)
+        yield proc
+    finally:
+        stop_process_group(proc)

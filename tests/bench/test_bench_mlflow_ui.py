@@ -17,17 +17,14 @@ import html
 import json
 import os
 import re
-import socket
 import subprocess
 import sys
 import tempfile
-import time
-import urllib.request
 
 import pytest
 from click.testing import CliRunner
 
-from conftest import CHROMIUM, require_chromium
+from conftest import CHROMIUM, free_port, require_chromium, serving
 from svbrdf_bench.cli import cli
 
 EXPERIMENT = "tests-bench-ui"
@@ -146,46 +143,17 @@ def test_the_experiment_is_tagged_and_holds_the_view_the_links_open(bench):
 # -- the UI itself --------------------------------------------------------------------------------
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
-def ui(bench):
+def ui(bench, tmp_path_factory):
     """MLflow's own UI server on the benchmark's store, on loopback: its base address."""
     require_chromium()
     uri = bench[0]
-    port = _free_port()
-    with tempfile.TemporaryFile() as log:
-        server = subprocess.Popen(
-            [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", uri, "--host", "127.0.0.1",
-             "--port", str(port), "--workers", "1"],
-            stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "MLFLOW_TRACKING_URI": uri},
-        )  # fmt: skip
-        try:
-            base = f"http://127.0.0.1:{port}"
-            deadline = time.monotonic() + 180
-            while True:
-                try:
-                    with urllib.request.urlopen(f"{base}/health", timeout=5) as r:
-                        if r.status == 200:
-                            break
-                except OSError:
-                    pass
-                if server.poll() is not None or time.monotonic() > deadline:
-                    log.seek(0)
-                    pytest.fail(f"mlflow server did not start: {log.read().decode()[-2000:]}")
-                time.sleep(1)
-            yield base
-        finally:
-            server.terminate()
-            try:
-                server.wait(30)
-            except subprocess.TimeoutExpired:
-                server.kill()
-                server.wait()
+    base = f"http://127.0.0.1:{free_port()}"
+    command = [sys.executable, "-m", "mlflow", "server", "--backend-store-uri", uri, "--host", "127.0.0.1",
+               "--port", base.rsplit(":", 1)[1], "--workers", "1"]  # fmt: skip
+    log = tmp_path_factory.mktemp("ui") / "server.log"
+    with serving(command, f"{base}/health", log, env={**os.environ, "MLFLOW_TRACKING_URI": uri}, timeout=180):
+        yield base
 
 
 def _page(url: str) -> tuple[str, str]:

@@ -10,11 +10,8 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import socket
 import subprocess
 import sys
-import time
 import urllib.error
 import urllib.request
 
@@ -23,6 +20,7 @@ import pytest
 import torch
 
 import svbrdf_models as sm
+from conftest import free_port, serving
 
 mlflow = pytest.importorskip("mlflow")
 pyfunc = pytest.importorskip("svbrdf_models.pyfunc")
@@ -201,12 +199,6 @@ def test_a_bad_model_file_is_refused_before_anything_is_logged(run_id, tmp_path)
 # -- mlflow models serve ---------------------------------------------------------------------------
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _post(url: str, body: dict) -> tuple[int, dict]:
     request = urllib.request.Request(
         url, data=json.dumps(body).encode(), headers={"Content-Type": "application/json"}
@@ -222,39 +214,13 @@ def _post(url: str, body: dict) -> tuple[int, dict]:
 def server(registered, tmp_path_factory):
     """``mlflow models serve`` of NAME/1 on loopback (this environment: --env-manager local),
     stopped with its whole process group."""
-    port = _free_port()
-    log = open(tmp_path_factory.mktemp("serve") / "serve.log", "w+")
+    url = f"http://127.0.0.1:{free_port()}"
     bin_dir = os.path.dirname(sys.executable)  # the server runs `uvicorn` from PATH: this environment's
-    process = subprocess.Popen(
-        [os.path.join(bin_dir, "mlflow"), "models", "serve", "-m", f"models:/{NAME}/1",
-         "--env-manager", "local", "-h", "127.0.0.1", "-p", str(port), "--workers", "1"],
-        stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
-        env={**os.environ, "PATH": bin_dir + os.pathsep + os.environ.get("PATH", "")},
-    )  # fmt: skip
-    url = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + 120
-        while True:
-            try:
-                with urllib.request.urlopen(f"{url}/ping", timeout=5) as r:
-                    if r.status == 200:
-                        break
-            except OSError:
-                pass
-            if process.poll() is not None or time.monotonic() > deadline:
-                log.seek(0)
-                pytest.fail(f"mlflow models serve did not start:\n{log.read()[-3000:]}")
-            time.sleep(0.5)
+    command = [os.path.join(bin_dir, "mlflow"), "models", "serve", "-m", f"models:/{NAME}/1",
+               "--env-manager", "local", "-h", "127.0.0.1", "-p", url.rsplit(":", 1)[1], "--workers", "1"]  # fmt: skip
+    env = {**os.environ, "PATH": bin_dir + os.pathsep + os.environ.get("PATH", "")}
+    with serving(command, f"{url}/ping", tmp_path_factory.mktemp("serve") / "serve.log", env=env):
         yield url
-    finally:
-        if process.poll() is None:
-            os.killpg(process.pid, signal.SIGTERM)
-            try:
-                process.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                os.killpg(process.pid, signal.SIGKILL)
-                process.wait(timeout=30)
-        log.close()
 
 
 @pytest.mark.slow

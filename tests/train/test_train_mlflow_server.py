@@ -8,18 +8,14 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import socket
 import subprocess
 import sys
-import time
-import urllib.request
 from types import SimpleNamespace
 
 import pytest
 import torch
 
-from conftest import run_cli
+from conftest import free_port, run_cli, serving
 from svbrdf_render import read_image, write_image
 from svbrdf_render.mapfiles import linear_to_srgb, srgb_to_linear
 from svbrdf_train.data import ProceduralMaterials
@@ -30,66 +26,25 @@ pytestmark = pytest.mark.slow
 MAPS = ("normal", "diffuse", "roughness", "specular")
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _healthy(url: str) -> bool:
-    try:
-        with urllib.request.urlopen(f"{url}/health", timeout=2) as response:
-            return response.status == 200
-    except OSError:
-        return False
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    """End the server and the workers it started (its own process group, made at start)."""
-    if proc.poll() is not None:
-        return
-    os.killpg(proc.pid, signal.SIGTERM)
-    try:
-        proc.wait(timeout=20)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait(timeout=20)
-
-
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
     """``mlflow server`` on a free local port; skips the module when it cannot start here."""
     root = tmp_path_factory.mktemp("mlflow-server")
-    port = _free_port()
-    url = f"http://127.0.0.1:{port}"
+    url = f"http://127.0.0.1:{free_port()}"
     artifacts = root / "artifacts"
     env = {k: v for k, v in os.environ.items() if k != "MLFLOW_TRACKING_URI"}
     env["MLFLOW_SERVER_ENABLE_JOB_EXECUTION"] = "false"  # no job runner and huey workers: fewer processes
     command = [
         sys.executable, "-m", "mlflow", "server",
         "--host", "127.0.0.1",
-        "--port", str(port),
+        "--port", url.rsplit(":", 1)[1],
         "--workers", "1",
         "--backend-store-uri", f"sqlite:///{root / 'srv.db'}",
         "--artifacts-destination", str(artifacts),
     ]  # fmt: skip
     log_path = root / "server.log"
-    with open(log_path, "w") as log:
-        proc = subprocess.Popen(
-            command, cwd=root, env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True
-        )
-    try:
-        deadline = time.monotonic() + 60
-        while not _healthy(url):
-            if proc.poll() is not None:
-                tail = log_path.read_text()[-2000:]
-                pytest.skip(f"mlflow server exited with code {proc.returncode} at start:\n{tail}")
-            if time.monotonic() > deadline:
-                pytest.skip(f"mlflow server did not answer {url}/health within 60 s")
-            time.sleep(0.5)
+    with serving(command, f"{url}/health", log_path, env=env, cwd=root, timeout=60, on_failure=pytest.skip):
         yield SimpleNamespace(url=url, root=root, artifacts=artifacts, log=log_path)
-    finally:
-        _stop(proc)
 
 
 @pytest.fixture(scope="module")
@@ -175,7 +130,7 @@ def test_predict_from_a_run_on_the_server(server, fitted, tmp_path):
 
 def test_fit_with_an_unreachable_server_is_a_one_line_error(tmp_path):
     """A tracking URI nobody answers at is a usage error: exit 2, one line naming the URI."""
-    url = f"http://127.0.0.1:{_free_port()}"
+    url = f"http://127.0.0.1:{free_port()}"
     result = run_cli(
         "fit", "--recipe", "ours", "--size", "smoke", "--out", str(tmp_path / "run"), "-q",
         env={"MLFLOW_TRACKING_URI": url, "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0"},
@@ -190,7 +145,6 @@ def test_fit_with_an_unreachable_server_is_a_one_line_error(tmp_path):
 def test_fits_started_together_on_a_new_sqlite_store_all_keep_their_runs(tmp_path):
     """Three fits on a store that does not exist yet: MLflow creates its tables on first use,
     without a lock, and the losers of that race used to die before training."""
-    import subprocess
     import sys
 
     store = f"sqlite:///{tmp_path / 'new' / 'mlflow.db'}"
