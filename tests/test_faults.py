@@ -118,6 +118,76 @@ def files(tmp_path_factory) -> dict[str, Path]:
     out["broken_scene"] = root / "scene.yaml"
     (root / "a-file").write_text("a file where a folder should be\n")
     out["in_the_way"] = root / "a-file"
+
+    # recipes, checkpoints and resume (issue 27): damaged checkpoint headers, hostile recipe files
+    damaged = {
+        "no_recipe": {"recipe": None},  # None: the field is left out
+        "empty_optimizers": {"optimizers": {}},
+        "recipe_list": {"recipe": [1, 2]},
+        "rng_garbage": {"rng": [{"torch": torch.zeros(3, dtype=torch.uint8)}]},
+        "step_string": {"step": "ten"},
+        "step_negative": {"step": -5},
+        "step_beyond": {"step": 10**6},
+        "time_nan": {"train_seconds": float("nan")},
+    }
+    for name, change in damaged.items():
+        broken = {**state, **change}
+        broken = {k: v for k, v in broken.items() if not (k in change and v is None)}
+        (root / name).mkdir()
+        torch.save(broken, root / name / "last.pt")  # as written, not through save_checkpoint's checks
+        out[f"resume_{name}"] = root / name
+    out["deep_recipe"] = root / "deep.yaml"
+    out["deep_recipe"].write_text("base: ours\ngenerator: {name: ours, config: " + "{a: " * 3000 + "1" + "}" * 3001 + "\n")
+    out["latin1_recipe"] = root / "latin1.yaml"
+    out["latin1_recipe"].write_bytes("description: caf\xe9\nbase: ours\n".encode("latin-1"))
+    bomb = "base: ours\ndescription:\n  - &a0 [lol, lol, lol, lol, lol, lol, lol, lol, lol]\n"
+    for i in range(1, 9):  # 9**9 strings once expanded: the description is printed and logged
+        bomb += f"  - &a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]\n"
+    out["alias_bomb"] = root / "bomb.yaml"
+    out["alias_bomb"].write_text(bomb)
+    out["duplicate_recipe"] = root / "twice.yaml"
+    out["duplicate_recipe"].write_text("base: ours\ntrain:\n  epochs: 2\n  epochs: 3\n")
+    out["duplicate_scene"] = root / "twice-scene.yaml"
+    out["duplicate_scene"].write_text("camera: {position: [0, 0, 2.5]}\ncamera: {position: [0, 0, 3]}\n")
+
+    # model files and model URLs (issue 27): headers of the wrong type or range, absurd
+    # networks, a stale .sha256 sidecar, a zip that expands far beyond its size
+    import zipfile
+
+    from svbrdf_models import create_generator
+    from svbrdf_models.modelfile import model_dict, save_model
+
+    model = model_dict("ours", {"preset": "tiny"}, create_generator("ours", preset="tiny").state_dict(),
+                       resolution=32, provenance={"steps": 1})  # fmt: skip
+    config = model["generator"]["config"]
+    headers = {
+        "config_list": {"generator": {"name": "ours", "config": [1, 2]}},
+        "name_list": {"generator": {"name": ["ours"], "config": config}},
+        "metrics_str": {"metrics": "0.1"},
+        "provenance_list": {"provenance": [1, 2]},
+        "steps_str": {"provenance": {"steps": "7"}},
+        "resolution_str": {"resolution": "32"},
+        "resolution_nan": {"resolution": float("nan")},
+        "resolution_zero": {"resolution": 0},
+        "resolution_negative": {"resolution": -32},
+        "resolution_huge": {"resolution": 10**9},
+        "weights_list": {"weights": [torch.zeros(2)]},
+        "weights_tensor": {"weights": torch.zeros(2)},
+        "depth_huge": {"generator": {"name": "ours", "config": {**config, "depth": 100_000}}},
+        "channels_huge": {"generator": {"name": "ours", "config": {**config, "base_channels": 10**6, "max_channels": 10**6}}},
+    }
+    for name, change in headers.items():
+        out[f"model_{name}"] = root / f"model-{name}.pt"
+        torch.save({**model, **change}, out[f"model_{name}"])
+    out["model_stale"] = root / "model-stale.pt"
+    save_model(out["model_stale"], model)
+    (root / "model-stale.pt.sha256").write_text("0" * 64 + "  model-stale.pt\n")  # not its SHA-256
+    packed = io.BytesIO()
+    torch.save({**model, "recipe": {"blob": torch.zeros(2**22)}}, packed)  # 16 MiB of zeros
+    out["model_bomb"] = root / "model-bomb.pt"
+    with zipfile.ZipFile(packed) as src, zipfile.ZipFile(out["model_bomb"], "w", zipfile.ZIP_DEFLATED) as dst:
+        for entry in src.infolist():
+            dst.writestr(entry.filename, src.read(entry.filename))
     return out
 
 
@@ -254,7 +324,48 @@ CASES = [
     ("render-distance-zero", "svbrdf-render", "render example:tiles --distance 0 -o {tmp}/x.png", None, 2, "--distance"),
     ("render-size-negative", "svbrdf-render", "render example:tiles --size -3 -o {tmp}/x.png", None, 2, "--size"),
     ("render-size-huge", "svbrdf-render", "render example:tiles --size 100000 -o {tmp}/x.png", None, 2, "--size"),
-    ("models-channels-huge", "svbrdf-models", "describe multiscale --kind attention --detail --channels 100000", None, 2, "--channels"),
+    ("models-channels-huge", "svbrdf-models", "list --kind attention --pattern multiscale --detail --channels 100000", None, 2, "--channels"),
+    # outputs that hold work (issue 27, export): a model file never replaces a checkpoint or another file
+    ("export-over-checkpoint", "svbrdf-train", "export {fit} -o {other_ckpt}", None, 2, "-o {other_ckpt}: a training checkpoint is there"),
+    ("export-over-other-file", "svbrdf-train", "export {fit} -o {broken_yaml}", None, 2, "-o {broken_yaml}: a file that is not a model file"),
+    # recipes, checkpoints and resume (issue 27): one line naming the file and the field or key
+    ("resume-no-recipe", "svbrdf-train", "fit --resume -q --no-track --out {resume_no_recipe}", None, 2, "{resume_no_recipe}/last.pt: no 'recipe'"),
+    ("resume-empty-optimizers", "svbrdf-train", "fit --resume -q --no-track --out {resume_empty_optimizers}", None, 2, "{resume_empty_optimizers}/last.pt: field 'optimizers'"),
+    ("resume-recipe-list", "svbrdf-train", "fit --resume -q --no-track --out {resume_recipe_list}", None, 2, "{resume_recipe_list}/last.pt: field 'recipe'"),
+    ("resume-rng-garbage", "svbrdf-train", "fit --resume -q --no-track --out {resume_rng_garbage}", None, 2, "{resume_rng_garbage}/last.pt: field 'rng[0].torch'"),
+    ("resume-step-string", "svbrdf-train", "fit --resume -q --no-track --out {resume_step_string}", None, 2, "{resume_step_string}/last.pt: field 'step'"),
+    ("resume-step-negative", "svbrdf-train", "fit --resume -q --no-track --out {resume_step_negative}", None, 2, "{resume_step_negative}/last.pt: field 'step'"),
+    ("resume-step-beyond-budget", "svbrdf-train", "fit --resume -q --no-track --out {resume_step_beyond}", None, 2, "{resume_step_beyond}/last.pt: its step 1000000 is beyond the budget"),
+    ("resume-time-nan", "svbrdf-train", "fit --resume -q --no-track --out {resume_time_nan}", None, 2, "{resume_time_nan}/last.pt: field 'train_seconds'"),
+    ("resume-recipe-list-with-recipe", "svbrdf-train", "fit {smoke} --resume --out {resume_recipe_list}", None, 2, "{resume_recipe_list}/last.pt: field 'recipe'"),
+    ("recipe-nested-deep", "svbrdf-train", "fit --recipe {deep_recipe} --size smoke --out {tmp}/run", None, 2, "{deep_recipe}: not valid YAML: nested deeper"),
+    ("recipe-not-utf8", "svbrdf-train", "fit --recipe {latin1_recipe} --size smoke --out {tmp}/run", None, 2, "{latin1_recipe}: not UTF-8"),
+    ("recipe-alias-bomb", "svbrdf-train", "recipes {alias_bomb}", None, 2, "{alias_bomb}: not valid YAML: aliases expand"),
+    ("recipe-duplicate-key", "svbrdf-train", "fit --recipe {duplicate_recipe} --size smoke --out {tmp}/run", None, 2, "{duplicate_recipe}: not valid YAML: duplicate key 'epochs'"),
+    ("scene-duplicate-key", "svbrdf-render", "render example:tiles --size 32 --scene {duplicate_scene} -o {tmp}/x.png", None, 2, "{duplicate_scene}: not valid YAML (duplicate key 'camera'"),
+    ("fit-set-twice", "svbrdf-train", "fit {smoke} --set train.epochs=2 --set train.epochs=3 --out {tmp}/run", None, 2, "--set train.epochs is given twice"),
+    ("fit-max-steps-and-set", "svbrdf-train", "fit {smoke} --max-steps 3 --set train.max_steps=4 --out {tmp}/run", None, 2, "train.max_steps"),
+    ("bench-test-data-twice", "svbrdf-bench", "run --models ours --size smoke --test-data {shard} --test-data {des18} -o {tmp}/bench", None, 2, "--test-data is given 2 times"),
+    # model files and model URLs (issue 27): one line naming the file and the field, exit 2
+    ("models-show-config-list", "svbrdf-models", "show {model_config_list}", None, 2, "{model_config_list}: damaged model file: field 'generator.config'"),
+    ("models-show-name-list", "svbrdf-models", "show {model_name_list}", None, 2, "{model_name_list}: damaged model file: field 'generator.name'"),
+    ("models-show-metrics-str", "svbrdf-models", "show {model_metrics_str}", None, 2, "{model_metrics_str}: damaged model file: field 'metrics'"),
+    ("models-show-provenance-list", "svbrdf-models", "show {model_provenance_list}", None, 2, "{model_provenance_list}: damaged model file: field 'provenance'"),
+    ("models-show-steps-str", "svbrdf-models", "show {model_steps_str}", None, 2, "{model_steps_str}: damaged model file: field 'provenance.steps'"),
+    ("models-show-resolution-str", "svbrdf-models", "show {model_resolution_str}", None, 2, "{model_resolution_str}: damaged model file: field 'resolution'"),
+    ("models-show-resolution-nan", "svbrdf-models", "show {model_resolution_nan}", None, 2, "{model_resolution_nan}: damaged model file: field 'resolution'"),
+    ("models-show-resolution-zero", "svbrdf-models", "show {model_resolution_zero}", None, 2, "{model_resolution_zero}: damaged model file: field 'resolution'"),
+    ("models-show-resolution-negative", "svbrdf-models", "show {model_resolution_negative}", None, 2, "{model_resolution_negative}: damaged model file: field 'resolution'"),
+    ("models-show-resolution-huge", "svbrdf-models", "show {model_resolution_huge}", None, 2, "{model_resolution_huge}: damaged model file: field 'resolution'"),
+    ("models-show-weights-list", "svbrdf-models", "show {model_weights_list}", None, 2, "{model_weights_list}: damaged model file: field 'weights'"),
+    ("models-show-weights-tensor", "svbrdf-models", "show {model_weights_tensor}", None, 2, "{model_weights_tensor}: damaged model file: field 'weights'"),
+    ("models-show-depth-huge", "svbrdf-models", "show {model_depth_huge}", None, 2, "depth must be from 2 to 13"),
+    ("models-show-channels-huge", "svbrdf-models", "show {model_channels_huge}", None, 2, "million parameters, over the 500 million"),
+    ("fit-set-depth-huge", "svbrdf-train", "fit {smoke} --set generator.config.depth=1000000000 --out {tmp}/run", None, 2, "depth must be from 2 to 13"),
+    ("fit-set-channels-huge", "svbrdf-train", "fit {smoke} --set generator.config.base_channels=100000 --set generator.config.max_channels=100000 --out {tmp}/run", None, 2, "million parameters, over the 500 million"),
+    ("models-show-stale-sidecar", "svbrdf-models", "show {model_stale}", None, 2, "{model_stale}: its SHA-256 is"),
+    ("models-predict-stale-sidecar", "svbrdf-models", "predict {photo} --model {model_stale} --refine 0 -o {tmp}/maps", None, 2, "{model_stale}: its SHA-256 is"),
+    ("models-show-zip-bomb", "svbrdf-models", "show {model_bomb}", None, 2, "{model_bomb}: it would expand to"),
 ]
 
 

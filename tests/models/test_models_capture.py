@@ -237,7 +237,7 @@ def test_command_interrupted_during_refinement_writes_nothing_of_that_photo(
     tmp_path, photo_file, monkeypatch, capsys
 ):
     """Ctrl-C during the second photo's refinement: exit 130; the first photo's folder is whole, the
-    second has no folder at all, and no summary.json is written."""
+    second has no folder at all, and summary.json lists the first photo only, marked interrupted."""
     second = write_image(tmp_path / "second.png", linear_to_srgb(_photo(64, "leather")))
     real_call = ProgressBar.__call__
 
@@ -251,8 +251,10 @@ def test_command_interrupted_during_refinement_writes_nothing_of_that_photo(
     code, got = _run(photo_file, second, "-o", out, "--refine", 3, "--relit", "none", capsys=capsys)
     assert code == 130
     assert f"svbrdf-models: interrupted: {second} not written" in got.err and "Traceback" not in got.err
-    assert sorted(p.name for p in out.iterdir()) == ["tiles"]
+    assert sorted(p.name for p in out.iterdir()) == ["summary.json", "tiles"]
     assert len(list((out / "tiles").iterdir())) == 6 + len(MATERIAL)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted"] is True and [e["name"] for e in summary["entries"]] == ["tiles"]
 
 
 def test_progress_bar_draws_on_a_terminal_only():
@@ -430,3 +432,49 @@ def test_the_start_of_a_refinement_loses_the_two_pixel_pattern():
     amplitude = float((kept.diffuse - 0.5)[inner].abs().max())
     assert 0.07 < amplitude <= 0.1
     assert torch.allclose(out.normal.norm(dim=1), torch.ones(1, 32, 32), atol=1e-5)
+
+
+# -- a black photo, and tiles the memory cannot hold (issue 27) ----------------------------------
+
+
+def test_a_black_photo_is_captured_with_a_note_not_silently(tmp_path, capsys):
+    photo = write_image(tmp_path / "black.png", torch.zeros(3, 72, 72))
+    code, out = _run(photo, "--refine", "0", "--relit", "none", "-o", tmp_path / "maps", capsys=capsys)
+    assert code == 0, out.err
+    entry = json.loads((tmp_path / "maps" / "summary.json").read_text())["entries"][0]
+    assert entry["status"] == "ok"
+    assert any("black" in note for note in entry["notes"]), entry["notes"]
+    assert "black" in out.err
+    lit = write_image(tmp_path / "lit.png", linear_to_srgb(_photo(72)))
+    _, notes = capture.load_photo(lit)
+    assert not any("black" in note for note in notes)
+
+
+def test_tiles_the_memory_cannot_hold_are_refused_before_the_model_loads(tmp_path, photo_file, monkeypatch, capsys):
+    def no_model(*args, **kwargs):
+        raise AssertionError("the model was loaded before the size was judged")
+
+    monkeypatch.setattr(capture, "available_memory", lambda: 2**30)
+    monkeypatch.setattr(sm.modelfile, "load_model", no_model)
+    code, out = _run(photo_file, "--tiles", "--map-size", "8192", "--refine", "0", "-o", tmp_path / "maps",
+                     capsys=capsys)  # fmt: skip
+    assert code == 2
+    lines = out.err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("svbrdf-models: error: --tiles --map-size 8192: "), out.err
+    assert "GiB of memory, but 1.0 GiB are available" in lines[0] and "at most" in lines[0]
+    assert not (tmp_path / "maps" / "tiles").exists()
+
+
+def test_a_tiled_capture_says_its_cost_and_checks_each_photo(tmp_path, photo_file, model, monkeypatch, capsys):
+    code, out = _run(photo_file, "--tiles", "--map-size", "256", "--refine", "0", "--relit", "none",
+                     "-o", tmp_path / "maps", capsys=capsys)  # fmt: skip
+    assert code == 0, out.err
+    cost = capture.tiled_capture_bytes(256) / 2**30
+    assert f"--tiles --map-size 256: {capture.tile_count(256, model.resolution)} tiles" in out.err
+    assert f"about {cost:.1f} GiB of memory" in out.err
+    # without --map-size the size is each photo's own: judged per photo, before its tiles run
+    monkeypatch.setattr(capture, "available_memory", lambda: 2**20)
+    with pytest.raises(DataError) as e:
+        capture.capture_one(model, photo_file, tmp_path / "one", capture.CaptureOptions(tiles=True))
+    assert str(e.value).startswith(f"{photo_file}: --tiles: a tiled capture of ")
+    assert not (tmp_path / "one").exists()

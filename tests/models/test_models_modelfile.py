@@ -5,7 +5,13 @@ from __future__ import annotations
 
 import functools
 import http.server
+import io
+import os
+import socket
+import subprocess
+import sys
 import threading
+import zipfile
 
 import pytest
 import torch
@@ -276,3 +282,275 @@ def test_show_of_a_bad_file_is_one_line(tmp_path, capsys):
     assert main(["show", str(tmp_path / "nowhere.pt")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("svbrdf-models: error: ") and err.count("\n") == 1
+
+
+# -- the header checked against its schema (issue 27) -------------------------------------------
+
+
+def _header(contents, key, value):
+    """``contents`` with ``key`` (``a.b`` for a nested field) set to ``value``."""
+    out = {**contents, "generator": dict(contents["generator"]), "provenance": dict(contents["provenance"])}
+    head, _, tail = key.partition(".")
+    if tail:
+        out[head] = {**out[head], tail: value}
+    else:
+        out[head] = value
+    return out
+
+
+#: (case, field set, value, the field the one line names)
+HEADERS = [
+    ("config-list", "generator.config", [1, 2], "'generator.config'"),
+    ("name-list", "generator.name", ["ours"], "'generator.name'"),
+    ("metrics-str", "metrics", "0.1", "'metrics'"),
+    ("provenance-list", "provenance", [1, 2], "'provenance'"),
+    ("steps-str", "provenance.steps", "7", "'provenance.steps'"),
+    ("seconds-nan", "provenance.train_seconds", float("nan"), "'provenance.train_seconds'"),
+    ("sources-str", "provenance.data", {"sources": "des18"}, "'provenance.data.sources'"),
+    ("resolution-str", "resolution", "32", "'resolution'"),
+    ("resolution-nan", "resolution", float("nan"), "'resolution'"),
+    ("resolution-zero", "resolution", 0, "'resolution'"),
+    ("resolution-negative", "resolution", -32, "'resolution'"),
+    ("resolution-huge", "resolution", 10**9, "'resolution'"),
+    ("resolution-unfit", "resolution", 40, "'resolution'"),  # tiny takes multiples of 16
+    ("weights-list", "weights", [torch.zeros(2)], "'weights'"),
+    ("weights-tensor", "weights", torch.zeros(2), "'weights'"),
+    ("precision-word", "precision", "fp8", "'precision'"),
+    ("version-zero", "version", 0, "'version'"),
+]
+
+
+@pytest.mark.parametrize("case, key, value, field", HEADERS, ids=[h[0] for h in HEADERS])
+def test_a_header_field_of_the_wrong_type_or_range_is_one_line_naming_file_and_field(
+    tmp_path, trained, case, key, value, field, capsys
+):
+    from svbrdf_models.cli import main
+
+    path = tmp_path / f"{case}.pt"
+    torch.save(_header(_contents(trained), key, value), path)
+    with pytest.raises(sm.ModelFileError) as e:
+        load_model(path)
+    text = _one_line(e)
+    assert text.startswith(f"{path}: damaged model file: field {field}"), text
+    assert main(["show", str(path)]) == 2  # show never describes it as fine
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1 and field in captured.err
+
+
+def test_a_config_asking_for_an_absurd_network_is_refused_before_building(tmp_path, trained):
+    """Checked in a child process that is killed after 120 s: show once never returned."""
+    paths = []
+    for name, config in (("deep", {"depth": 100_000}), ("wide", {"max_channels": 10**6, "base_channels": 10**6})):
+        c = _contents(trained)
+        path = tmp_path / f"{name}.pt"
+        torch.save({**c, "generator": {"name": "ours", "config": {**c["generator"]["config"], **config}}}, path)
+        paths.append(path)
+    code = (
+        "import sys\nfrom svbrdf_models.cli import main\n"
+        "sys.exit(max(main(['show', p]) for p in sys.argv[1:]))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code, *map(str, paths)], capture_output=True, text=True, timeout=120,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.splitlines()
+    assert len(lines) == 2 and "Traceback" not in done.stderr, done.stderr
+    assert lines[0].startswith(f"svbrdf-models: error: {paths[0]}:") and "depth must be from 2 to 13" in lines[0]
+    assert lines[1].startswith(f"svbrdf-models: error: {paths[1]}:") and "million parameters" in lines[1]
+
+
+def test_the_size_bound_admits_the_paper_and_counts_its_parameters():
+    """The estimate the bound reads is the parameter count of the networks it admits."""
+    for name, config in (("ours", {}), ("unet", {}), ("ours", {"preset": "small"})):
+        estimate = sm.resolve_config("generator", name, config).parameter_estimate()
+        built = sum(p.numel() for p in sm.create_generator(name, config).parameters())
+        assert estimate == built
+    with pytest.raises(sm.ConfigError, match="max_channels"):
+        sm.resolve_config("generator", "ours", {"max_channels": 2048})
+
+
+# -- the .sha256 sidecar ------------------------------------------------------------------------
+
+
+def test_a_sidecar_that_does_not_match_is_refused_by_show_and_predict(tmp_path, model_file, capsys):
+    from svbrdf_models.cli import main
+
+    path = tmp_path / model_file.name
+    path.write_bytes(model_file.read_bytes())
+    sidecar = path.with_name(path.name + ".sha256")
+    sidecar.write_text(f"{file_sha256(path)}  {path.name}\n")  # as svbrdf-train export writes it
+    assert load_model(path).sha256 == file_sha256(path)
+    sidecar.write_text(f"{'0' * 64}  {path.name}\n")
+    with pytest.raises(sm.ModelFileError) as e:
+        load_model(path)
+    assert _one_line(e).startswith(str(path)) and "tiny.pt.sha256" in str(e.value)
+    photo = tmp_path / "photo.png"
+    from svbrdf_render import write_image
+
+    write_image(photo, torch.full((3, 64, 64), 0.4))
+    for argv in (["show", str(path)], ["predict", str(photo), "--model", str(path), "--refine", "0",
+                                       "-o", str(tmp_path / "maps")]):  # fmt: skip
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        lines = [line for line in err.splitlines() if "error:" in line]
+        assert len(lines) == 1 and str(path) in lines[0] and ".sha256" in lines[0], err
+    assert not (tmp_path / "maps" / "photo").exists()
+    sidecar.write_text("not a checksum\n")
+    with pytest.raises(sm.ModelFileError, match="holds no SHA-256"):
+        load_model(path)
+
+
+# -- a zip that expands far beyond its size -------------------------------------------------------
+
+
+def _repacked(source_bytes: bytes, path, compression=zipfile.ZIP_DEFLATED):
+    """The torch zip ``source_bytes`` written again with its entries compressed."""
+    with zipfile.ZipFile(io.BytesIO(source_bytes)) as src, zipfile.ZipFile(path, "w", compression) as dst:
+        for info in src.infolist():
+            dst.writestr(info.filename, src.read(info.filename))
+    return path
+
+
+def test_a_model_file_that_expands_far_beyond_its_size_is_refused_before_loading(tmp_path, trained):
+    buffer = io.BytesIO()
+    blob = torch.zeros(16 * 2**20 // 4)  # 16 MiB of zeros: a few KiB once deflated
+    torch.save({**_contents(trained), "recipe": {"name": "ours", "blob": blob}}, buffer)
+    bomb = _repacked(buffer.getvalue(), tmp_path / "bomb.pt")
+    assert bomb.stat().st_size < 2**20
+    assert torch.load(bomb, weights_only=True)["recipe"]["blob"].numel() == blob.numel()  # torch reads it
+    with pytest.raises(sm.ModelFileError) as e:
+        load_model(bomb)
+    text = _one_line(e)
+    assert text.startswith(f"{bomb}: it would expand to 16.") and "uncompressed" in text, text
+    assert not is_model_file(bomb)
+    # a model file re-packed with compression stays within the bound: weights compress little
+    repacked = _repacked(_saved(trained), tmp_path / "ok.pt")
+    assert load_model(repacked).name == "ours"
+
+
+def _saved(trained) -> bytes:
+    buffer = io.BytesIO()
+    torch.save(_contents(trained), buffer)
+    return buffer.getvalue()
+
+
+# -- TrainedModel.predict on photos that are not linear values ------------------------------------
+
+
+def test_predict_refuses_nan_and_integer_photos_and_predicts_a_black_one(model_file):
+    model = load_model(model_file)
+    photo = torch.rand(3, RES, RES)
+    photo[1, 3, 4] = float("nan")
+    for bad, says in ((photo, "NaN"), ((torch.rand(3, RES, RES) * 255).to(torch.uint8), "uint8 codes")):
+        with pytest.raises(sm.DataError) as e:
+            model.predict(bad)
+        assert says in _one_line(e)
+    with pytest.raises(sm.DataError, match="NaN"):
+        model.predict(photo, refine=2)  # checked before refinement too
+    maps = model.predict(torch.zeros(3, RES, RES))  # black: a photo like any other here
+    for m in ("normal", "diffuse", "roughness", "specular"):
+        assert torch.isfinite(getattr(maps, m)).all()
+
+
+# -- URLs: a server that never answers, hostile names and contents ---------------------------------
+
+
+@pytest.fixture(scope="module")
+def silent_server():
+    """A loopback TCP server that accepts connections and never answers (``/silent``), or sends
+    headers and part of the body, then nothing (``/stall``)."""
+    listener = socket.create_server(("127.0.0.1", 0))
+    held: list[socket.socket] = []
+    stop = threading.Event()
+
+    def serve():
+        listener.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                conn, _ = listener.accept()
+            except TimeoutError:
+                continue
+            held.append(conn)
+            request = conn.recv(4096)
+            if b"/stall" in request:
+                conn.sendall(b"HTTP/1.0 200 OK\r\nContent-Length: 100000\r\n\r\n" + b"PK" * 10)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    yield f"http://127.0.0.1:{listener.getsockname()[1]}"
+    stop.set()
+    thread.join(timeout=5)
+    for conn in held:
+        conn.close()
+    listener.close()
+
+
+@pytest.mark.parametrize("path", ["silent", "stall"])
+def test_a_server_that_never_answers_times_out_in_one_line_and_leaves_no_partial_file(
+    tmp_path, silent_server, path
+):
+    """A child process killed after 120 s: without a timeout the download waited forever."""
+    url = f"{silent_server}/{path}/tiny-01234567.pt"
+    done = subprocess.run(
+        [sys.executable, "-m", "svbrdf_models", "show", url], capture_output=True, text=True, timeout=120,
+        env={**os.environ, "TORCH_HOME": str(tmp_path / "torch"), "SVBRDF_DOWNLOAD_TIMEOUT": "1",
+             "OMP_NUM_THREADS": "1"},
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"svbrdf-models: error: {url}: "), done.stderr
+    assert "SVBRDF_DOWNLOAD_TIMEOUT=1 s" in lines[0]
+    assert [p for p in (tmp_path / "torch").rglob("*") if p.is_file()] == []
+
+
+def test_a_bad_timeout_setting_is_one_line(tmp_path, server, monkeypatch):
+    base, sha = server
+    monkeypatch.setenv("SVBRDF_DOWNLOAD_TIMEOUT", "soon")
+    with pytest.raises(sm.ModelFileError) as e:
+        load_model(f"{base}/{hash_name('tiny.pt', sha).name}", model_dir=tmp_path / "cache")
+    assert _one_line(e).startswith("SVBRDF_DOWNLOAD_TIMEOUT='soon'")
+
+
+@pytest.fixture(scope="module")
+def hostile_server(tmp_path_factory, model_file):
+    """Loopback HTTP: pickled code under its true hash, and the model under a name whose first
+    ``-`` torch.hub reads as an empty hash."""
+    root = tmp_path_factory.mktemp("hostile")
+    evil = root / "evil.pt"
+    torch.save({"format": "svbrdf-model", "code": functools.partial(print)}, evil)
+    evil.rename(root / hash_name("evil.pt", file_sha256(evil)).name)
+    (root / "x-.y-deadbeef.pt").write_bytes(model_file.read_bytes())
+    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(root))
+    handler.log_message = lambda *a: None
+    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=httpd.serve_forever, daemon=True).start()
+    names = {"evil": next(p.name for p in root.glob("evil-*.pt")), "dash": "x-.y-deadbeef.pt"}
+    yield f"http://127.0.0.1:{httpd.server_address[1]}", names
+    httpd.shutdown()
+
+
+def test_a_refused_download_gives_no_unsafe_advice_and_is_not_kept(tmp_path, hostile_server):
+    base, names = hostile_server
+    with pytest.raises(sm.ModelFileError) as e:
+        load_model(f"{base}/{names['evil']}", model_dir=tmp_path / "cache")
+    text = _one_line(e)
+    assert "never unpickled" in text and "weights_only" not in text
+    assert list((tmp_path / "cache").iterdir()) == []
+
+
+def test_a_name_torch_hub_reads_as_an_empty_hash_is_checked_here(tmp_path, hostile_server):
+    base, names = hostile_server
+    with pytest.raises(sm.ModelFileError) as e:
+        load_model(f"{base}/{names['dash']}", model_dir=tmp_path / "cache")
+    text = _one_line(e)
+    assert "the download does not match the SHA-256 in its name" in text and "cached copy" not in text
+    assert "deadbeef" in text
+    assert list((tmp_path / "cache").iterdir()) == []
+
+
+def test_a_good_download_leaves_only_the_model_in_the_cache(tmp_path, server):
+    base, sha = server
+    name = hash_name("tiny.pt", sha).name
+    load_model(f"{base}/{name}", model_dir=tmp_path / "cache")
+    assert [p.name for p in (tmp_path / "cache").iterdir()] == [name]

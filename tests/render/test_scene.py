@@ -163,3 +163,29 @@ def test_directional_light_has_no_falloff_and_no_parallax():
     point = render(m, Scene(cam, (PointLight(torch.tensor([0.0, 0.6, 0.8]), 2.0),)))
     assert torch.allclose(out[:, 1], point, rtol=1e-5)
     assert not torch.allclose(out[:, 0], out[:, 1], rtol=1e-2)
+
+
+def test_a_key_given_twice_in_a_scene_file_is_refused_naming_it(tmp_path):
+    p = tmp_path / "twice.yaml"
+    p.write_text("camera: {position: [0, 0, 2.5]}\nlights: []\ncamera: {position: [0, 0, 3]}\n")
+    with pytest.raises(SceneError) as e:
+        Scene.load(p)
+    assert str(e.value).startswith(f"{p}: not valid YAML") and "duplicate key 'camera' (lines 1 and 3)" in str(e.value)
+    p.write_text("lights:\n  - {type: flash, intensity: 10, intensity: 12}\n")
+    with pytest.raises(SceneError, match="duplicate key 'intensity' \\(lines 2 and 2\\)"):
+        Scene.load(p)
+
+
+def test_scene_aliases_are_read_but_an_alias_bomb_is_refused_before_it_is_built(tmp_path):
+    p = tmp_path / "shared.yaml"
+    p.write_text(
+        "camera: {position: [0, 0, 2.5]}\n"
+        "lights:\n  - &flash {type: flash, intensity: 10}\n  - *flash\n"
+    )
+    scene = Scene.load(p)
+    assert len(scene.lights) == 2
+    bomb = "lights:\n  - &a0 [x, x, x, x, x, x, x, x, x]\n"
+    bomb += "".join(f"  - &a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]\n" for i in range(1, 9))
+    p.write_text(bomb)
+    with pytest.raises(SceneError, match="aliases expand the document to more than 100000 values"):
+        Scene.load(p)

@@ -176,3 +176,57 @@ def test_a_gpu_index_the_machine_lacks_is_named_as_such(monkeypatch):
         pick_device("cuda:2")
     with pytest.raises(TrainingError, match="--device 'cuda:x': expected auto, cpu, cuda or cuda:K"):
         pick_device("cuda:x")
+
+
+# -- checkpoint headers (issue 27): every field checked before use, one line naming it ------------
+
+
+def _resumable() -> dict:
+    """The header of a checkpoint that ``--resume`` can use (weights, Adam and random states)."""
+    import torch
+
+    adam = {"state": {}, "param_groups": [{"params": [0], "lr": 2e-5}]}
+    return {
+        "format": 1, "recipe": {"train": {"epochs": 1}}, "step": 3, "epoch": 0,
+        "generator": {"w": torch.zeros(2)}, "discriminator": None,
+        "optimizers": {"g": adam}, "rng": [{"torch": torch.get_rng_state()}],
+        "train_seconds": 1.5, "wall_seconds": 2.0, "world_size": 1, "run_id": None, "init": None,
+    }  # fmt: skip
+
+
+HEADER_ROWS = [
+    ({"recipe": [1, 2]}, "field 'recipe' must be a mapping of recipe sections, got list"),
+    ({"recipe": None}, "no 'recipe' in the checkpoint"),
+    ({"step": "ten"}, "field 'step' must be a whole number of steps >= 0, got 'ten'"),
+    ({"step": -5}, "field 'step' must be a whole number of steps >= 0, got -5"),
+    ({"step": True}, "field 'step'"),
+    ({"train_seconds": float("nan")}, "field 'train_seconds' must be a finite number of seconds >= 0, got nan"),
+    ({"wall_seconds": -1.0}, "field 'wall_seconds'"),
+    ({"world_size": 0}, "field 'world_size'"),
+    ({"generator": [1]}, "field 'generator' must be a mapping of weight names to tensors, got list"),
+    ({"optimizers": {}}, "field 'optimizers' must be the Adam states of 'g' (state and param_groups)"),
+    ({"optimizers": {"g": {"state": {}, "param_groups": []}}}, "field 'optimizers'"),
+    ({"rng": "garbage"}, "field 'rng' must be a list of 1 random state(s), one per process, got 'garbage'"),
+    ({"rng": [{"torch": "x"}]}, "field 'rng[0].torch' must be torch's CPU random state"),
+    ({"rng": [{"scene": 1}]}, "field 'rng[0].torch'"),
+]
+
+
+@pytest.mark.parametrize("change, says", HEADER_ROWS, ids=[f"{next(iter(c))}-{i}" for i, (c, _) in enumerate(HEADER_ROWS)])
+def test_a_damaged_checkpoint_header_is_refused_naming_the_file_and_the_field(tmp_path, change, says):
+    import torch
+
+    from svbrdf_train.checkpoint import check_resumable, load_checkpoint
+    from svbrdf_train.errors import CheckpointError
+
+    good = tmp_path / "good.pt"
+    torch.save(_resumable(), good)
+    check_resumable(load_checkpoint(good), str(good))  # the undamaged header passes
+    state = {**_resumable(), **change}
+    state = {k: v for k, v in state.items() if not (k in change and v is None)}
+    path = tmp_path / "last.pt"
+    torch.save(state, path)
+    with pytest.raises(CheckpointError) as e:
+        check_resumable(load_checkpoint(path, mmap=True), str(path))
+    message = str(e.value)
+    assert message.startswith(f"{path}: ") and says in message and "\n" not in message

@@ -5,6 +5,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
+import signal
+import subprocess
+import sys
+import time
 
 import h5py
 import pytest
@@ -91,7 +95,44 @@ def test_make_interrupted_leaves_no_file(tmp_path, monkeypatch):
 
     monkeypatch.setattr(procedural.ProceduralMaterials, "batch", interrupted)
     result = _run("make", "-n", 4, "-r", 16, "--batch", 2, "-o", tmp_path / "x.h5")
-    assert result.exit_code == 1 and "Aborted" in result.output
+    assert result.exit_code == 130 and "interrupted" in result.stderr and "Aborted" not in result.output
+    assert list(tmp_path.iterdir()) == []
+
+
+def _dead_pid() -> int:
+    """A process id that no running process has (the PID of a child that has ended)."""
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    child.wait()
+    return child.pid
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_make_stopped_by_a_signal_exits_130_and_leaves_nothing(tmp_path, sig):
+    """Ctrl-C and SIGTERM alike, in a real process: exit 130, one line, no temporary file; and the
+    temporary of an earlier run killed outright (SIGKILL) is removed by the next run."""
+    out = tmp_path / "x.h5"
+    stale = tmp_path / f".x.h5.{_dead_pid()}.tmp"
+    stale.write_bytes(b"half a shard")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "svbrdf_train", "data", "make", "-n", "100000", "-r", "64", "-o", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        mine = tmp_path / f".x.h5.{proc.pid}.tmp"
+        end = time.monotonic() + 120
+        while not mine.exists() and proc.poll() is None and time.monotonic() < end:
+            time.sleep(0.05)
+        assert mine.exists(), "the shard was never started"
+        assert not stale.exists(), "the stale temporary of a dead process was kept"
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)  # a killing bound: the stop must not hang
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "Aborted" not in err, err
+    assert [line for line in err.splitlines() if "interrupted" in line] == [
+        f"svbrdf-train: interrupted: {out} not written (left as it was)"
+    ], err
     assert list(tmp_path.iterdir()) == []
 
 

@@ -197,3 +197,23 @@ def test_bad_arguments_one_line_exit_2(fit_dir, tmp_path, args, says):
     r = run_cli("export", *args, "-o", str(tmp_path / "m.pt"))
     assert r.returncode == 2 and says in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "m.pt").exists()
+
+
+def test_export_over_a_checkpoint_or_another_file_is_refused_without_force(fit_dir, exported, tmp_path):
+    """-o at the fit's own last.pt would leave a fit that cannot resume: refused, the checkpoint kept;
+    a model file over a model file is fine, and --force replaces anything."""
+    before = (fit_dir / "last.pt").read_bytes()
+    r = run_cli("export", str(fit_dir), "-o", str(fit_dir / "last.pt"))
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "--force" in r.stderr and "checkpoint" in r.stderr
+    assert (fit_dir / "last.pt").read_bytes() == before
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine\n")
+    r = run_cli("export", str(fit_dir), "-o", str(notes))
+    assert r.returncode == 2 and str(notes) in r.stderr and notes.read_text() == "mine\n", r.stderr
+    model = tmp_path / "model.pt"
+    model.write_bytes(exported[0].read_bytes())
+    assert run_cli("export", str(fit_dir), "-o", str(model)).returncode == 0
+    r = run_cli("export", str(fit_dir), "-o", str(notes), "--force")
+    assert r.returncode == 0, r.stderr
+    assert sm.load_model(notes).steps == load_checkpoint(fit_dir / "last.pt")["step"]

@@ -6,6 +6,7 @@ module; the fit and the prediction reach it only through ``MLFLOW_TRACKING_URI=h
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
@@ -165,3 +166,52 @@ def test_fits_started_together_on_a_new_sqlite_store_all_keep_their_runs(tmp_pat
     client = MlflowClient(store)
     runs = client.search_runs([client.get_experiment_by_name("together").experiment_id])
     assert len(runs) == 3 and all(r.info.status == "FINISHED" for r in runs)
+
+
+def _one_line(result) -> str:
+    assert "Traceback" not in result.stderr, result.stderr
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.startswith("svbrdf-train: error: ") and result.stderr.count("\n") == 1, result.stderr
+    return result.stderr
+
+
+def test_a_server_that_refuses_or_never_answers_is_given_up_on_with_its_timeout_setting(tmp_path):
+    """MLflow's own retries (7, with back-off) kept a fit silent for over 4 minutes: the URI and the
+    setting that bounds the wait are named in one line. The bound is a killing timeout."""
+    import socket
+
+    refused = f"http://127.0.0.1:{free_port()}"
+    with socket.socket() as mute:  # accepts connections (the backlog) and never answers
+        mute.bind(("127.0.0.1", 0))
+        mute.listen(8)
+        silent = f"http://127.0.0.1:{mute.getsockname()[1]}"
+        for url in (refused, silent):
+            env = {"MLFLOW_TRACKING_URI": url}
+            result = run_cli("fit", "--recipe", "ours", "--size", "smoke", "-q",
+                             "--out", str(tmp_path / "run"), env=env, timeout=120)  # fmt: skip
+            line = _one_line(result)
+            assert url in line and "MLFLOW_HTTP_REQUEST_TIMEOUT" in line, line
+            assert not (tmp_path / "run" / "last.pt").exists()
+
+
+def test_a_sqlite_store_that_is_not_mlflows_is_refused_before_anything_is_written(tmp_path):
+    """A folder, an empty file, another program's database, a file that is no database: MLflow would
+    write its tables into them (or retry for minutes); each is refused in one line, left as it was."""
+    import sqlite3
+
+    (tmp_path / "folder.db").mkdir()
+    (tmp_path / "empty.db").write_bytes(b"")
+    with contextlib.closing(sqlite3.connect(tmp_path / "other.db")) as db:
+        db.execute("CREATE TABLE invoices (id INTEGER, total REAL)")
+        db.commit()
+    (tmp_path / "text.db").write_text("not a database\n")
+    for name in ("folder.db", "empty.db", "other.db", "text.db"):
+        store = tmp_path / name
+        before = None if store.is_dir() else store.read_bytes()
+        result = run_cli("fit", "--recipe", "ours", "--size", "smoke", "-q", "--out", str(tmp_path / "run"),
+                         env={"MLFLOW_TRACKING_URI": f"sqlite:///{store}"}, timeout=120)  # fmt: skip
+        line = _one_line(result)
+        assert str(store) in line and "MLflow store" in line, line
+        assert before is None or store.read_bytes() == before, f"{name} was written into"
+        assert not (tmp_path / "run" / "last.pt").exists()
+    assert list((tmp_path / "folder.db").iterdir()) == []

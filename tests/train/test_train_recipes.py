@@ -175,3 +175,69 @@ def test_overrides_of_a_loaded_recipe_and_checkpoint_recipes_are_checked_alike()
     with pytest.raises(RecipeError, match=r"last.pt: optim: lr must be a finite number > 0, got nan"):
         recipe_from_dict(data, where="last.pt")
     assert recipe_from_dict(r.to_dict()) == r
+
+
+# -- hostile recipe files and repeated settings (issue 27) ------------------------------------------
+
+
+def test_a_key_given_twice_in_a_recipe_is_refused_naming_it_and_its_lines(tmp_path):
+    p = tmp_path / "twice.yaml"
+    p.write_text("base: ours\ntrain:\n  epochs: 2\n  batch: 4\n  epochs: 3\n")
+    with pytest.raises(RecipeError) as e:
+        load_recipe(p)
+    assert str(e.value).startswith(f"{p}: ") and "duplicate key 'epochs' (lines 3 and 5)" in str(e.value)
+    assert "\n" not in str(e.value)
+
+
+def test_aliases_and_merge_keys_that_expand_little_are_still_read(tmp_path):
+    p = tmp_path / "shared.yaml"
+    p.write_text(
+        "base: ours\n"
+        "sizes:\n"
+        "  cpu: &small {train.resolution: 64, train.batch: 2}\n"
+        "  smoke:\n"
+        "    <<: *small\n"
+        "    train.batch: 1\n"  # a merge key's values may be overridden: that is what they are for
+    )
+    assert load_recipe(p, "cpu").train.batch == 2
+    smoke = load_recipe(p, "smoke")
+    assert (smoke.train.resolution, smoke.train.batch) == (64, 1)
+
+
+def test_a_field_set_twice_on_the_command_line_is_refused():
+    with pytest.raises(RecipeError, match=r"--set train.batch is given twice \('train.batch=2' and 'train.batch=4'\)"):
+        parse_overrides(["train.batch=2", "loss.adv=0", "train.batch=4"])
+    assert parse_overrides(["train.batch=2", "train.epochs=2"]) == {"train.batch": 2, "train.epochs": 2}
+
+
+def test_a_recipe_that_is_not_utf8_is_one_line(tmp_path):
+    p = tmp_path / "latin1.yaml"
+    p.write_bytes("base: ours\ndescription: caf\xe9\n".encode("latin-1"))
+    with pytest.raises(RecipeError, match=r"latin1.yaml: not UTF-8 text \(byte 0xe9 at offset 27\)"):
+        load_recipe(p)
+
+
+@pytest.mark.parametrize(
+    "text, says",
+    [
+        ("base: ours\ngenerator: {name: ours, config: " + "{a: " * 3000 + "1" + "}" * 3001, "nested deeper than 100"),
+        ("base: ours\ndescription: &d [x, *d]\n", "names a node that holds it"),
+        (
+            "base: ours\ndescription:\n  - &a0 [x, x, x, x, x, x, x, x, x]\n"
+            + "".join(f"  - &a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]\n" for i in range(1, 9)),
+            "aliases expand the document to more than 100000 values",
+        ),
+    ],
+    ids=["nested-3000-levels", "alias-to-itself", "alias-bomb-9-to-the-9"],
+)
+def test_deep_and_self_expanding_recipes_are_refused_before_anything_walks_them(tmp_path, text, says):
+    """Each would end in a RecursionError or walk 9**9 values; a fresh process, killed at a
+    bound, so that a regression fails the test instead of hanging the suite."""
+    from conftest import run_cli
+
+    p = tmp_path / "hostile.yaml"
+    p.write_text(text)
+    done = run_cli("recipes", str(p), timeout=120)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip().splitlines() == [done.stderr.strip()] and "Traceback" not in done.stderr
+    assert f"{p}: not valid YAML: " in done.stderr and says in done.stderr

@@ -230,3 +230,131 @@ def test_two_cpu_processes_with_ddp_match_one_process_with_the_whole_batch(tmp_p
     )
     assert again.returncode == 2
     assert "written by 2 process(es), resumed with 1" in again.stderr
+
+
+@pytest.mark.slow
+def test_a_second_fit_on_a_running_fits_folder_is_refused_naming_its_pid(tmp_path):
+    """Two fits on one --out (new or --resume) would mix their checkpoints: while one runs, the
+    other is refused in one line naming the holder's PID; once the holder is dead (SIGKILL
+    leaves its lock file behind) the lock is taken over and the fit resumes."""
+    args = (*SMOKE, "--no-track", "--set", "train.epochs=1000", "--max-steps", "100000",
+            "--set", "train.checkpoint_every=2", "--set", "train.validate_every=1000")  # fmt: skip
+    proc = _start([*args, "--out", "busy"], tmp_path)
+    try:
+        _wait_for_checkpoint(proc, tmp_path / "busy")
+        lock = tmp_path / "busy" / ".fit.lock"
+        assert lock.read_text().strip() == str(proc.pid)
+        for again in ([*args, "--out", "busy", "--force"], [*args, "--out", "busy", "--resume"]):
+            second = run_cli(*again, cwd=tmp_path, timeout=120)
+            assert second.returncode == 2, second.stderr
+            lines = second.stderr.strip().splitlines()
+            assert len(lines) == 1 and "Traceback" not in second.stderr, second.stderr
+            assert f"PID {proc.pid}" in lines[0] and "busy" in lines[0], lines[0]
+        assert proc.poll() is None, "the refused fits must not have stopped the running one"
+    finally:
+        proc.kill()
+        proc.communicate()
+    assert lock.exists(), "SIGKILL leaves the lock file of a dead process"
+    step = load_checkpoint(tmp_path / "busy" / "last.pt")["step"]
+    resumed = run_cli("fit", "--resume", "--no-track", "-q", "--max-steps", str(step + 2), "--out", "busy",
+                      cwd=tmp_path, timeout=120)  # fmt: skip
+    assert resumed.returncode == 0, resumed.stderr
+    assert not lock.exists(), "a fit removes its lock file when it ends"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_predict_stopped_by_a_signal_exits_130_with_the_summary_of_the_photos_done(tmp_path, sig):
+    """Ctrl-C and SIGTERM alike stop a batch of photos with exit 130 (not click's "Aborted!", 1),
+    one line naming the photo not written, and summary.json for the photos done before it."""
+    import threading
+
+    from svbrdf_render import write_image
+    from svbrdf_render.mapfiles import linear_to_srgb
+    from svbrdf_train.data import ProceduralMaterials
+
+    fit = run_cli("fit", "--recipe", "ours", "--size", "smoke", "-q", "--no-track", "--out", "fit",
+                  cwd=tmp_path)  # fmt: skip
+    assert fit.returncode == 0, fit.stderr
+    materials = ProceduralMaterials(4, 256, seed=5)
+    photos = [tmp_path / f"p{i}.png" for i in range(4)]
+    for i, photo in enumerate(photos):
+        write_image(photo, linear_to_srgb(materials[i]["input"]))
+    photos = [str(p) for p in photos]
+    args = ["predict", *photos, "--checkpoint", "fit/last.pt", "--refine", "300", "-o", "maps"]
+    proc = _start(args, tmp_path)
+    watchdog = threading.Timer(300, proc.kill)  # a killing bound: neither the batch nor the stop may hang
+    watchdog.start()
+    try:
+        first = proc.stdout.readline().strip()  # the folder of the first photo captured
+        assert first.endswith("p0"), first
+        proc.send_signal(sig)
+        out, err = proc.communicate()
+    finally:
+        watchdog.cancel()
+        proc.kill()
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "Aborted" not in err, err
+    stopped = [line for line in err.splitlines() if "interrupted" in line]
+    assert len(stopped) == 1 and "not written" in stopped[0], err
+    done = [first, *out.split()]
+    summary = json.loads((tmp_path / "maps" / "summary.json").read_text())
+    assert summary["interrupted"] is True
+    assert [e["name"] for e in summary["entries"]] == [os.path.basename(d) for d in done]
+    assert summary["photos"] == len(done) < 4
+    assert not list((tmp_path / "maps").rglob(".*.tmp")), "a temporary file was left behind"
+
+
+@pytest.mark.slow
+def test_a_deleted_run_is_refused_by_resume_predict_init_and_bench_in_one_line(tmp_path):
+    """MLflow keeps a deleted run's artifacts and takes its metrics until the trash is emptied:
+    each command that would read or continue it says so instead, and what to do."""
+    from mlflow import MlflowClient
+
+    from svbrdf_render import write_image
+    from svbrdf_render.mapfiles import linear_to_srgb
+    from svbrdf_train.data import ProceduralMaterials
+
+    env = {"MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path / 'mlflow.db'}"}
+    done = run_cli(*SMOKE, "--max-steps", "1", "--out", "fit", cwd=tmp_path, env=env)
+    assert done.returncode == 0, done.stderr
+    run_id = json.loads((tmp_path / "fit" / "last.json").read_text())["run_id"]
+    client = MlflowClient(env["MLFLOW_TRACKING_URI"])
+    client.delete_run(run_id)
+    write_image(tmp_path / "photo.png", linear_to_srgb(ProceduralMaterials(1, 64, seed=3)[0]["input"]))
+    commands = {
+        "resume": [sys.executable, "-m", "svbrdf_train", "fit", "--resume", "-q", "--max-steps", "2", "--out", "fit"],
+        "predict": [sys.executable, "-m", "svbrdf_train", "predict", "photo.png", "--run", run_id, "-o", "maps"],
+        "init": [sys.executable, "-m", "svbrdf_train", *SMOKE, "--init", run_id, "--out", "again"],
+        "bench": [sys.executable, "-m", "svbrdf_bench", "run", "--models", "ours", "--size", "smoke",
+                  "--from-runs", run_id, "-o", "bench"],
+    }  # fmt: skip
+    for name, argv in commands.items():
+        refused = subprocess.run(
+            argv, cwd=tmp_path, env={**os.environ, **env}, capture_output=True, text=True, timeout=300
+        )
+        lines = refused.stderr.strip().splitlines()
+        assert refused.returncode == 2 and len(lines) == 1, (name, refused.stderr)
+        assert f"MLflow run {run_id} was deleted" in lines[0] and "mlflow runs restore" in lines[0], lines[0]
+    assert client.get_run(run_id).info.status == "FINISHED", "the refused resume changed the run"
+    assert not (tmp_path / "maps").exists() and not (tmp_path / "again" / "last.pt").exists()
+    client.restore_run(run_id)
+    resumed = run_cli("fit", "--resume", "-q", "--max-steps", "2", "--out", "fit", cwd=tmp_path, env=env)
+    assert resumed.returncode == 0, resumed.stderr
+    assert load_checkpoint(tmp_path / "fit" / "last.pt")["step"] == 2
+
+
+def test_a_time_budget_the_step_budget_ends_long_before_is_warned_of_at_the_start(tmp_path):
+    """The smoke size stops after 2 steps (train.max_steps=2): --max-minutes 3 is never reached,
+    and the fit says so after its first step, naming both settings."""
+    done = run_cli(*SMOKE, "--no-track", "--max-minutes", "3", "--out", "short", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    warned = [line for line in done.stderr.splitlines() if "will not be reached" in line]
+    assert len(warned) == 1, done.stderr
+    assert "train.max_minutes=3" in warned[0] and "train.max_steps=2" in warned[0] and "--max-steps" in warned[0]
+    # a step budget far beyond the time budget: the time budget ends the fit, no warning
+    long = run_cli(*SMOKE, "--no-track", "--max-minutes", "0.05", "--set", "train.max_steps=null",
+                   "--set", "train.epochs=100000", "--out", "long", cwd=tmp_path)  # fmt: skip
+    assert long.returncode == 0, long.stderr
+    assert "time budget of 0.05 min reached" in long.stderr + long.stdout
+    assert "will not be reached" not in long.stderr

@@ -10,7 +10,8 @@ exit status.
 Messages go to stderr, one line each, starting with ``PROG: error:`` or ``PROG: note:``; the
 folder of each photo captured goes to stdout. Exit status: 0 every photo captured; 1 some
 failed; 2 all failed; 3 a file could not be written (the photos after it are not done); 130
-interrupted (the photo in progress is not written, the summary neither).
+interrupted by Ctrl-C or SIGTERM alike (the photo in progress is not written; summary.json lists
+the photos done before it, marked ``"interrupted": true``).
 """
 
 from __future__ import annotations
@@ -89,7 +90,8 @@ smaller than the model's resolution.""",
 Exit status: 0 every photo captured; 1 some photos failed, others were captured; 2 every
 photo failed, or bad arguments (no model, unreadable model, bad option, -o not writable);
 3 a file could not be written (disk full...): the photos after it are not done; 130
-interrupted (Ctrl-C): the photo in progress is not written, nor summary.json.
+interrupted (Ctrl-C or SIGTERM): the photo in progress is not written; summary.json lists the
+photos done before it.
 Every file is written whole or not at all (summary.json too).""",
 )
 
@@ -200,11 +202,17 @@ def check_material_folders(photos, out: Path) -> None:
 def capture_batch(predictor, photos, out: Path, options, *, prog: str, summary: dict) -> int:
     """Capture each photo into ``out/NAME``, write ``out/summary.json`` (with ``summary``'s
     fields), print the table; the exit status (see the module)."""
-    out = Path(out)
-    entries, stopped = _capture_all(predictor, photos, out, options, prog)
-    if stopped == INTERRUPTED:
-        return INTERRUPTED
+    from svbrdf_render.files import sigterm_as_interrupt
+
     from .capture import write_summary
+
+    out = Path(out)
+    with sigterm_as_interrupt():  # SIGTERM (kill, a scheduler) stops the batch as Ctrl-C does
+        entries, stopped = _capture_all(predictor, photos, out, options, prog)
+    if stopped == INTERRUPTED:
+        if entries:  # the photos done before the stop keep their summary
+            write_summary(out / "summary.json", entries, **summary, interrupted=True)
+        return INTERRUPTED
 
     result = write_summary(out / "summary.json", entries, **summary)
     err = sys.stderr
@@ -223,29 +231,43 @@ def capture_batch(predictor, photos, out: Path, options, *, prog: str, summary: 
 def _capture_all(predictor, photos, out: Path, options, prog: str):
     """Capture each photo into its own folder of ``out``; the summary entries, and what stopped the
     batch (None: every photo was tried; an OutputError; or INTERRUPTED). A photo that fails is
-    reported and skipped; a file that cannot be written stops the photos after it."""
+    reported and skipped; a file that cannot be written stops the photos after it. An interrupt
+    (Ctrl-C, or SIGTERM under :func:`~svbrdf_render.files.sigterm_as_interrupt`) is caught
+    wherever it lands, between photos too: the entries of the photos done are kept."""
+    entries: list[dict] = []
+    now: dict = {}  # the photo in progress and its bar, for an interrupt wherever it lands
+    try:
+        return entries, _capture_each(predictor, photos, out, options, prog, entries, now)
+    except KeyboardInterrupt:
+        if "bar" in now:
+            now["bar"].close()
+        done = f"summary.json of the {len(entries)} before it" if entries else "no photo before it"
+        what = f"{now['path']} not written" if "path" in now else "stopped"
+        print(f"{prog}: interrupted: {what} ({done})", file=sys.stderr)
+        return entries, INTERRUPTED
+
+
+def _capture_each(predictor, photos, out: Path, options, prog: str, entries: list, now: dict):
+    """The loop of :func:`_capture_all`: ``entries`` grows as photos are done, ``now`` names the
+    photo in progress; what stopped the batch (None, or the OutputError of a failed write)."""
     from svbrdf_render import SVBRDFError
     from svbrdf_render.errors import OutputError
 
     from .capture import capture_one
 
-    entries: list[dict] = []
     used: set[str] = set()
     for path in map(Path, photos):
+        now.clear()
+        now["path"] = path
         name = folder_name(path, used)
-        bar = ProgressBar(path.name)
+        bar = now["bar"] = ProgressBar(path.name)
         try:
             entry = capture_one(predictor, path, out / name, options, progress=bar)
-        except KeyboardInterrupt:
-            bar.close()
-            print(f"{prog}: interrupted: {path} not written ({len(entries)} photo(s) before it done, "
-                  "no summary.json)", file=sys.stderr)  # fmt: skip
-            return entries, INTERRUPTED
         except OutputError as e:  # the disk, not the photo: the photos after it would fail alike
             bar.close()
             print(f"{prog}: error: {e}", file=sys.stderr)
             entries.append({"photo": str(path), "status": "failed", "error": str(e)})
-            return entries, e
+            return e
         except (SVBRDFError, OSError, RuntimeError) as e:  # RuntimeError: out of memory, a broken model
             bar.close()
             what = str(e) if isinstance(e, (SVBRDFError, OSError)) else f"{type(e).__name__}: {e}"
@@ -259,7 +281,8 @@ def _capture_all(predictor, photos, out: Path, options, prog: str):
             print(f"{prog}: note: {path}: {note}", file=sys.stderr)
         entries.append({"name": name, **entry})
         print(str(out / name), flush=True)
-    return entries, None
+    now.clear()
+    return None
 
 
 def _table(entries: list[dict], summary: dict) -> str:

@@ -20,8 +20,13 @@ be recovered from it), a translucent alpha channel, a crop that does not fit in 
 refinement, maps asked smaller than :data:`svbrdf_render.MIN_REFINE_SIDE`.
 Processed with a note: an EXIF orientation (applied), a 16-bit PNG (read at full precision), an
 opaque alpha channel (dropped), a palette or CMYK image (converted), RGB channels that are all
-equal (a grey picture saved as RGB), many clipped pixels, a square smaller than the model's
+equal (a grey picture saved as RGB), many clipped pixels, a black square (nothing lit: the maps
+are guesses and a re-rendering RMSE near 0 says nothing), a square smaller than the model's
 resolution (upsampled).
+
+A tiled capture (``--tiles``) holds about :data:`TILED_BYTES_PER_PIXEL` bytes per pixel of its
+maps: :func:`check_tiled_memory` refuses, before any work, a size this machine's available
+memory cannot hold.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
+import os
 import struct
 import warnings
 from collections.abc import Callable
@@ -80,6 +86,9 @@ __all__ = [
     "PhotoError",
     "RELIT_FORMATS",
     "capture_one",
+    "available_memory",
+    "check_tiled_memory",
+    "tiled_capture_bytes",
     "error_heatmap",
     "flash_consistency",
     "load_photo",
@@ -100,6 +109,16 @@ MAX_PIXELS = 50_000_000
 PHOTO_FORMATS = ("JPEG", "MPO", "PNG")
 #: Share of blown-out pixels (every channel at the top) above which a note warns of overexposure.
 CLIPPED_SHARE = 0.02
+#: A square whose brightest value (as stored in the file, 0-1) is below this is black: noted.
+BLACK_LEVEL = 1.5 / 255
+#: Peak memory of a tiled capture per pixel of its maps: the photo at that size, the blended maps
+#: and their weights, the flash fit's re-renderings and gradients, the figures and the files'
+#: buffers (about 70 float32 values). Measured as capture_one's peak resident memory with
+#: --tiles: 4.1 GiB above the program at 4096 px (263 bytes per pixel), 240-270 bytes per pixel
+#: added from 512 to 4096 px; so 8192 px maps need about 18 GiB.
+TILED_BYTES_PER_PIXEL = 280
+#: ... and beyond the per-pixel part, whatever the size (measured: about 270 MiB at 512 px).
+TILED_FIXED_BYTES = 320 * 2**20
 #: ``--normal-convention`` values: OpenGL (y up, the project's own) or DirectX (y down).
 NORMAL_CONVENTIONS = ("opengl", "directx")
 #: The smallest square (photo pixels) ``--tileable`` takes: the blend bands of
@@ -283,6 +302,11 @@ def load_photo(
     clipped = float((image.amin(0) >= 254 / 255).float().mean())  # blown out to white
     if clipped > CLIPPED_SHARE:
         notes.append(f"{clipped:.0%} of the square is clipped (overexposed): expose for the highlight")
+    if float(image.max()) < BLACK_LEVEL:
+        notes.append(
+            "the square is black (no value above 1/255): nothing lit to recover, so the maps are "
+            "guesses and a re-rendering RMSE near 0 says nothing; check the exposure and the flash"
+        )
     return (image if linear else srgb_to_linear(image)), notes
 
 
@@ -352,6 +376,55 @@ def tile_predict(
 def tile_count(size: int, tile: int, overlap: float = 0.5) -> int:
     """How many tiles :func:`tile_predict` runs on a ``size x size`` photo."""
     return len(_positions(size, tile, max(1, round(tile * (1 - overlap))))) ** 2
+
+
+def tiled_capture_bytes(size: int) -> int:
+    """About how much memory a tiled capture of ``size x size`` maps takes at its peak, beyond
+    the program and the model (see :data:`TILED_BYTES_PER_PIXEL`)."""
+    return TILED_BYTES_PER_PIXEL * size * size + TILED_FIXED_BYTES
+
+
+def available_memory() -> int | None:
+    """Bytes of memory this process may still take: the kernel's ``MemAvailable`` (what can be
+    had without swapping), lowered to a cgroup's limit when the process runs under one; None
+    where neither can be read."""
+    found = []
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    found.append(int(line.split()[1]) * 1024)
+                    break
+    except (OSError, ValueError, IndexError):
+        pass
+    if not found:
+        try:
+            found.append(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+        except (OSError, ValueError, AttributeError):
+            pass
+    try:  # cgroup v2: the limit minus what the group uses
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit.isdigit():
+            used = int(Path("/sys/fs/cgroup/memory.current").read_text().strip())
+            found.append(max(0, int(limit) - used))
+    except (OSError, ValueError):
+        pass
+    return min(found) if found else None
+
+
+def check_tiled_memory(size: int, what: str) -> None:
+    """Refuse (:class:`DataError`, one line starting with ``what``) a tiled capture of ``size x
+    size`` maps that needs more memory than :func:`available_memory` says there is; a tiled
+    capture past it would be killed by the system, or swap for hours, after minutes of work."""
+    need, have = tiled_capture_bytes(size), available_memory()
+    if have is None or need <= have:
+        return
+    largest = math.isqrt(max(0, have - TILED_FIXED_BYTES) // TILED_BYTES_PER_PIXEL)
+    raise DataError(
+        f"{what}: a tiled capture of {size}x{size} maps needs about {need / 2**30:.1f} GiB of memory, "
+        f"but {have / 2**30:.1f} GiB are available; give a --map-size of at most {largest} px, or "
+        "free memory"
+    )
 
 
 # -- judging and showing -------------------------------------------------------------------------
@@ -693,6 +766,7 @@ def _predict_square(predictor, photo: Tensor, options: CaptureOptions, notes: li
     if size < res:
         notes.append(f"the square ({size} px) is smaller than a tile ({res} px): predicted as one tile")
         size = res
+    check_tiled_memory(size, f"{path}: --tiles")
     photo = _resample(photo, size)
     tiles = tile_count(size, res)
     batch_fn = getattr(predictor, "predict_batch", predictor.predict)

@@ -54,7 +54,12 @@ examples:
 
 Prints the generator and its config, the training resolution, steps, time, hardware and data
 (with the real files it learnt), the code revision, the figures recorded with it and the
-file's SHA-256. Loading checks the file fully (weights finite and fitting the generator).
+file's SHA-256. Loading checks the file fully: every field of its header (one line naming
+the field otherwise), its size once unpacked, a NAME.sha256 beside it (which must match),
+the network's size before it is built, and the weights (finite, fitting the generator).
+A URL is downloaded once into torch.hub's cache (TORCH_HOME) and kept only when its SHA-256
+matches its name and it loads; a server silent for SVBRDF_DOWNLOAD_TIMEOUT seconds (default
+30) is given up on.
 """
 
 
@@ -69,8 +74,10 @@ examples:
 The model: --model (a file of svbrdf-train export, an https URL whose name carries its
 SHA-256 prefix, models:/NAME/VERSION or runs:/ID/PATH of MLflow, pretrained[:NAME]); without
 it, the model shipped inside svbrdf-models (pretrained), named on stderr; its model card says
-what it was trained on and how well it does on real materials. Training checkpoints and
-MLflow runs of fits: `svbrdf-train predict --checkpoint/--run`.
+what it was trained on and how well it does on real materials. Downloads wait at most
+SVBRDF_DOWNLOAD_TIMEOUT seconds (default 30) for the server. --tiles says what it will cost
+(tiles, memory) before starting, and refuses a --map-size this machine's memory cannot hold.
+Training checkpoints and MLflow runs of fits: `svbrdf-train predict --checkpoint/--run`.
 
 """
 
@@ -420,6 +427,10 @@ def _cmd_predict(args, registry: Registry, out) -> int:
     device = pick_device(args.device)  # a GPU that is not there is named as such
     check_output_folder(args.out, "-o")  # before the model is loaded and the first photo is done
     check_material_folders(args.photos, args.out)
+    if args.tiles and args.map_size is not None:  # refused before the model loads
+        from .capture import check_tiled_memory
+
+        check_tiled_memory(args.map_size, f"--tiles --map-size {args.map_size}")
     model = _load_predict_model(args.model, device, args.map_size if args.tiles else None)
     summary = {"model": model.source, "step": model.steps, "resolution": model.resolution,
                "refine": args.refine, "refine_seconds": args.refine_seconds}  # fmt: skip
@@ -473,6 +484,16 @@ def _load_predict_model(source, device, tile_size):
     if tile_size is not None and tile_size < model.resolution:
         raise DataError(f"--map-size {tile_size} is smaller than the model's resolution ({model.resolution})")
     print(model.describe(), file=sys.stderr)
+    if tile_size is not None:
+        from .capture import available_memory, tile_count, tiled_capture_bytes
+
+        have = available_memory()
+        print(
+            f"--tiles --map-size {tile_size}: {tile_count(tile_size, model.resolution)} tiles of "
+            f"{model.resolution} px per photo, about {tiled_capture_bytes(tile_size) / 2**30:.1f} GiB "
+            f"of memory" + (f" ({have / 2**30:.1f} GiB available)" if have is not None else ""),
+            file=sys.stderr,
+        )
     return model
 
 

@@ -56,6 +56,15 @@ NORM_LEVEL = 0.1
 #: The input normalisations and the upsampling layers a generator may use.
 INPUT_NORMS = ("none", "median")
 UPSAMPLES = ("transpose", "resize")
+#: The deepest U-Net a config may ask for: its inputs are multiples of ``2**depth`` pixels, and
+#: 2**13 = 8192 px is the largest side the tools make maps at (``svbrdf-models predict
+#: --map-size``), so a deeper network takes no input they give it.
+MAX_DEPTH = 13
+#: The most parameters a generator config may ask for (:meth:`GeneratorConfig.parameter_estimate`):
+#: 500 million, 2 GB in float32 (8 GB with Adam's moments and the gradients), about five times
+#: the paper's generator (105 million). A config over it is refused before a layer is built,
+#: rather than left to exhaust the memory while building.
+MAX_PARAMETERS = 500_000_000
 
 
 @dataclass(frozen=True)
@@ -94,11 +103,22 @@ class GeneratorConfig:
     )
 
     def __post_init__(self):
-        if self.depth < 2:
-            raise ValueError(f"depth must be at least 2, got {self.depth}")
+        if not 2 <= self.depth <= MAX_DEPTH:
+            raise ValueError(
+                f"depth must be from 2 to {MAX_DEPTH} (inputs are multiples of 2**depth px; "
+                f"2**{MAX_DEPTH} = {2**MAX_DEPTH} px is the largest map size), got {self.depth}"
+            )
         if self.base_channels < 1 or self.max_channels < self.base_channels:
             raise ValueError(
                 f"need 1 <= base_channels <= max_channels, got {self.base_channels} and {self.max_channels}"
+            )
+        params = self.parameter_estimate()
+        if params > MAX_PARAMETERS:
+            raise ValueError(
+                f"depth {self.depth}, base_channels {self.base_channels} and max_channels "
+                f"{self.max_channels} make about {_millions(params)} parameters, over the "
+                f"{MAX_PARAMETERS / 1e6:,.0f} million a generator may have (the paper's has 105); "
+                "lower max_channels, base_channels or depth"
             )
         if not isinstance(self.attention, str) and len(self.attention) != self.depth:
             raise ValueError(
@@ -120,6 +140,25 @@ class GeneratorConfig:
             )
         if not 0.0 <= self.init_std < math.inf:
             raise ValueError(f"init_std must be a finite number >= 0 (0: torch's init), got {self.init_std}")
+
+    def parameter_estimate(self) -> int:
+        """Parameters of the U-Net this config builds, counted from the config alone (nothing
+        is built). Attention modules are counted as the paper's (output 2C, one C x C conv), the
+        largest built-in; a plugin's own weights are not known here. The up blocks are counted
+        with 4x4 kernels (``upsample: resize`` uses 3x3, fewer)."""
+        conv = [min(self.base_channels * 2**i, self.max_channels) for i in range(self.depth)]
+        total, in_ch, g_ch = 0, 3, 0
+        for level, c in enumerate(conv):
+            total += in_ch * c * 16 + c + c * c + c  # down conv, attention's 1x1 conv
+            if self.global_track:
+                extra = 1 if self.input_level and level == 0 else 0
+                total += (g_ch + extra + 2 * c) * 2 * c + 2 * c
+            in_ch = g_ch = 2 * c
+        for k, c in enumerate(conv):
+            up_in = 2 * c if k == self.depth - 1 else 3 * c
+            up_out = OUTPUT_CHANNELS if k == 0 else conv[k - 1]
+            total += up_in * up_out * 16 + up_out
+        return total
 
     def sub_networks(self) -> tuple[tuple[str, str, str, str, dict], ...]:
         """``(name field, config field, kind, name, config)`` of each registered module this
@@ -149,6 +188,10 @@ class GeneratorConfig:
         if isinstance(self.attention, str):
             return (self.attention,) * self.depth
         return tuple(self.attention)
+
+
+def _millions(count: int) -> str:
+    return f"{count / 1e6:,.0f} million" if count < 10**15 else f"{float(count):.1e}"
 
 
 #: Named partial configs. ``paper`` is the default (8 levels x 64 channels at 256x256);

@@ -34,7 +34,12 @@ __all__ = [
     "temporary_path",
     "remove_stale_temporaries",
     "check_output_folder",
+    "INTERRUPTED",
+    "sigterm_as_interrupt",
 ]
+
+#: The exit status of a command stopped by Ctrl-C or SIGTERM (128 + SIGINT).
+INTERRUPTED = 130
 
 #: The exit statuses every command line uses, in words for their ``--help``.
 EXIT_STATUS = (
@@ -250,3 +255,27 @@ def check_output_folder(folder: str | os.PathLike, flag: str) -> Path:
             f"{flag} {folder}: cannot write there: {reason}; choose a folder you can write to"
         ) from None
     return folder
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """Within the block, SIGTERM raises ``KeyboardInterrupt`` as Ctrl-C does, so that a command
+    stopped by ``kill``, a job scheduler or a container's stop takes the same way out as one
+    stopped by Ctrl-C: :func:`atomic_output` removes its temporary file, and the command says
+    what was left and exits :data:`INTERRUPTED`. The previous handler is restored on exit.
+    Outside the main thread (where Python cannot set handlers) it does nothing.
+    """
+    import signal
+    import threading
+
+    def _raise(signum, frame):
+        raise KeyboardInterrupt(signal.Signals(signum).name)
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _raise)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)

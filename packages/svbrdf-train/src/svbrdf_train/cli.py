@@ -12,7 +12,7 @@ import click
 
 from svbrdf_render import SVBRDFError
 from svbrdf_render.errors import exit_status
-from svbrdf_render.files import EXIT_STATUS
+from svbrdf_render.files import EXIT_STATUS, INTERRUPTED, sigterm_as_interrupt
 
 from . import __version__
 
@@ -37,12 +37,17 @@ class OneLineErrors(click.Group):
             where = f"{e.filename}: " if getattr(e, "filename", None) else ""
             click.echo(f"{self.prog}: error: {where}{e.strerror or e}", err=True)
             ctx.exit(exit_status(e))
+        except KeyboardInterrupt:  # Ctrl-C, or SIGTERM under run_main, where no command handles it
+            click.echo(f"\n{self.prog}: interrupted", err=True)
+            ctx.exit(INTERRUPTED)
 
 
 def run_main(group: click.Group, prog: str, argv: list[str] | None = None) -> int:
-    """Run a click group as a console script; its exit status as an int."""
+    """Run a click group as a console script; its exit status as an int. SIGTERM stops it as
+    Ctrl-C does (exit 130), unless a command handles both itself (a fit saves first)."""
     try:
-        group.main(args=argv, prog_name=prog, standalone_mode=True)
+        with sigterm_as_interrupt():
+            group.main(args=argv, prog_name=prog, standalone_mode=True)
     except SystemExit as e:
         return int(e.code or 0) if not isinstance(e.code, str) else 2
     return 0

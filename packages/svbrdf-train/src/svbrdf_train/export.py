@@ -27,7 +27,7 @@ from .errors import CheckpointError
 
 __all__ = [
     "export_contents", "provenance", "describe_data", "half_effect", "register", "log_fit_model",
-    "MODEL_ARTIFACT",
+    "MODEL_ARTIFACT", "check_export_target",
 ]  # fmt: skip
 
 #: The name of the MLflow model a finished fit logs in its run (``runs:/RUN_ID/model``);
@@ -115,6 +115,32 @@ def half_effect(name: str, config: dict[str, Any], weights: dict[str, torch.Tens
         d = getattr(a, m) - getattr(b, m)
         effect[m] = {"rmse": float(d.square().mean().sqrt()), "max": float(d.abs().max())}
     return effect
+
+
+def check_export_target(out: Path, force: bool = False) -> None:
+    """Refuse (:class:`~svbrdf_render.SVBRDFError`, before any work) to write a model file over
+    a file that is not one (a fit's checkpoint, a photo, anything else) unless ``force``: the
+    file would be lost, and a checkpoint overwritten can no longer be resumed. A model file over
+    a model file, or a new path, is always fine; a folder in the way is always refused."""
+    from svbrdf_models.modelfile import is_model_file
+    from svbrdf_render import SVBRDFError
+
+    out = Path(out)
+    if out.is_dir():
+        raise SVBRDFError(f"-o {out}: is a folder; give the path of the model file to write")
+    if force or not out.exists() or is_model_file(out):
+        return
+    from .checkpoint import FORMAT
+
+    try:
+        head = torch.load(out, map_location="cpu", weights_only=True, mmap=True)
+        what = "a training checkpoint" if isinstance(head, dict) and head.get("format") == FORMAT else None
+    except Exception:  # not a torch file at all
+        what = None
+    what = what or "a file that is not a model file"
+    raise SVBRDFError(
+        f"-o {out}: {what} is there and would be lost; pass --force to replace it, or choose another -o"
+    )
 
 
 def export_contents(

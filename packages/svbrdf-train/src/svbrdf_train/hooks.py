@@ -3,7 +3,8 @@
 =================  ==========================================================================
 hook               after a step
 =================  ==========================================================================
-BudgetWarning      once the pace is known, warns if the schedule stops learning early
+BudgetWarning      once the pace is known, warns if the schedule stops learning early, and
+                   if the step budget ends the fit long before its time budget
 Logging            the progress line; ``train/...`` metrics every ``train.log_every`` steps
 Validation         ``val/...`` metrics and a sample grid every ``train.validate_every`` steps
 Checkpoints        the full state to ``OUT/last.pt`` every ``train.checkpoint_every`` steps or
@@ -27,7 +28,7 @@ from . import distributed
 from .checkpoint import CHECKPOINT_NAME, WEIGHTS_NAME, save_checkpoint
 from .clock import Stopwatch
 from .order import BatchOrder
-from .progress import Progress
+from .progress import Progress, format_duration
 from .recipe import Recipe
 from .step import GanStep
 from .tracking import Tracker
@@ -98,14 +99,25 @@ class Hook(Protocol):
 class BudgetWarning:
     """Says once, on the main process and in the run's tags, that the learning-rate schedule
     kills the rate early in the budget: at once for a step budget; for a time budget once
-    the pace is known (:meth:`Stopwatch.pace`)."""
+    the pace is known (:meth:`Stopwatch.pace`).
+
+    With a time budget (``train.max_minutes``) it also says, after the first step, when the
+    step budget (``train.epochs``, ``train.max_steps``) will end the fit in less than half that
+    time (17 strips at batch 4 and 2 epochs are 8 steps: seconds, not the minutes asked for).
+    The first step is the slowest (lazy initialisation, compilation), so its time makes the
+    estimate long, never short: a warning is due; without one, the pace is looked at again
+    once it is known.
+    """
 
     def __init__(self, run: Run):
         self.done = run.recipe.train.max_minutes is None  # a step budget is known now
+        self.time_checked = self.done
         if self.done:
             self._warn(run, run.order.total_steps, "the step budget")
 
     def after_step(self, run: Run, end: StepEnd) -> None:
+        if not self.time_checked:
+            self._time_budget(run, end)
         pace = run.watch.pace()
         if self.done or pace is None or pace <= 0:
             return
@@ -113,6 +125,31 @@ class BudgetWarning:
         steps = min(run.order.total_steps, end.step + int((minutes * 60 - run.watch.seconds) / pace))
         self._warn(run, steps, f"{minutes:g} min at {pace * 1000:.0f} ms/step")
         self.done = True
+
+    def _time_budget(self, run: Run, end: StepEnd) -> None:
+        """Warn when the step budget ends the fit in under half of ``train.max_minutes``."""
+        t, watch = run.recipe.train, run.watch
+        pace = watch.pace()
+        per_step = pace if pace is not None else watch.seconds / max(1, end.step)
+        self.time_checked = pace is not None or end.last
+        left = run.order.total_steps - end.step
+        if end.last or per_step <= 0 or watch.seconds + left * per_step >= 0.5 * t.max_minutes * 60:
+            return
+        self.time_checked = True
+        if run.order.total_steps == t.max_steps:
+            steps, fix = f"train.max_steps={t.max_steps}", "raise --max-steps (or leave it out)"
+        else:
+            steps = f"train.epochs={t.epochs} of {run.order.steps_per_epoch} steps"
+            fix = "raise train.epochs (--set train.epochs=N)"
+        text = (
+            f"warning: the time budget (train.max_minutes={t.max_minutes:g}) will not be reached: the "
+            f"step budget of {run.order.total_steps} steps ({steps}) ends the fit after about "
+            f"{format_duration(watch.seconds + left * per_step)} of training; {fix} to train for "
+            "the whole time"
+        )
+        if run.dist.main:
+            run.progress.message(text)
+            run.tracker.set_tags({"svbrdf.warning.time_budget": text[:5000]})
 
     @staticmethod
     def _warn(run: Run, steps: int, what: str) -> bool:

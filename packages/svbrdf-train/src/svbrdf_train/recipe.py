@@ -448,7 +448,18 @@ def _read_yaml(path: Path) -> dict[str, Any]:
     import yaml
 
     try:
-        data = safe_load(path.read_text())  # lr: 3e-4 is a number, as with --set
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise RecipeError(
+            f"{path}: not UTF-8 text (byte {e.object[e.start]:#04x} at offset {e.start}); "
+            "save the recipe as UTF-8"
+        ) from None
+    except OSError as e:
+        raise RecipeError(f"{path}: cannot read the recipe ({e.strerror})") from None
+    try:
+        # lr: 3e-4 is a number, as with --set; duplicate keys, deep nesting and alias bombs
+        # are refused here, before anything walks the document (svbrdf_render.yamlio)
+        data = safe_load(text)
     except yaml.YAMLError as e:
         raise RecipeError(f"{path}: not valid YAML: {e}") from None
     if data is None:
@@ -493,6 +504,8 @@ def _resolve_file(path: Path, seen: tuple[Path, ...] = ()) -> tuple[dict[str, An
         sections, sizes = _resolve_file(base_path, (*seen, path.resolve()))
     own = {k: v for k, v in data.items() if k not in ("base", "sizes")}
     sections = _merge(sections, own)
+    if not isinstance(data.get("sizes") or {}, Mapping):
+        raise RecipeError(f"{path}: sizes must map size names to overrides, got {data['sizes']!r:.80}")
     for size, overrides in (data.get("sizes") or {}).items():
         if not isinstance(overrides, Mapping):
             raise RecipeError(f"{path}: sizes.{size} must map dotted fields to values")
@@ -528,15 +541,22 @@ def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
     import yaml
 
     out: dict[str, Any] = {}
+    given: dict[str, str] = {}
     for item in items:
         key, sep, raw = item.partition("=")
         if not sep or "." not in key:
             raise RecipeError(f"--set {item!r}: expected section.field=value, e.g. --set loss.adv=0")
+        key = key.strip()
+        if key in given:  # the last one would win without a word
+            raise RecipeError(
+                f"--set {key} is given twice ({given[key]!r} and {item!r}); give each field once"
+            )
+        given[key] = item
         try:
             value = safe_load(raw)  # read as recipe files are: 3e-4 is a number
         except yaml.YAMLError as e:
             raise RecipeError(f"--set {item!r}: the value is not valid YAML: {e}") from None
-        out[key.strip()] = value
+        out[key] = value
     return out
 
 
@@ -714,7 +734,14 @@ def check_recipe(recipe: Recipe, where: str) -> None:
 
 
 def recipe_from_dict(data: Mapping[str, Any], *, where: str = "recipe") -> Recipe:
-    """The :class:`Recipe` that ``Recipe.to_dict()`` wrote (e.g. into a checkpoint)."""
+    """The :class:`Recipe` that ``Recipe.to_dict()`` wrote (e.g. into a checkpoint).
+
+    Raises:
+        RecipeError: ``data`` is not a mapping of sections, or a section or value is wrong;
+            the message starts with ``where``.
+    """
+    if not isinstance(data, Mapping):
+        raise RecipeError(f"{where}: a recipe is a mapping of sections, got {type(data).__name__}")
     optim = data.get("optim")
     if isinstance(optim, Mapping) and "decay_every_samples" not in optim:
         # written before schedules were counted in samples: its period was in epochs

@@ -48,6 +48,7 @@ __all__ = [
     "hardware",
     "quiet_store_logs",
     "open_client",
+    "check_store",
     "experiment_id",
     "source_tags",
     "ui_url",
@@ -205,13 +206,122 @@ def quiet_store_logs():
         logger.setLevel(level)
 
 
+#: How long the first request to a tracking server may take before the command gives up (and the
+#: connection probe before it), unless ``MLFLOW_HTTP_REQUEST_TIMEOUT`` says otherwise; MLflow's own
+#: default (120 s, retried 7 times with back-off: over 4 minutes) leaves a user staring at nothing.
+OPEN_TIMEOUT_S = 10
+#: Tables every MLflow SQL store has: an existing SQLite file without them is not an MLflow store.
+MLFLOW_TABLES = frozenset({"experiments", "runs", "alembic_version"})
+
+
+def _env_number(name: str, default: float) -> float:
+    try:
+        return float(os.environ[name])
+    except (KeyError, ValueError):
+        return default
+
+
+def check_store(uri: str) -> None:
+    """Refuse, before anything is written, a store MLflow would hang on or damage
+    (:class:`TrackingError`, one line naming ``uri`` and what to do):
+
+    - a SQLite URI naming a folder, or an existing file that is not an MLflow store (an empty
+      file, another program's database, not a database): MLflow would write its ~65 tables
+      into it (a new path is fine, and so is an existing MLflow store);
+    - a server nothing answers at: the connection is tried once, for ``MLFLOW_HTTP_REQUEST_TIMEOUT``
+      seconds (:data:`OPEN_TIMEOUT_S` when unset), instead of MLflow's minutes of retries.
+    """
+    parsed = urlparse(uri)
+    if parsed.scheme == "sqlite":
+        _check_sqlite(uri, Path(unquote(parsed.path)[1:]))
+    elif parsed.scheme in ("http", "https"):
+        import socket
+
+        timeout = _env_number("MLFLOW_HTTP_REQUEST_TIMEOUT", OPEN_TIMEOUT_S)
+        port = parsed.port or (443 if parsed.scheme == "https" else 80)
+        try:
+            socket.create_connection((parsed.hostname or "localhost", port), timeout=timeout).close()
+        except OSError as e:
+            reason = "no answer" if isinstance(e, TimeoutError) else (e.strerror or type(e).__name__)
+            raise TrackingError(
+                f"cannot reach the MLflow server {uri} ({reason}; connection timeout {timeout:g} s, "
+                "MLFLOW_HTTP_REQUEST_TIMEOUT); start the server or fix MLFLOW_TRACKING_URI, "
+                "or pass --no-track to train without MLflow"
+            ) from None
+
+
+def _check_sqlite(uri: str, db: Path) -> None:
+    """See :func:`check_store`: the SQLite file must be new or an MLflow store."""
+    import sqlite3
+
+    what = None
+    if db.is_dir():
+        what = "is a folder, not a SQLite file"
+    elif db.exists():
+        if db.stat().st_size == 0:
+            what = "is an empty file, not an MLflow store"
+        else:
+            try:
+                con = sqlite3.connect(f"{db.resolve().as_uri()}?mode=ro", uri=True, timeout=30)
+                try:
+                    rows = con.execute("SELECT name FROM sqlite_master WHERE type='table'")
+                    tables = {row[0] for row in rows}
+                finally:
+                    con.close()
+            except sqlite3.Error as e:
+                what = f"is not a SQLite database ({e})"
+            else:
+                if not MLFLOW_TABLES <= tables:
+                    what = f"is a SQLite database of another program ({len(tables)} tables, not MLflow's)"
+    if what:
+        raise TrackingError(
+            f"MLFLOW_TRACKING_URI {uri}: {db} {what}; point MLFLOW_TRACKING_URI at a new file or an "
+            "existing MLflow store (MLflow would write its tables into any other file), or pass --no-track"
+        )
+
+
+@contextlib.contextmanager
+def _first_request_bounded():
+    """MLflow's HTTP timeout and retries bounded for the first request (unless the user set
+    them): a server that accepts connections and never answers is given up on in
+    :data:`OPEN_TIMEOUT_S`, not after 7 retries of 120 s each."""
+    bounds = {"MLFLOW_HTTP_REQUEST_TIMEOUT": str(OPEN_TIMEOUT_S), "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "0"}
+    added = {k: v for k, v in bounds.items() if k not in os.environ}
+    os.environ.update(added)
+    try:
+        yield
+    finally:
+        for key in added:
+            os.environ.pop(key, None)
+
+
 def open_client(uri: str):
-    """An MlflowClient on ``uri`` whose store is created (tables and all) by one process at a time."""
+    """An MlflowClient on ``uri`` whose store is created (tables and all) by one process at a time.
+
+    The store is checked first (:func:`check_store`): a file that is not an MLflow store is
+    refused before anything is written, and a server that does not answer within
+    ``MLFLOW_HTTP_REQUEST_TIMEOUT`` (:data:`OPEN_TIMEOUT_S` when unset) is one
+    :class:`TrackingError`, not minutes of silence.
+    """
     from mlflow import MlflowClient
 
-    with _store_lock(uri), quiet_store_logs():
+    check_store(uri)
+    remote = urlparse(uri).scheme in ("http", "https")
+    bounded = _first_request_bounded() if remote else contextlib.nullcontext()
+    with _store_lock(uri), quiet_store_logs(), bounded:
         client = MlflowClient(uri)
-        client.search_experiments(max_results=1)  # opens the store: creates or migrates its tables
+        try:
+            client.search_experiments(max_results=1)  # opens the store: creates or migrates its tables
+        except Exception as e:
+            if not remote:
+                raise
+            cause = _root_cause(e)
+            raise TrackingError(
+                f"the MLflow server {uri} did not answer ({type(cause).__name__}; timeout "
+                f"{_env_number('MLFLOW_HTTP_REQUEST_TIMEOUT', OPEN_TIMEOUT_S):g} s, "
+                "MLFLOW_HTTP_REQUEST_TIMEOUT and MLFLOW_HTTP_REQUEST_MAX_RETRIES); start the server or fix "
+                "MLFLOW_TRACKING_URI, or pass --no-track to train without MLflow"
+            ) from None
     return client
 
 
@@ -376,6 +486,8 @@ class MlflowTracker(Tracker):
         try:
             with quiet_store_logs():
                 self.client = open_client(self.uri)
+        except TrackingError:  # already one line naming the store
+            raise
         except Exception as e:  # database, connection and permission errors alike
             raise _store_error("open the MLflow store", self.uri, e) from None
         if run_id is not None:

@@ -28,8 +28,9 @@ from svbrdf_render.errors import OutputError, SVBRDFError
 from svbrdf_render.files import write_text
 
 from . import distributed
-from .checkpoint import CHECKPOINT_NAME
+from .checkpoint import CHECKPOINT_NAME, check_resumable, check_run_kept
 from .clock import WARMUP_STEPS, Stopwatch, TrainClock
+from .errors import CheckpointError
 from .hooks import BudgetWarning, Checkpoints, Logging, Run, StepEnd, Validation
 from .order import BatchOrder
 from .progress import Interrupt, Progress, format_duration
@@ -109,6 +110,17 @@ def fit(recipe: Recipe | None, options: FitOptions) -> FitResult:
 def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> FitResult:
     o = options
     state = check_out(Path(o.out), resume=o.resume, force=o.force, init=o.init, main=dist.main)
+    if state is not None:
+        ckpt = Path(o.out) / CHECKPOINT_NAME
+        check_resumable(state, str(ckpt))
+        if o.track and dist.main and state.get("run_id"):
+            run_id = state["run_id"]
+            check_run_kept(
+                run_id,
+                f"{ckpt} continues a deleted run",
+                f"restore it (mlflow runs restore --run-id {run_id}), resume without MLflow "
+                "(--no-track), or start a new fit and run (--force, without --resume)",
+            )
     recipe = resolve_resume(recipe, state)
     check_recipe(recipe, recipe.source or recipe.name)  # a Recipe made in Python is checked too
     run, real_name = _setup(recipe, options, dist, state)
@@ -161,8 +173,22 @@ def _setup(
     if state is not None:
         ckpt = out / CHECKPOINT_NAME
         check_world(state, dist.world, ckpt)
-        gan.load_state_dict(state, str(ckpt))
-        gan.set_rng_state(state["rng"][dist.rank])
+        if state["step"] > order.total_steps:
+            raise CheckpointError(
+                f"{ckpt}: its step {state['step']} is beyond the budget of {order.total_steps} steps "
+                f"(train.epochs={t.epochs} of {order.steps_per_epoch} steps, train.max_steps="
+                f"{t.max_steps if t.max_steps is not None else 'null'}); raise --max-steps or "
+                "train.epochs (--set train.epochs=N) to go on from it"
+            )
+        try:
+            gan.load_state_dict(state, str(ckpt))
+            gan.set_rng_state(state["rng"][dist.rank])
+        except (KeyError, TypeError, ValueError, RuntimeError) as e:  # torch's own checks
+            first = str(e).splitlines()[0][:200] if str(e) else type(e).__name__
+            raise CheckpointError(
+                f"{ckpt}: its optimiser or random state cannot be restored ({first}); "
+                "the checkpoint is damaged: start a new fit (--force) or use another --out"
+            ) from None
         watch.seconds = float(state.get("train_seconds", 0.0))
         watch.wall_seconds = float(state.get("wall_seconds", watch.seconds))
         run_id, init = state.get("run_id"), state.get("init")

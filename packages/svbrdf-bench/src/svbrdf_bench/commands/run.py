@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import click
@@ -90,6 +91,18 @@ def _split(value: str | None) -> list[str]:
     return [x.strip() for x in (value or "").split(",") if x.strip()]
 
 
+def _once(flag: str, values: tuple):
+    """The one value of an option read with ``multiple=True``; refuse it given twice."""
+    if len(values) > 1:
+        from ..errors import BenchError
+
+        raise BenchError(
+            f"{flag} is given {len(values)} times ({', '.join(map(str, values))}); give it once "
+            "(one benchmark tests on one data set: run one benchmark per data set)"
+        )
+    return values[0] if values else None
+
+
 @click.command("run", epilog=EPILOG)
 @click.option(
     "--models",
@@ -128,6 +141,8 @@ def _split(value: str | None) -> list[str]:
 @click.option(
     "--test-data",
     type=click.Path(path_type=Path),
+    multiple=True,  # only to see a second one: click keeps the last without a word
+    callback=lambda ctx, param, values: _once("--test-data", values),
     help="A Des18 folder or .h5 shards, resized to the models' resolution [default: procedural test "
     "materials from a fixed seed].",
 )
@@ -243,6 +258,12 @@ def run(
     plan = RefinePlan(parse_budgets(refine), refine_backend, parse_flash(refine_flash))
     chosen = _split(models)
     reused = _split(from_runs)
+    for item in reused:
+        if re.fullmatch(r"[0-9a-f]{32}", item):  # a run id (else a recipe: its last finished run)
+            from svbrdf_train.checkpoint import check_run_kept
+
+            hint = f"restore it (mlflow runs restore --run-id {item}) or give another run"
+            check_run_kept(item, "--from-runs", hint)
     files = _split(from_models)
     if not chosen and not reused and not files:
         raise BenchError(

@@ -5,7 +5,9 @@ The shard layout is described in :mod:`svbrdf_train.data.shards`.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import functools
 import json
 import sys
 import time
@@ -59,6 +61,33 @@ reads every sample and names the first one that is damaged.
 
 def _stderr_progress(length: int, label: str):
     return click.progressbar(length=length, label=label, file=sys.stderr, width=30)
+
+
+@contextlib.contextmanager
+def _writing(out: Path):
+    """Ctrl-C and SIGTERM alike: the shard's temporary file is removed and ``out`` is left as it
+    was, one line says so, and the exit status is 130 (click alone would print "Aborted!" and
+    exit 1). Temporaries of ``out`` left by earlier runs killed outright are removed first."""
+    from svbrdf_render.files import INTERRUPTED, remove_stale_temporaries, sigterm_as_interrupt
+
+    remove_stale_temporaries(out.parent, (out.name,))
+    try:
+        with sigterm_as_interrupt():
+            yield
+    except KeyboardInterrupt:
+        click.echo(f"\nsvbrdf-train: interrupted: {out} not written (left as it was)", err=True)
+        sys.exit(INTERRUPTED)
+
+
+def _interruptible(command):
+    """Run a shard-writing command (its ``out`` argument) inside :func:`_writing`."""
+
+    @functools.wraps(command)
+    def run(*args, **kwargs):
+        with _writing(kwargs["out"]):
+            return command(*args, **kwargs)
+
+    return run
 
 
 def _check_target(out: Path, force: bool) -> None:
@@ -123,6 +152,7 @@ def _summary(out: Path, count: int, resolution: int, bits: int, seconds: float) 
     "real phone photos, white balance, JPEG); recorded with the photo settings.",
 )
 @click.option("--force", is_flag=True, help="Replace --out if it exists.")
+@_interruptible
 def make(count, resolution, out, seed, bits, batch, families, mix, capture, force):
     """Make a shard of procedural materials with their simulated flash photos.
 
@@ -184,6 +214,7 @@ def make(count, resolution, out, seed, bits, batch, families, mix, capture, forc
 )
 @click.option("--force", is_flag=True, help="Replace --out if it exists.")
 @click.pass_context
+@_interruptible
 def import_(ctx, folder, out, split, crop, full, bits, force):
     """Import a Des18 folder (strips with ground truth) into a shard."""
     if full and explicit(ctx, "crop"):

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 import torch
 
+from .data_shards import _interruptible
 from .options import SEED, FiniteFloatRange
 
 __all__ = ["COMMANDS", "sheet"]
@@ -84,6 +85,7 @@ def _families(ctx, param, value):
     type=click.Path(dir_okay=False, path_type=Path),
     help="PNG file to write (written atomically).",
 )
+@_interruptible
 def sheet(count, resolution, seed, start, families, mix, out):
     """Write a contact sheet (PNG) of procedural samples: photo and four maps per row."""
     from svbrdf_render import write_image

@@ -71,7 +71,8 @@ def _parse_metric(ctx, param, values):
     callback=_parse_metric,
     help="A figure to record with the model (repeatable), e.g. --metric des18-dev/rmse/render=0.094.",
 )
-def export(checkpoint, run_id, out, half, hash_name, register_as, metrics):
+@click.option("--force", is_flag=True, help="Replace -o even when it is not a model file (a checkpoint...).")
+def export(checkpoint, run_id, out, half, hash_name, register_as, metrics, force):
     """Write a trained generator as one model file: weights, config, resolution, provenance.
 
     CHECKPOINT is a checkpoint file (last.pt, weights.pt) or a fit's --out folder.
@@ -85,13 +86,21 @@ def export(checkpoint, run_id, out, half, hash_name, register_as, metrics):
     if (checkpoint is None) == (run_id is None):
         raise CheckpointError("give the weights as CHECKPOINT (a file or a fit's folder) or --run RUN_ID")
     check_output_folder(out.parent, "-o")
+    from ..export import check_export_target, export_contents, register
+
+    check_export_target(out, force)  # a fit's last.pt under -o would be lost: refused
     state, source, run = _read(checkpoint, run_id)
-    from ..export import export_contents, register
 
     contents = export_contents(state, source, half=half, run=run, metrics=metrics)
     sha = save_model(out, contents)
     if hash_name:
         final = hashed(out, sha)
+        if final != out:
+            try:
+                check_export_target(final, force)
+            except Exception:
+                out.unlink(missing_ok=True)
+                raise
         out.replace(final)
         out = final
     out.with_name(out.name + ".sha256").write_text(f"{sha}  {out.name}\n")

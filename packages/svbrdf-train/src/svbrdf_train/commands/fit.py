@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
+import re
 import sys
 from pathlib import Path
 
@@ -9,6 +12,9 @@ import click
 
 from ..recipe import SIZES
 from .options import FiniteFloatRange, experiment_option, explicit
+
+#: What ``--init`` takes for an MLflow run id (anything else is a checkpoint or a fit's folder).
+_RUN_ID = re.compile(r"[0-9a-f]{32}")
 
 EPILOG = """\b
 Examples:
@@ -187,6 +193,7 @@ def fit(
             f"--size {size} goes with --recipe; --resume without --recipe continues the checkpoint's "
             "recipe at the size it was started with"
         )
+    _check_init_run(init)
     overrides = _overrides(recipe_name, size, data, sets, max_minutes, max_steps)
     recipe, out = _recipe_and_out(recipe_name, size, overrides, out, resume)
     options = FitOptions(
@@ -201,10 +208,20 @@ def fit(
         progress=not quiet,
         track=not no_track,
     )
-    result = run_fit(recipe, options)
+    with _output_lock(out) if _is_main() else contextlib.nullcontext():
+        result = run_fit(recipe, options)
     if _is_main():
         click.echo("\n".join(_summary(result)), err=result.status != "FINISHED")
     sys.exit(result.exit_code)
+
+
+def _check_init_run(init: str | None) -> None:
+    """Refuse ``--init RUN_ID`` of a deleted MLflow run before anything is read or built."""
+    if init and not Path(init).expanduser().exists() and _RUN_ID.fullmatch(init):
+        from ..checkpoint import check_run_kept
+
+        hint = f"restore it (mlflow runs restore --run-id {init}) or give another run"
+        check_run_kept(init, "--init", hint)
 
 
 def _overrides(recipe_name, size, data, sets, max_minutes, max_steps) -> dict:
@@ -218,17 +235,24 @@ def _overrides(recipe_name, size, data, sets, max_minutes, max_steps) -> dict:
         if load_recipe(recipe_name, size, overrides).data.source == "mix":
             del data_overrides["data.source"]
     overrides.update(data_overrides)
-    if max_minutes is not None:
-        overrides["train.max_minutes"] = max_minutes
-    if max_steps is not None:
-        overrides["train.max_steps"] = max_steps
+    for flag, key, value in (
+        ("--max-minutes", "train.max_minutes", max_minutes),
+        ("--max-steps", "train.max_steps", max_steps),
+    ):
+        if value is None:
+            continue
+        if key in overrides:  # one of the two would win without a word
+            from ..errors import RecipeError
+
+            raise RecipeError(f"{flag} {value:g} and --set {key}={overrides[key]} both set {key}; give one")
+        overrides[key] = value
     return overrides
 
 
 def _recipe_and_out(recipe_name, size, overrides: dict, out: Path | None, resume: bool):
     """The recipe to fit and its output folder: the named recipe (``runs/RECIPE-SIZE`` by default),
     or with ``--resume`` alone the recipe saved in ``out``'s checkpoint, plus any budget change."""
-    from ..checkpoint import CHECKPOINT_NAME, load_checkpoint
+    from ..checkpoint import CHECKPOINT_NAME, check_resumable, load_checkpoint
     from ..errors import RecipeError
     from ..recipe import load_recipe, recipe_from_dict, with_overrides
 
@@ -243,8 +267,10 @@ def _recipe_and_out(recipe_name, size, overrides: dict, out: Path | None, resume
         out = Path("runs") / f"{Path(recipe_name).stem}-{size}"
     if recipe_name is not None:
         return load_recipe(recipe_name, size, overrides), out
-    saved = load_checkpoint(out / CHECKPOINT_NAME, mmap=True)["recipe"]
-    return with_overrides(recipe_from_dict(saved, where=str(out / CHECKPOINT_NAME)), overrides), out
+    state = load_checkpoint(out / CHECKPOINT_NAME, mmap=True)
+    check_resumable(state, str(out / CHECKPOINT_NAME))
+    saved = recipe_from_dict(state["recipe"], where=str(out / CHECKPOINT_NAME))
+    return with_overrides(saved, overrides), out
 
 
 def _summary(result) -> list[str]:
@@ -272,6 +298,72 @@ def _saved_step(path: Path) -> str:
         return str(json.loads(path.with_suffix(".json").read_text())["step"])
     except (OSError, ValueError, KeyError):
         return "?"
+
+
+#: The lock file a fit holds in its output folder while it runs; it holds the fit's PID.
+LOCK_NAME = ".fit.lock"
+
+
+@contextlib.contextmanager
+def _output_lock(out: Path):
+    """Hold ``out/.fit.lock`` for the fit's lifetime: a second fit on ``out`` (new or --resume) is
+    refused with one line naming the PID of the fit that holds it.
+
+    The lock is the operating system's (``flock`` on POSIX): a fit that dies, even by SIGKILL,
+    releases it, so a lock file left by a dead process is simply taken over. The file is removed
+    when the fit ends, and so is ``out`` if the fit made it and left it empty (refused early).
+    Where ``flock`` is missing (Windows) ``filelock`` locks the same file, without the PID.
+    """
+    from svbrdf_render.files import check_output_folder
+
+    from ..errors import TrainingError
+
+    check_output_folder(out, "--out")
+    made = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / LOCK_NAME
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows
+        from filelock import FileLock, Timeout
+
+        try:
+            with FileLock(path, timeout=0):
+                yield
+        except Timeout:
+            raise TrainingError(
+                f"--out {out}: another fit is writing there; wait for it to end or choose another --out"
+            ) from None
+        return
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 32).decode("ascii", "replace").strip() or "unknown"
+            os.close(fd)
+            raise TrainingError(
+                f"--out {out}: another fit (PID {holder}) is writing there; wait for it to end, "
+                "or choose another --out"
+            ) from None
+        try:
+            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:  # removed by the fit that just released it: lock the new one
+            same = False
+        if same:
+            break
+        os.close(fd)
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        yield
+    finally:
+        with contextlib.suppress(OSError):
+            path.unlink()
+        os.close(fd)
+        if made:
+            with contextlib.suppress(OSError):
+                out.rmdir()  # only when empty: a fit refused before it wrote anything
 
 
 def _is_main() -> bool:

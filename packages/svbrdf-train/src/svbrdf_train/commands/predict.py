@@ -215,6 +215,10 @@ def _load_model(model_source, checkpoint, run_id, device, tile_size):
     if checkpoint is not None:
         model = Predictor.from_checkpoint(checkpoint, device)
     elif run_id is not None:
+        from ..checkpoint import check_run_kept
+
+        hint = f"restore it (mlflow runs restore --run-id {run_id}) or give another run"
+        check_run_kept(run_id, "--run", hint)
         model = Predictor.from_run(run_id, device)
     else:
         if model_source is None:
