@@ -108,6 +108,10 @@ def test_bad_yaml_file_names_the_file(tmp_path):
         Scene.load(p)
     with pytest.raises(SceneError, match="cannot read"):
         Scene.load(tmp_path / "missing.yaml")
+    latin = tmp_path / "latin.yaml"
+    latin.write_bytes("# lumière\ncamera: {}\n".encode("latin-1"))
+    with pytest.raises(SceneError, match="latin.yaml: is not UTF-8 text"):
+        Scene.load(latin)
 
 
 def test_configuration_shapes_broadcast_to_the_output():

@@ -348,9 +348,13 @@ class Scene:
     def load(cls, path) -> Scene:
         path = Path(path)
         try:
-            text = path.read_text()
+            text = path.read_text(encoding="utf-8")
         except OSError as e:
             raise SceneError(f"{path}: cannot read the scene file ({e.strerror})") from None
+        except UnicodeDecodeError as e:
+            raise SceneError(
+                f"{path}: is not UTF-8 text (byte {e.start}); save the scene file as UTF-8 YAML"
+            ) from None
         return cls.from_yaml(text, source=str(path))
 
 
