@@ -345,6 +345,7 @@ CASES = [
     ("scene-duplicate-key", "svbrdf-render", "render example:tiles --size 32 --scene {duplicate_scene} -o {tmp}/x.png", None, 2, "{duplicate_scene}: not valid YAML (duplicate key 'camera'"),
     ("fit-set-twice", "svbrdf-train", "fit {smoke} --set train.epochs=2 --set train.epochs=3 --out {tmp}/run", None, 2, "--set train.epochs is given twice"),
     ("fit-max-steps-and-set", "svbrdf-train", "fit {smoke} --max-steps 3 --set train.max_steps=4 --out {tmp}/run", None, 2, "train.max_steps"),
+    ("fit-data-and-set-path", "svbrdf-train", "fit {smoke} --data procedural --set data.source=des18 --out {tmp}/run", None, 2, "--data and --set data.source"),
     ("bench-test-data-twice", "svbrdf-bench", "run --models ours --size smoke --test-data {shard} --test-data {des18} -o {tmp}/bench", None, 2, "--test-data is given 2 times"),
     # model files and model URLs (issue 27): one line naming the file and the field, exit 2
     ("models-show-config-list", "svbrdf-models", "show {model_config_list}", None, 2, "{model_config_list}: damaged model file: field 'generator.config'"),

@@ -234,6 +234,11 @@ def _overrides(recipe_name, size, data, sets, max_minutes, max_steps) -> dict:
         # a mix keeps its entries: --data gives the path of those that name none
         if load_recipe(recipe_name, size, overrides).data.source == "mix":
             del data_overrides["data.source"]
+    clash = sorted(set(data_overrides) & set(overrides)) if data else []
+    if clash:  # --data would win without a word
+        from ..errors import RecipeError
+
+        raise RecipeError(f"--data and --set {clash[0]}={overrides[clash[0]]} both set {clash[0]}; give one")
     overrides.update(data_overrides)
     for flag, key, value in (
         ("--max-minutes", "train.max_minutes", max_minutes),
