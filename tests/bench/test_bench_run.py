@@ -259,9 +259,7 @@ def test_from_runs_reuses_a_finished_fit_as_a_child(bench, tmp_path):
         "ours",
         "--from-runs",
         "radn",
-        *TINY,
-        "--set",
-        "train.max_steps=4",
+        *(a.replace("train.max_steps=6", "train.max_steps=4") for a in TINY),  # a field once
         "-o",
         tmp_path / "r",
     )
