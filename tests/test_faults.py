@@ -363,6 +363,8 @@ CASES = [
     ("models-show-depth-huge", "svbrdf-models", "show {model_depth_huge}", None, 2, "depth must be from 2 to 13"),
     ("models-show-channels-huge", "svbrdf-models", "show {model_channels_huge}", None, 2, "million parameters, over the 500 million"),
     ("fit-set-depth-huge", "svbrdf-train", "fit {smoke} --set generator.config.depth=1000000000 --out {tmp}/run", None, 2, "depth must be from 2 to 13"),
+    ("fit-set-disc-layers-huge", "svbrdf-train", "fit {smoke} --set discriminator.config.layers=100000 --out {tmp}/run", None, 2, "layers must be at most 11"),
+    ("fit-set-disc-channels-huge", "svbrdf-train", "fit {smoke} --set discriminator.config.base_channels=100000 --out {tmp}/run", None, 2, "million parameters, over the 500 million a discriminator"),
     ("fit-set-channels-huge", "svbrdf-train", "fit {smoke} --set generator.config.base_channels=100000 --set generator.config.max_channels=100000 --out {tmp}/run", None, 2, "million parameters, over the 500 million"),
     ("models-show-stale-sidecar", "svbrdf-models", "show {model_stale}", None, 2, "{model_stale}: its SHA-256 is"),
     ("models-predict-stale-sidecar", "svbrdf-models", "predict {photo} --model {model_stale} --refine 0 -o {tmp}/maps", None, 2, "{model_stale}: its SHA-256 is"),

@@ -368,6 +368,12 @@ def test_the_size_bound_admits_the_paper_and_counts_its_parameters():
         assert estimate == built
     with pytest.raises(sm.ConfigError, match="max_channels"):
         sm.resolve_config("generator", "ours", {"max_channels": 2048})
+    for name, config in (("patchgan", {}), ("multi", {}), ("patchgan", {"layers": 5, "norm": "batch"})):
+        estimate = sm.resolve_config("discriminator", name, config).parameter_estimate()
+        built = sum(p.numel() for p in sm.create_discriminator(name, config).parameters())
+        assert estimate == built
+    with pytest.raises(sm.ConfigError, match="million parameters"):
+        sm.resolve_config("discriminator", "multi", {"base_channels": 100_000})
 
 
 # -- the .sha256 sidecar ------------------------------------------------------------------------

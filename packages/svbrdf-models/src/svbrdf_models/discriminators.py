@@ -27,6 +27,7 @@ from svbrdf_render import MAP_NAMES, SVBRDF
 from ._config import param
 from ._init import normal_init
 from ._registry import ModelSpec
+from .generators import MAX_PARAMETERS
 
 __all__ = [
     "PatchGANConfig",
@@ -40,6 +41,10 @@ __all__ = [
 ]
 
 _MAP_CHANNELS = {"normal": 3, "diffuse": 3, "roughness": 1, "specular": 3}
+#: The most strided layers a config may ask for: inputs must be at least ``3 * 2**layers`` px, and
+#: 3 * 2**11 = 6144 px is the largest that fits the 8192 px maps the tools make (MAX_DEPTH of the
+#: generators), so more layers judge nothing they are given.
+MAX_LAYERS = 11
 
 
 class PatchGAN(nn.Module):
@@ -69,6 +74,17 @@ class PatchGAN(nn.Module):
         return self.net(x)
 
 
+def _patchgan_parameters(in_channels: int, base: int, layers: int, norm: str) -> int:
+    """The parameter count of ``PatchGAN(in_channels, base, layers, norm)``, without building it."""
+    total = (in_channels * 16 + 1) * base
+    ch = base
+    for i in range(1, layers + 1):
+        out = base * min(2**i, 8)
+        total += (ch * 16 + 1) * out + (2 * out if norm == "batch" else 0)
+        ch = out
+    return total + ch * 16 + 1
+
+
 def _norm(kind: str, channels: int) -> nn.Module:
     if kind == "instance":
         return nn.InstanceNorm2d(channels)
@@ -95,6 +111,28 @@ class MultiGANConfig:
             )
         if not 0.0 <= self.init_std < math.inf:
             raise ValueError(f"init_std must be a finite number >= 0 (0: torch's init), got {self.init_std}")
+        if self.layers > MAX_LAYERS:
+            raise ValueError(
+                f"layers must be at most {MAX_LAYERS} (inputs are at least 3 * 2**layers px; "
+                f"3 * 2**{MAX_LAYERS} px is the largest the 8192 px maps allow), got {self.layers}"
+            )
+        params = self.parameter_estimate()
+        if params > MAX_PARAMETERS:
+            raise ValueError(
+                f"base_channels {self.base_channels} and layers {self.layers} make about "
+                f"{params / 1e6:,.0f} million parameters, over the {MAX_PARAMETERS / 1e6:,.0f} million a "
+                "discriminator may have (the paper's has 3); lower base_channels or layers"
+            )
+
+    def in_channels(self) -> tuple[int, ...]:
+        """The input channels of each PatchGAN this config builds (one per map for ``multi``)."""
+        return tuple(_MAP_CHANNELS.values())
+
+    def parameter_estimate(self) -> int:
+        """The weights and biases of the PatchGAN(s) this config builds, counted from the config
+        alone (checked before a layer is built; equal to the built network's count)."""
+        size = (self.base_channels, self.layers, self.norm)
+        return sum(_patchgan_parameters(c, *size) for c in self.in_channels())
 
     def check_input_size(self, height: int, width: int) -> None:
         """Raise ValueError when ``height x width`` inputs leave no logit: each of the ``layers``
@@ -115,6 +153,9 @@ class PatchGANConfig(MultiGANConfig):
         super().__post_init__()
         if self.renderings < 1:
             raise ValueError(f"renderings must be positive, got {self.renderings}")
+
+    def in_channels(self) -> tuple[int, ...]:
+        return (3 * self.renderings,)
 
 
 def _check_renderings(renderings: Tensor, n: int) -> None:
