@@ -12,12 +12,12 @@ import pytest
 import torch
 
 from svbrdf_render import SVBRDF, render
+from svbrdf_train.data.capture import _photos
 from svbrdf_train.data.jpeg import LUMINANCE_TABLE, jpeg_roundtrip, quantisation_table
 from svbrdf_train.data.procedural import (
     CAPTURE_PRESETS,
     PhotoSettings,
     ProceduralMaterials,
-    _photos,
     photo_jpeg_quality,
     photo_scene,
 )

@@ -4,7 +4,9 @@ maps, the photo scene, batching and DataLoader workers."""
 from __future__ import annotations
 
 import hashlib
+import importlib
 import math
+import pkgutil
 import subprocess
 import sys
 
@@ -14,17 +16,18 @@ import torch.nn.functional as F
 from torch.utils.data import DataLoader
 
 from svbrdf_render import SVBRDF, Camera, PointLight, Scene, render
+from svbrdf_train.data import families
 from svbrdf_train.data.procedural import (
     FAMILIES,
     GENERATOR_VERSION,
     PhotoSettings,
     ProceduralMaterials,
-    _normals,
     material,
     materials,
     photo_scene,
 )
 from svbrdf_train.data.procedural_families import family_fields
+from svbrdf_train.data.procedural_maps import _normals
 from svbrdf_train.errors import DataError
 
 #: Families with metal in them: the metal family, and painted and rusted metal.
@@ -53,6 +56,25 @@ def test_the_issue_families_exist():
     assert set(FAMILIES) >= {"stone", "tiles", "cells", "wood", "metal", "fabric"}
     assert set(FAMILIES) >= {"plaster", "rusted", "bark", "rock"}  # generator 3
     assert isinstance(GENERATOR_VERSION, str) and GENERATOR_VERSION == "3"
+
+
+def test_each_family_module_registers_its_family_in_the_drawing_order():
+    # One module per family, registered where it is written. A sample picks its family by its
+    # position in FAMILIES, so generator 3's order is part of its output.
+    modules = {m.name for m in pkgutil.iter_modules(families.__path__)} - {"base", "drawing"}
+    assert modules == set(FAMILIES) == set(families.FAMILY_TABLE)
+    for name in FAMILIES:
+        module = importlib.import_module(f"svbrdf_train.data.families.{name}")
+        assert families.FAMILY_TABLE[name].draw is module.draw
+        assert families.FAMILY_TABLE[name].fields is module.fields
+    order = ("stone", "tiles", "cells", "wood", "metal", "fabric", "plaster", "rusted", "bark", "rock")
+    assert FAMILIES == order
+
+
+def test_a_family_name_registers_once():
+    with pytest.raises(DataError, match="'stone' is registered twice"):
+        families.register(families.FAMILY_TABLE["stone"])
+    assert len(families.FAMILY_TABLE) == len(FAMILIES)
 
 
 @pytest.mark.parametrize("family", FAMILIES)
@@ -117,11 +139,11 @@ def test_batch_equals_items_bit_for_bit(resolution):
 
 
 def test_chunking_does_not_change_the_bytes(monkeypatch):
-    import svbrdf_train.data.procedural as procedural
+    import svbrdf_train.data.procedural_maps as procedural_maps
 
     data = ProceduralMaterials(6, 24, seed=7, mix=0.5)
     whole = data.batch(range(6))
-    monkeypatch.setattr(procedural, "_CHUNK_PIXELS", 2 * 24 * 24)  # chunks of two samples
+    monkeypatch.setattr(procedural_maps, "_CHUNK_PIXELS", 2 * 24 * 24)  # chunks of two samples
     chunked = data.batch(range(6))
     assert torch.equal(whole["maps"], chunked["maps"]) and torch.equal(whole["input"], chunked["input"])
 

@@ -22,6 +22,9 @@ silently wrong sample. The root attributes say what the file holds (``format``,
 and whether writing finished (``complete``, set last). A shard is written under a temporary
 name next to its target and renamed when complete, so a killed or failed write never leaves a
 file under the target's name.
+
+The format's constants, its attributes and the check of a shard (:func:`inspect_shard`) are
+in :mod:`.shard_format`; this module writes and reads shards, and re-exports them.
 """
 
 from __future__ import annotations
@@ -29,12 +32,9 @@ from __future__ import annotations
 import bisect
 import contextlib
 import gc
-import json
 import os
 import sys
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +48,19 @@ from svbrdf_render import safe_normalize
 from svbrdf_render.files import is_write_failure, temporary_path, write_failure
 
 from ..errors import DataError, ShardError
+from .shard_format import (
+    COMPRESSION,
+    FORMAT,
+    FORMAT_VERSION,
+    HOW_TO_REMAKE,
+    SHARD_DATASETS,
+    WRITER_ATTRS,
+    ShardInfo,
+    created_by,
+    inspect_shard,
+    open_shard,
+    to_attr,
+)
 
 __all__ = [
     "FORMAT",
@@ -60,60 +73,6 @@ __all__ = [
     "inspect_shard",
     "write_shard",
 ]
-
-FORMAT = "svbrdf-shard"
-#: Bump when the layout changes; readers refuse versions newer than theirs.
-FORMAT_VERSION = 1
-#: Channels of each image dataset, in the order of ``SVBRDF.pack`` after the photo.
-SHARD_DATASETS = {"input": 3, "normal": 3, "diffuse": 3, "roughness": 1, "specular": 3}
-#: h5py filter settings of the image datasets. gzip level 4 after byte shuffling: the best
-#: trade of size and read speed measured on procedural and Des18 samples (see the README).
-COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
-
-#: Root attributes the writer sets itself.
-_WRITER_ATTRS = frozenset(
-    {"format", "format_version", "resolution", "bits", "encoding", "count", "complete", "created_by"}
-)
-_HOW_TO_REMAKE = "re-create it with `svbrdf-train data make` or `svbrdf-train data import`"
-
-
-def _created_by() -> str:
-    names = ("svbrdf-train", "svbrdf-render", "torch", "numpy", "h5py")
-    versions = []
-    for name in names:
-        try:
-            versions.append(f"{name} {metadata.version(name)}")
-        except metadata.PackageNotFoundError:  # pragma: no cover - a source checkout
-            versions.append(f"{name} unknown")
-    return ", ".join(versions) + f" (HDF5 {h5py.version.hdf5_version})"
-
-
-# -- attributes ---------------------------------------------------------------------------
-
-
-def _to_attr(value: Any) -> Any:
-    """A Python value as an HDF5 attribute: scalars and lists natively, anything else as JSON."""
-    if isinstance(value, (str, bool, int, float, np.generic)):
-        return value
-    if isinstance(value, Path):
-        return str(value)
-    if isinstance(value, (list, tuple)):
-        if all(isinstance(v, str) for v in value):
-            return np.array(list(value), dtype=h5py.string_dtype())
-        if value and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
-            return np.asarray(value)
-    return json.dumps(value, sort_keys=True)
-
-
-def _from_attr(value: Any) -> Any:
-    """An HDF5 attribute as plain Python (str, int, float, bool, list)."""
-    if isinstance(value, bytes):
-        return value.decode("utf-8")
-    if isinstance(value, np.ndarray):
-        return [_from_attr(v) for v in value.tolist()]
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
 
 
 # -- writing ------------------------------------------------------------------------------
@@ -143,7 +102,9 @@ class ShardWriter:
     (KeyboardInterrupt included) deletes the temporary file and leaves ``path`` as it was.
 
     Example:
-        >>> with ShardWriter("train.h5", 256, attrs={"source": "procedural", "seed": 0}) as shard:
+        >>> from svbrdf_train.data import ProceduralMaterials
+        >>> materials = ProceduralMaterials(count=16, resolution=32, seed=0)
+        >>> with ShardWriter("train.h5", 32, attrs={"source": "procedural", "seed": 0}) as shard:
         ...     shard.extend(materials.batch(range(16)))  # input (B, 3, R, R), maps (B, 10, R, R), name
     """
 
@@ -201,7 +162,7 @@ class ShardWriter:
         # Handles kept open: h5py flushes a dataset when its handle is freed, and a write that
         # fails there is only printed, then crashes the process (seen on a full disk).
         self._datasets = {name: f[name] for name in (*SHARD_DATASETS, "name")}
-        clash = _WRITER_ATTRS & set(attrs)
+        clash = WRITER_ATTRS & set(attrs)
         if clash:
             raise DataError(f"ShardWriter: attrs may not set {sorted(clash)}; the writer records them")
         f.attrs["format"] = FORMAT
@@ -211,10 +172,10 @@ class ShardWriter:
         f.attrs["encoding"] = (
             f"value = stored / {(1 << self.bits) - 1}; normal = 2 value - 1; input and albedos linear"
         )
-        f.attrs["created_by"] = _created_by()
+        f.attrs["created_by"] = created_by()
         for key, value in attrs.items():
             if value is not None:
-                f.attrs[key] = _to_attr(value)
+                f.attrs[key] = to_attr(value)
         f.attrs["count"] = 0
         f.attrs["complete"] = False
 
@@ -343,97 +304,6 @@ def write_shard(
     return shard.path
 
 
-# -- checking -----------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class ShardInfo:
-    """What a valid shard holds, from its attributes and dataset shapes."""
-
-    path: Path
-    count: int
-    resolution: int
-    bits: int
-    #: Every root attribute, as plain Python values.
-    attrs: dict[str, Any] = field(default_factory=dict)
-    #: ``name -> (shape, dtype, compression)`` of each dataset.
-    datasets: dict[str, tuple[tuple[int, ...], str, str]] = field(default_factory=dict)
-
-
-def _open(path: Path) -> h5py.File:
-    if not path.is_file():
-        what = "is a folder" if path.is_dir() else "does not exist"
-        raise ShardError(f"{path}: {what}; give the path of an .h5 shard")
-    try:
-        return h5py.File(path, "r")
-    except OSError as e:
-        raise ShardError(
-            f"{path}: cannot be opened as HDF5, it is truncated or corrupted ({e}); {_HOW_TO_REMAKE}"
-        ) from None
-
-
-def inspect_shard(path) -> ShardInfo:
-    """Check a shard's attributes and datasets without decoding samples; raise ShardError if bad.
-
-    Checks: an HDF5 file of this format and a version this reader knows, marked complete,
-    with every dataset present, of ``count`` samples at ``resolution`` and the dtype of
-    ``bits``. Damaged sample data shows only when read (:class:`ShardDataset` names the
-    sample; ``svbrdf-train data info --check`` reads them all).
-    """
-    path = Path(path)
-    with _open(path) as f:
-        try:
-            attrs = {key: _from_attr(value) for key, value in f.attrs.items()}
-        except (OSError, RuntimeError) as e:
-            raise ShardError(f"{path}: its attributes cannot be read ({e}); {_HOW_TO_REMAKE}") from None
-        if attrs.get("format") != FORMAT:
-            raise ShardError(
-                f"{path}: not an svbrdf shard (attribute 'format' is {attrs.get('format')!r}, "
-                f"expected {FORMAT!r}); {_HOW_TO_REMAKE}"
-            )
-        version = attrs.get("format_version")
-        if not isinstance(version, int) or version > FORMAT_VERSION:
-            raise ShardError(
-                f"{path}: shard format version {version!r}, this svbrdf-train reads up to "
-                f"{FORMAT_VERSION}; upgrade svbrdf-train"
-            )
-        if attrs.get("complete") is not True:
-            raise ShardError(
-                f"{path}: incomplete, its writing did not finish (the 'complete' attribute is not set); "
-                f"{_HOW_TO_REMAKE}"
-            )
-        missing = [name for name in (*SHARD_DATASETS, "name") if name not in f]
-        if missing:
-            raise ShardError(
-                f"{path}: missing dataset(s) {', '.join(missing)} (found {', '.join(sorted(f)) or 'none'}); "
-                f"a shard holds input, normal, diffuse, roughness, specular and name; {_HOW_TO_REMAKE}"
-            )
-        count, r, bits = attrs.get("count"), attrs.get("resolution"), attrs.get("bits")
-        if not isinstance(count, int) or not isinstance(r, int) or bits not in (8, 16):
-            raise ShardError(
-                f"{path}: bad attributes count={count!r}, resolution={r!r}, bits={bits!r}; {_HOW_TO_REMAKE}"
-            )
-        dtype = np.dtype(np.uint8 if bits == 8 else np.uint16)
-        datasets = {}
-        for name in (*SHARD_DATASETS, "name"):
-            ds = f[name]
-            if not isinstance(ds, h5py.Dataset):
-                raise ShardError(f"{path}: '{name}' is a group, expected a dataset; {_HOW_TO_REMAKE}")
-            want = (count, r, r, SHARD_DATASETS[name]) if name in SHARD_DATASETS else (count,)
-            if ds.shape != want:
-                raise ShardError(
-                    f"{path}: dataset '{name}' has shape {ds.shape}, expected {want} "
-                    f"(count {count}, resolution {r}); {_HOW_TO_REMAKE}"
-                )
-            if name in SHARD_DATASETS and ds.dtype != dtype:
-                raise ShardError(
-                    f"{path}: dataset '{name}' is {ds.dtype}, expected {dtype} for bits={bits}; "
-                    + _HOW_TO_REMAKE
-                )
-            datasets[name] = (ds.shape, str(ds.dtype), str(ds.compression or "none"))
-    return ShardInfo(path, count, r, bits, attrs, datasets)
-
-
 # -- reading ------------------------------------------------------------------------------
 
 
@@ -465,7 +335,14 @@ class ShardDataset(Dataset):
     with DataLoader workers (fork or spawn) and with DistributedSampler.
 
     Example:
+        >>> from torch.utils.data import DataLoader
+        >>> from svbrdf_train.data import ProceduralMaterials
+        >>> for seed in (0, 1):
+        ...     with ShardWriter(f"train-{seed}.h5", 32) as shard:
+        ...         shard.extend(ProceduralMaterials(count=4, resolution=32, seed=seed).batch(range(4)))
         >>> data = ShardDataset(["train-0.h5", "train-1.h5"])
+        >>> len(data), data[5]["maps"].shape
+        (8, torch.Size([10, 32, 32]))
         >>> loader = DataLoader(data, batch_size=8, shuffle=True, num_workers=2)
     """
 
@@ -508,7 +385,7 @@ class ShardDataset(Dataset):
             self._pid = os.getpid()
         f = self._files.get(shard)
         if f is None:
-            f = self._files[shard] = _open(self.paths[shard])
+            f = self._files[shard] = open_shard(self.paths[shard])
         return f
 
     def __getitem__(self, index: int) -> dict:
@@ -521,7 +398,7 @@ class ShardDataset(Dataset):
         except (OSError, RuntimeError) as e:
             raise ShardError(
                 f"{self.paths[shard]}: sample {i} cannot be read, the file is damaged ({e}); "
-                f"{_HOW_TO_REMAKE}, or leave this shard out"
+                f"{HOW_TO_REMAKE}, or leave this shard out"
             ) from None
         photo, maps = _decode(arrays, bits)
         return {"input": photo, "maps": maps, "name": name}

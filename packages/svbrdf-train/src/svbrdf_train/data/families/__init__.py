@@ -1,0 +1,78 @@
+"""The material families of the procedural generator: one module each, what it draws and computes.
+
+A family is two functions (see :class:`~.base.Family`), written in its own module, which ends
+by registering them into :data:`FAMILY_TABLE` (:func:`~.base.register`):
+
+- ``draw(d)`` makes the random choices of *one* material from its own :class:`Draw`
+  (variant, scale, rotation, palette, finish, random tables) and returns them as a dict
+  of Python floats, RGB tuples and tensors;
+- ``fields(p, x, y)`` computes the maps of a *batch* of materials of that family from the
+  stacked choices ``p`` (floats become ``(B, 1, 1, 1)``, RGB tuples ``(B, 3, 1, 1)``,
+  tensors gain a leading ``B``) at pixel positions ``x, y`` in patch units, on the device
+  where ``x``, ``y`` and ``p`` lie (:func:`pixel_grid` and :func:`stack_choices` take one).
+
+Fields are the maps before normals: a height in patch units (the patch spans
+``[-1, 1]^2``; normals come from its slopes; about zero on average, so that two families
+blend without a cliff), linear diffuse and specular albedos, and roughness, all
+``(B, C, H, W)`` and not yet clamped. ``parts`` names masks of structural
+parts (grout, gaps, grooves) for tests and inspection.
+
+Physical plausibility, by construction: dielectrics have grey specular albedo in
+[0.025, 0.06]; metals (the metal family, and the studs of some tiles) a coloured one with
+a dark diffuse albedo: a measured F0 of a real metal (linear, mean >= 0.5), or, for
+tarnished, oxidised and anodised metal, as Des18's metals mostly are, the same or a dyed
+colour at a luminance of 0.09-0.3, still above every dielectric; recessed structure
+(grout, gaps, cracks, grooves) is rougher than the surface around it. Heights are drawn
+as *slopes* and divided by the pattern's frequency, so a bump looks equally steep at
+every scale. The helpers the families share (pattern frames, colour variations, the
+metals) are in :mod:`.drawing`.
+
+Only the ops listed in :mod:`..procedural_noise` touch batched tensors, so that a batch
+computes what its members compute alone, bit for bit.
+
+Adding a family: a module here that defines ``draw`` and ``fields`` and ends with
+``register(Family(...))``, its import below, and its weight in
+:data:`svbrdf_train.data.procedural.FAMILY_WEIGHTS`. The modules are imported in the order
+families are drawn from, which is part of the generator's output (a sample picks its family
+by position in that order): a new family goes last, and changes ``GENERATOR_VERSION``.
+"""
+
+from __future__ import annotations
+
+# isort: off
+# The drawing order (see above): the table lists the families as these imports register them.
+from . import stone, tiles, cells, wood, metal, fabric, plaster, rusted, bark, rock  # noqa: F401
+
+# isort: on
+import torch
+
+from ..procedural_noise import Draw
+from .base import FAMILY_TABLE, Family, Fields, pixel_grid, register, stack_choices
+from .drawing import COLOURED_METALS, METALS, draw_metal_specular, grey
+
+__all__ = [
+    "COLOURED_METALS",
+    "FAMILY_TABLE",
+    "METALS",
+    "Family",
+    "Fields",
+    "draw_metal_specular",
+    "family_fields",
+    "grey",
+    "pixel_grid",
+    "register",
+    "stack_choices",
+]
+
+
+def family_fields(
+    name: str, seeds: list[int], resolution: int, device: torch.device | str | None = None
+) -> Fields:
+    """The fields of materials of one family drawn from ``seeds`` (for tests and inspection),
+    computed on ``device`` (default the CPU)."""
+    family = FAMILY_TABLE[name]
+    x, y = pixel_grid(resolution, device=device)
+    with torch.no_grad():
+        f = family.fields(stack_choices([family.draw(Draw(s)) for s in seeds], device), x, y)
+    size = (-1, -1, resolution, resolution)
+    return Fields(*(t.expand(*size) for t in f[:4]), {k: m.expand(*size) for k, m in f.parts.items()})

@@ -1,0 +1,98 @@
+"""What a procedural family is, the table of families, and the batching its ``fields`` relies on.
+
+A family module defines ``draw(d)`` and ``fields(p, x, y)`` (see :mod:`svbrdf_train.data.families`)
+and ends by registering them: ``register(Family(name, description, draw, fields))``. The table
+keeps the order of registration, which is the order families are drawn from.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import torch
+from torch import Tensor
+
+from ...errors import DataError
+from ..procedural_noise import Draw
+
+__all__ = ["Fields", "Family", "FAMILY_TABLE", "register", "stack_choices", "pixel_grid"]
+
+
+class Fields(NamedTuple):
+    """Maps of a batch before normals (see :mod:`svbrdf_train.data.families`)."""
+
+    height: Tensor  # (B, 1, H, W), patch units
+    diffuse: Tensor  # (B, 3, H, W), linear
+    roughness: Tensor  # (B, 1, H, W)
+    specular: Tensor  # (B, 3, H, W), linear
+    parts: dict[str, Tensor]  # name -> (B, 1, H, W) mask in [0, 1]
+
+
+@dataclass(frozen=True)
+class Family:
+    """One family of materials: its description and its two functions."""
+
+    name: str
+    description: str
+    draw: Callable[[Draw], dict[str, Any]]
+    fields: Callable[[dict[str, Tensor], Tensor, Tensor], Fields]
+
+
+#: Every registered family by name, in the order they registered (the drawing order).
+FAMILY_TABLE: dict[str, Family] = {}
+
+
+def register(family: Family) -> Family:
+    """Add ``family`` to :data:`FAMILY_TABLE`, last; a name registers once."""
+    if family.name in FAMILY_TABLE:
+        raise DataError(f"material family {family.name!r} is registered twice; give the new one another name")
+    FAMILY_TABLE[family.name] = family
+    return family
+
+
+def stack_choices(
+    choices: list[dict[str, Any]], device: torch.device | str | None = None
+) -> dict[str, Tensor]:
+    """Per-material choices -> batched tensors: floats ``(B, 1, 1, 1)``, RGB ``(B, 3, 1, 1)``,
+    tensors ``(B, ...)``; on ``device`` when given (stacked on the CPU, then copied over
+    together: one transfer of every float32 table instead of one per key)."""
+    out = {}
+    for key in choices[0]:
+        values = [c[key] for c in choices]
+        if isinstance(values[0], Tensor):
+            out[key] = torch.stack(values)
+        else:
+            t = torch.tensor(values, dtype=torch.float32)
+            out[key] = t.view(len(values), -1, 1, 1)
+    if device is None or torch.device(device).type == "cpu":
+        return out
+    return _to_device(out, torch.device(device))
+
+
+def _to_device(tensors: dict[str, Tensor], device: torch.device) -> dict[str, Tensor]:
+    """``tensors`` on ``device``: the float32 ones packed into one buffer and copied at once
+    (a copy per tensor costs a transfer's latency each), the others one by one."""
+    floats = [k for k, t in tensors.items() if t.dtype == torch.float32]
+    out = {k: t.to(device) for k, t in tensors.items() if t.dtype != torch.float32}
+    if floats:
+        flat = torch.cat([tensors[k].reshape(-1) for k in floats]).to(device)
+        sizes = [tensors[k].numel() for k in floats]
+        for k, part in zip(floats, torch.split(flat, sizes), strict=True):
+            out[k] = part.view(tensors[k].shape)
+    return {k: out[k] for k in tensors}
+
+
+def pixel_grid(
+    resolution: int, margin: int = 0, device: torch.device | str | None = None
+) -> tuple[Tensor, Tensor]:
+    """Pixel centres in patch units, with ``margin`` extra pixels on every side.
+
+    ``x`` ``(1, 1, 1, R + 2m)`` left to right, ``y`` ``(1, 1, R + 2m, 1)`` top (``+1``) to
+    bottom, as :func:`svbrdf_render.surface_positions` places them; made on ``device``
+    (default the CPU), so that the fields computed from them are computed there.
+    """
+    n = resolution + 2 * margin
+    t = ((torch.arange(n, dtype=torch.float32, device=device) - margin) * 2 + 1) / resolution - 1
+    return t.view(1, 1, 1, -1), (-t).view(1, 1, -1, 1)
