@@ -177,7 +177,7 @@ def test_the_graph_sees_every_kind_of_import():
         return {e.target for e in g[name]}
 
     assert "svbrdf_render.maps" in targets("svbrdf_render.renderer")  # from .maps import SVBRDF
-    assert "svbrdf_render.brdf" in targets("svbrdf_render.renderer")  # from . import brdf
+    assert "svbrdf_render.fused" in targets("svbrdf_render.renderer")  # from . import fused
     assert "svbrdf_train.errors" in targets("svbrdf_train.data.photos")  # from ..errors import
     assert "svbrdf_render" in targets("svbrdf_train.data.photos")  # from svbrdf_render import read_image
     assert "svbrdf_train.inference" in targets("svbrdf_bench.runner")  # inside a function

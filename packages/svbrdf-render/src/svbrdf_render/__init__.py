@@ -2,7 +2,7 @@
 
 Public API (everything importable from here)::
 
-    from svbrdf_render import SVBRDF, Scene, Camera, PointLight, Flash, render
+    from svbrdf_render import SVBRDF, Scene, Camera, PointLight, Flash, render, apply_image_effects
     from svbrdf_render import training_scene, evaluation_scene, fit_flash, refine_maps
     from svbrdf_render import read_des18, write_des18, read_map_folder, write_map_folder
     from svbrdf_render import MetalRough, to_metal_rough, from_metal_rough, roundtrip_error
@@ -40,7 +40,7 @@ from .refine import (
     refine_maps,
     refine_start,
 )
-from .renderer import BACKENDS, build_plan, log_radiance, render
+from .renderer import BACKENDS, apply_image_effects, build_plan, log_radiance, render
 from .sampling import EVAL_CONFIGS, EVAL_SEED, evaluation_scene, training_scene
 from .scene import DES18_DISTANCE, Camera, Flash, PointLight, Scene
 from .tiling import MIN_TILEABLE_SIDE, make_tileable, make_tileable_map, seam_error
@@ -76,6 +76,7 @@ __all__ = [
     "SVBRDFError",
     "Scene",
     "SceneError",
+    "apply_image_effects",
     "brdf",
     "build_plan",
     "evaluation_scene",

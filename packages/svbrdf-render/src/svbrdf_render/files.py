@@ -153,8 +153,12 @@ def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
     temporary file is gone and ``path`` is as it was.
 
     Example:
-        >>> with atomic_output("grid.png") as tmp:
+        >>> from PIL import Image
+        >>> image = Image.new("RGB", (8, 8))
+        >>> with atomic_output("out/grid.png") as tmp:
         ...     image.save(tmp, format="PNG")
+        >>> sorted(p.name for p in Path("out").iterdir())   # the folder made, no temporary left
+        ['grid.png']
     """
     path = Path(path)
     tmp = temporary_path(path)

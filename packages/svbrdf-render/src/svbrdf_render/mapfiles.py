@@ -115,6 +115,47 @@ def _read_png16(path: Path) -> np.ndarray:
     return arr.reshape(h, w, planes).astype(np.float32) / 65535.0
 
 
+def _decode_pil(path: Path) -> np.ndarray:
+    """An image other than a 16-bit PNG as ``(H, W, C)`` float32 in ``[0, 1]``, via Pillow."""
+    Image = _pil()
+    try:
+        with Image.open(path) as im:
+            im.load()
+            mode = im.mode
+            if mode == "P":
+                im = im.convert("RGBA" if "transparency" in im.info else "RGB")
+                mode = im.mode
+            if mode in ("I;16", "I;16B", "I"):
+                return np.asarray(im, dtype=np.float32)[..., None] / 65535.0
+            if mode in ("L", "LA", "RGB", "RGBA"):
+                arr = np.asarray(im, dtype=np.float32) / 255.0
+                return arr[..., None] if arr.ndim == 2 else arr
+            if mode in ("1", "CMYK", "YCbCr", "F"):
+                return np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
+            raise MapFileError(path, f"unsupported image mode {mode!r}", "save it as 8- or 16-bit RGB PNG")
+    except MapFileError:
+        raise
+    except Exception as e:  # PIL raises UnidentifiedImageError, OSError, SyntaxError...
+        raise MapFileError(
+            path, f"cannot decode the image ({type(e).__name__}: {e})",
+            "is it a complete PNG or JPEG file?",
+        ) from None
+
+
+def _colour_channels(path: Path, arr: np.ndarray) -> np.ndarray:
+    """``arr`` ``(H, W, C)`` without its alpha channel, which must be opaque."""
+    if arr.shape[2] not in (2, 4):
+        return arr
+    alpha = arr[..., -1]
+    if float(alpha.min()) < 1.0:
+        raise MapFileError(
+            path,
+            f"has a translucent alpha channel (min alpha {float(alpha.min()):.3f})",
+            "maps must be opaque: flatten the image or drop the alpha channel",
+        )
+    return arr[..., :-1]
+
+
 def read_image(path, *, channels: int | None = 3) -> Tensor:
     """Read an image as a float32 tensor ``(C, H, W)`` in ``[0, 1]``; values as stored.
 
@@ -126,48 +167,9 @@ def read_image(path, *, channels: int | None = 3) -> Tensor:
     if not path.is_file():
         raise MapFileError(path, "no such file")
     header = _png_header(path)
-    if header is not None and header[0] == 16:
-        arr = _read_png16(path)
-    else:
-        Image = _pil()
-        try:
-            with Image.open(path) as im:
-                im.load()
-                mode = im.mode
-                if mode == "P":
-                    im = im.convert("RGBA" if "transparency" in im.info else "RGB")
-                    mode = im.mode
-                if mode in ("I;16", "I;16B", "I"):
-                    arr = np.asarray(im, dtype=np.float32)[..., None] / 65535.0
-                elif mode in ("L", "LA", "RGB", "RGBA"):
-                    arr = np.asarray(im, dtype=np.float32) / 255.0
-                    if arr.ndim == 2:
-                        arr = arr[..., None]
-                elif mode in ("1", "CMYK", "YCbCr", "F"):
-                    arr = np.asarray(im.convert("RGB"), dtype=np.float32) / 255.0
-                else:
-                    raise MapFileError(
-                        path, f"unsupported image mode {mode!r}", "save it as 8- or 16-bit RGB PNG"
-                    )
-        except MapFileError:
-            raise
-        except Exception as e:  # PIL raises UnidentifiedImageError, OSError, SyntaxError...
-            raise MapFileError(
-                path, f"cannot decode the image ({type(e).__name__}: {e})",
-                "is it a complete PNG or JPEG file?",
-            ) from None
-    # -- channels -----------------------------------------------------------------------
+    arr = _read_png16(path) if header is not None and header[0] == 16 else _decode_pil(path)
+    arr = _colour_channels(path, arr)
     c = arr.shape[2]
-    if c in (2, 4):
-        alpha = arr[..., -1]
-        if float(alpha.min()) < 1.0:
-            raise MapFileError(
-                path,
-                f"has a translucent alpha channel (min alpha {float(alpha.min()):.3f})",
-                "maps must be opaque: flatten the image or drop the alpha channel",
-            )
-        arr = arr[..., :-1]
-        c -= 1
     t = torch.from_numpy(np.ascontiguousarray(arr)).permute(2, 0, 1).contiguous()
     if channels == 3 and c == 1:
         t = t.expand(3, -1, -1).contiguous()

@@ -193,6 +193,77 @@ def _extras(extras: Any) -> dict | None:
         ) from None
 
 
+def _check_name_and_size(writer: str, name: Any, size: Any) -> None:
+    """The material's name is text; ``size`` (half the side, metres) a positive float32."""
+    if not isinstance(name, str):
+        raise SVBRDFError(f"{writer}: name={name!r} is not text; give the material's name as text")
+    if isinstance(size, bool) or not isinstance(size, numbers.Real) or not math.isfinite(size) or size <= 0:
+        raise SVBRDFError(f"{writer}: size={size!r} must be a positive finite number (half the side, metres)")
+    if not 1e-30 < size < 1e30:  # stored as float32: far from its underflow and overflow
+        raise SVBRDFError(f"{writer}: size={size!r} is out of float32 range; give a size in metres near 1")
+
+
+def _gltf_material(name: str, extras: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The metallic-roughness material: every factor 1, textures 0, 1, 2 (see :func:`write_gltf`)."""
+    material: dict[str, Any] = {
+        "name": name,
+        "pbrMetallicRoughness": {
+            "baseColorFactor": [1.0, 1.0, 1.0, 1.0],
+            "baseColorTexture": {"index": 0, "texCoord": 0},
+            "metallicFactor": 1.0,
+            "roughnessFactor": 1.0,
+            "metallicRoughnessTexture": {"index": 1, "texCoord": 0},
+        },
+        "normalTexture": {"index": 2, "texCoord": 0, "scale": 1.0},
+    }
+    if (extra := _extras(extras)) is not None:
+        material["extras"] = extra
+    return material
+
+
+def _gltf_document(
+    name: str, material: dict, images: dict[str, str], buffer: bytes, views: list, accessors: list
+) -> dict:
+    """The glTF JSON: one scene, node and mesh (the plane of :func:`_plane`), the material, its
+    images behind one sampler, and the buffer embedded as a data URI."""
+    return {
+        "asset": {"version": "2.0", "generator": _generator()},
+        "scene": 0,
+        "scenes": [{"name": name, "nodes": [0]}],
+        "nodes": [{"name": name, "mesh": 0}],
+        "meshes": [
+            {
+                "name": name,
+                "primitives": [
+                    {
+                        "attributes": {"POSITION": 0, "NORMAL": 1, "TANGENT": 2, "TEXCOORD_0": 3},
+                        "indices": 4,
+                        "material": 0,
+                        "mode": _TRIANGLES,
+                    }
+                ],
+            }
+        ],
+        "materials": [material],
+        "textures": [{"sampler": 0, "source": i} for i in range(len(images))],
+        "samplers": [
+            {"magFilter": _LINEAR, "minFilter": _LINEAR_MIPMAP_LINEAR, "wrapS": _REPEAT, "wrapT": _REPEAT}
+        ],
+        "images": [
+            {"name": role, "uri": quote(file, safe="/"), "mimeType": _MIME_TYPES[Path(file).suffix.lower()]}
+            for role, file in images.items()
+        ],
+        "accessors": accessors,
+        "bufferViews": views,
+        "buffers": [
+            {
+                "byteLength": len(buffer),
+                "uri": "data:application/octet-stream;base64," + base64.b64encode(buffer).decode("ascii"),
+            }
+        ],
+    }
+
+
 def write_gltf(
     path: str | os.PathLike,
     *,
@@ -237,63 +308,8 @@ def write_gltf(
     writer = "write_gltf"
     path = _material_path(path, ".gltf", writer)
     images = _image_names(writer, basecolor=basecolor, metallic_roughness=metallic_roughness, normal=normal)
-    if not isinstance(name, str):
-        raise SVBRDFError(f"{writer}: name={name!r} is not text; give the material's name as text")
-    if isinstance(size, bool) or not isinstance(size, numbers.Real) or not math.isfinite(size) or size <= 0:
-        raise SVBRDFError(f"{writer}: size={size!r} must be a positive finite number (half the side, metres)")
-    if not 1e-30 < size < 1e30:  # stored as float32: far from its underflow and overflow
-        raise SVBRDFError(f"{writer}: size={size!r} is out of float32 range; give a size in metres near 1")
-    buffer, views, accessors = _plane(float(size))
-
-    material: dict[str, Any] = {
-        "name": name,
-        "pbrMetallicRoughness": {
-            "baseColorFactor": [1.0, 1.0, 1.0, 1.0],
-            "baseColorTexture": {"index": 0, "texCoord": 0},
-            "metallicFactor": 1.0,
-            "roughnessFactor": 1.0,
-            "metallicRoughnessTexture": {"index": 1, "texCoord": 0},
-        },
-        "normalTexture": {"index": 2, "texCoord": 0, "scale": 1.0},
-    }
-    if (extra := _extras(extras)) is not None:
-        material["extras"] = extra
-    document = {
-        "asset": {"version": "2.0", "generator": _generator()},
-        "scene": 0,
-        "scenes": [{"name": name, "nodes": [0]}],
-        "nodes": [{"name": name, "mesh": 0}],
-        "meshes": [
-            {
-                "name": name,
-                "primitives": [
-                    {
-                        "attributes": {"POSITION": 0, "NORMAL": 1, "TANGENT": 2, "TEXCOORD_0": 3},
-                        "indices": 4,
-                        "material": 0,
-                        "mode": _TRIANGLES,
-                    }
-                ],
-            }
-        ],
-        "materials": [material],
-        "textures": [{"sampler": 0, "source": i} for i in range(len(images))],
-        "samplers": [
-            {"magFilter": _LINEAR, "minFilter": _LINEAR_MIPMAP_LINEAR, "wrapS": _REPEAT, "wrapT": _REPEAT}
-        ],
-        "images": [
-            {"name": role, "uri": quote(file, safe="/"), "mimeType": _MIME_TYPES[Path(file).suffix.lower()]}
-            for role, file in images.items()
-        ],
-        "accessors": accessors,
-        "bufferViews": views,
-        "buffers": [
-            {
-                "byteLength": len(buffer),
-                "uri": "data:application/octet-stream;base64," + base64.b64encode(buffer).decode("ascii"),
-            }
-        ],
-    }
+    _check_name_and_size(writer, name, size)
+    document = _gltf_document(name, _gltf_material(name, extras), images, *_plane(float(size)))
     return write_text(path, json.dumps(document, indent=2) + "\n")
 
 
@@ -302,6 +318,50 @@ def write_gltf(
 
 def _sub(parent: ET.Element, tag: str, **attributes: str) -> ET.Element:
     return ET.SubElement(parent, tag, attributes)
+
+
+def _materialx_graph(root: ET.Element, graph_name: str, files: dict[str, str]) -> dict[str, tuple[str, str]]:
+    """The node graph reading the four images (see :func:`write_materialx`); returns its
+    outputs, ``shader input -> (graph output, type)``."""
+    graph = _sub(root, "nodegraph", name=graph_name)
+    # (image node, its type, the file's colour space or None for raw data, shader input)
+    images = [
+        ("basecolor", "color3", "srgb_texture", "base_color"),
+        ("metallic", "float", None, "metallic"),
+        ("roughness", "float", None, "roughness"),
+        ("normal", "vector3", None, None),
+    ]
+    outputs: dict[str, tuple[str, str]] = {}  # shader input -> (graph output, type)
+    for role, kind, colorspace, shader_input in images:
+        node = _sub(graph, "image", name=f"{role}_image", type=kind)
+        file_input = _sub(node, "input", name="file", type="filename", value=files[role])
+        if colorspace:
+            file_input.set("colorspace", colorspace)
+        for address in ("uaddressmode", "vaddressmode"):
+            _sub(node, "input", name=address, type="string", value="periodic")
+        if shader_input:
+            outputs[shader_input] = (f"{shader_input}_output", kind)
+    normalmap = _sub(graph, "normalmap", name="normalmap", type="vector3")
+    _sub(normalmap, "input", name="in", type="vector3", nodename="normal_image")
+    _sub(normalmap, "input", name="scale", type="float", value="1.0")
+    outputs["normal"] = ("normal_output", "vector3")
+    nodes = {"base_color": "basecolor_image", "metallic": "metallic_image",
+             "roughness": "roughness_image", "normal": "normalmap"}  # fmt: skip
+    for shader_input, (output, kind) in outputs.items():
+        _sub(graph, "output", name=output, type=kind, nodename=nodes[shader_input])
+    return outputs
+
+
+def _materialx_material(
+    root: ET.Element, name: str, graph_name: str, outputs: dict[str, tuple[str, str]]
+) -> None:
+    """The shader ``SR_<name>`` fed by the graph's outputs, and the material ``<name>`` using it."""
+    shader_name = f"SR_{name}"
+    shader = _sub(root, MATERIALX_SHADER, name=shader_name, type="surfaceshader")
+    for shader_input, (output, kind) in outputs.items():
+        _sub(shader, "input", name=shader_input, type=kind, nodegraph=graph_name, output=output)
+    material = _sub(root, "surfacematerial", name=name, type="material")
+    _sub(material, "input", name="surfaceshader", type="surfaceshader", nodename=shader_name)
 
 
 def write_materialx(
@@ -352,41 +412,9 @@ def write_materialx(
             f"{writer}: name={name!r} is not a MaterialX name; use letters, digits and '_', "
             "not starting with a digit (e.g. 'svbrdf_material')"
         )
-    graph_name, shader_name = f"NG_{name}", f"SR_{name}"
-
     root = ET.Element("materialx", {"version": MATERIALX_VERSION, "colorspace": "lin_rec709"})
-    graph = _sub(root, "nodegraph", name=graph_name)
-    # (image node, its type, the file's colour space or None for raw data, shader input)
-    images = [
-        ("basecolor", "color3", "srgb_texture", "base_color"),
-        ("metallic", "float", None, "metallic"),
-        ("roughness", "float", None, "roughness"),
-        ("normal", "vector3", None, None),
-    ]
-    outputs: dict[str, tuple[str, str]] = {}  # shader input -> (graph output, type)
-    for role, kind, colorspace, shader_input in images:
-        node = _sub(graph, "image", name=f"{role}_image", type=kind)
-        file_input = _sub(node, "input", name="file", type="filename", value=files[role])
-        if colorspace:
-            file_input.set("colorspace", colorspace)
-        for address in ("uaddressmode", "vaddressmode"):
-            _sub(node, "input", name=address, type="string", value="periodic")
-        if shader_input:
-            outputs[shader_input] = (f"{shader_input}_output", kind)
-    normalmap = _sub(graph, "normalmap", name="normalmap", type="vector3")
-    _sub(normalmap, "input", name="in", type="vector3", nodename="normal_image")
-    _sub(normalmap, "input", name="scale", type="float", value="1.0")
-    outputs["normal"] = ("normal_output", "vector3")
-    nodes = {"base_color": "basecolor_image", "metallic": "metallic_image",
-             "roughness": "roughness_image", "normal": "normalmap"}  # fmt: skip
-    for shader_input, (output, kind) in outputs.items():
-        _sub(graph, "output", name=output, type=kind, nodename=nodes[shader_input])
-
-    shader = _sub(root, MATERIALX_SHADER, name=shader_name, type="surfaceshader")
-    for shader_input, (output, kind) in outputs.items():
-        _sub(shader, "input", name=shader_input, type=kind, nodegraph=graph_name, output=output)
-    material = _sub(root, "surfacematerial", name=name, type="material")
-    _sub(material, "input", name="surfaceshader", type="surfaceshader", nodename=shader_name)
+    outputs = _materialx_graph(root, f"NG_{name}", files)
+    _materialx_material(root, name, f"NG_{name}", outputs)
 
     ET.indent(root, space="  ")
     text = ET.tostring(root, encoding="unicode", xml_declaration=False)

@@ -28,6 +28,33 @@ def _dot(a: Tensor, b: Tensor) -> Tensor:
     return (a * b).sum(dim=-3, keepdim=True)
 
 
+def _visibility(model: str, nl: Tensor, nv: Tensor, alpha: Tensor) -> Tensor:
+    """Shadowing-masking, as ``V = G / (n.l n.v)``."""
+    if model == "schlick-ggx":
+        k = alpha / 2
+        return 1 / (nl * (1 - k) + k) / (nv * (1 - k) + k)
+    tan2_l = (1 - nl**2) / nl**2
+    tan2_v = (1 - nv**2) / nv**2
+    lam_l = (-1 + torch.sqrt(1 + alpha**2 * tan2_l)) / 2
+    lam_v = (-1 + torch.sqrt(1 + alpha**2 * tan2_v)) / 2
+    if model == "smith":
+        G = 1 / (1 + lam_l) / (1 + lam_v)
+    elif model == "height-correlated":
+        G = 1 / (1 + lam_l + lam_v)
+    else:
+        raise ValueError(f"unknown masking model {model!r}")
+    return G / (nl * nv)
+
+
+def _fresnel(model: str, s: Tensor, v_dot_h: Tensor) -> Tensor:
+    """The Fresnel factor ``F``."""
+    if model == "des18":
+        return s + (1 - s) * torch.pow(2.0, (-5.55473 * v_dot_h - 6.98316) * v_dot_h)
+    if model == "schlick":
+        return s + (1 - s) * torch.pow(1 - v_dot_h, 5)
+    raise ValueError(f"unknown fresnel model {model!r}")
+
+
 def render_reference(
     svbrdf: SVBRDF,
     light_pos: Tensor,
@@ -68,31 +95,10 @@ def render_reference(
     alpha = alpha_min + (1 - alpha_min) * r**2
     # GGX distribution
     D = alpha**2 / (math.pi * (n_dot_h**2 * (alpha**2 - 1) + 1) ** 2)
-    # Shadowing-masking, as G / (n.l n.v)
     nl = torch.clamp(n_dot_l, min=0)
     nv = torch.clamp(n_dot_v, min=0)
-    if masking_model == "schlick-ggx":
-        k = alpha / 2
-        V = 1 / (nl * (1 - k) + k) / (nv * (1 - k) + k)
-    else:
-        tan2_l = (1 - nl**2) / nl**2
-        tan2_v = (1 - nv**2) / nv**2
-        lam_l = (-1 + torch.sqrt(1 + alpha**2 * tan2_l)) / 2
-        lam_v = (-1 + torch.sqrt(1 + alpha**2 * tan2_v)) / 2
-        if masking_model == "smith":
-            G = 1 / (1 + lam_l) / (1 + lam_v)
-        elif masking_model == "height-correlated":
-            G = 1 / (1 + lam_l + lam_v)
-        else:
-            raise ValueError(f"unknown masking model {masking_model!r}")
-        V = G / (nl * nv)
-    # Fresnel
-    if fresnel_model == "des18":
-        F = s + (1 - s) * torch.pow(2.0, (-5.55473 * v_dot_h - 6.98316) * v_dot_h)
-    elif fresnel_model == "schlick":
-        F = s + (1 - s) * torch.pow(1 - v_dot_h, 5)
-    else:
-        raise ValueError(f"unknown fresnel model {fresnel_model!r}")
+    V = _visibility(masking_model, nl, nv, alpha)
+    F = _fresnel(fresnel_model, s, v_dot_h)
 
     f = d * (1 - s) / math.pi + F * V * D / 4
     radiance = intensity * f * nl / dist2

@@ -37,6 +37,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -45,9 +46,9 @@ from torch import Tensor
 from .effects import DES18_EFFECTS
 from .errors import MapError, SceneError
 from .fit import fit_flash
+from .geometry import safe_normalize, surface_positions
 from .maps import MAP_NAMES, SVBRDF
 from .renderer import BACKENDS, log_radiance, render
-from .geometry import safe_normalize, surface_positions
 from .scene import DES18_DISTANCE, Camera, Flash, PointLight, Scene
 
 __all__ = [
@@ -346,7 +347,8 @@ def _ring_bins(scene: Scene, shape, device) -> tuple[Tensor, Tensor, Tensor]:
     r = (p[None] - xy[:, :, None]).norm(dim=1)  # (B, HW)
     top = r.amax(1, keepdim=True).clamp_min(1e-6)
     index = (r / top * _RINGS).long().clamp(max=_RINGS - 1)[:, None]
-    count = torch.zeros(b, 1, _RINGS, device=device).scatter_add_(2, index, torch.ones(b, 1, h * w, device=device))
+    ones = torch.ones(b, 1, h * w, device=device)
+    count = torch.zeros(b, 1, _RINGS, device=device).scatter_add_(2, index, ones)
     return index, count.clamp_min(1), (count > 0).float()
 
 
@@ -397,6 +399,44 @@ class RefineLoss:
         return loss
 
 
+def _check_budget(steps: Any, seconds: Any, backend: Any) -> None:
+    """The step count, time bound and backend of :func:`refine_maps`, or a ``ValueError``."""
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+        raise ValueError(f"refine: steps must be an integer >= 0, got {steps!r}")
+    if seconds is not None and not (seconds >= 0 and math.isfinite(seconds)):
+        raise ValueError(f"refine: seconds must be a finite number >= 0, got {seconds!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"refine: backend must be one of {BACKENDS}, got {backend!r}")
+
+
+def _optimise(
+    params: _Parameters,
+    loss_fn: RefineLoss,
+    settings: RefineSettings,
+    steps: int,
+    seconds: float | None,
+    callback: Callable[[int, int, float], None] | None,
+    t0: float,
+) -> list[float]:
+    """Adam on ``params`` for ``steps`` steps, or until ``seconds`` after ``t0``; the losses."""
+    opt = torch.optim.Adam(params.groups(settings.lr, settings.normal_lr_scale))
+    losses = []
+    hold = round(settings.lobe_first * steps)
+    for step in range(steps):
+        for group in opt.param_groups:  # details wait until the lobe has settled
+            group["lr"] = 0.0 if group["detail"] and step < hold else group["base_lr"]
+        opt.zero_grad(set_to_none=True)
+        loss = loss_fn(params.svbrdf())
+        loss.backward()
+        opt.step()
+        losses.append(float(loss.detach()))
+        if callback is not None:
+            callback(step + 1, steps, losses[-1])
+        if seconds is not None and time.perf_counter() - t0 >= seconds:
+            break
+    return losses
+
+
 def refine_maps(
     photo: Tensor,
     start: SVBRDF,
@@ -435,12 +475,7 @@ def refine_maps(
     """
     t0 = time.perf_counter()
     settings = settings or RefineSettings()
-    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
-        raise ValueError(f"refine: steps must be an integer >= 0, got {steps!r}")
-    if seconds is not None and not (seconds >= 0 and math.isfinite(seconds)):
-        raise ValueError(f"refine: seconds must be a finite number >= 0, got {seconds!r}")
-    if backend not in BACKENDS:
-        raise ValueError(f"refine: backend must be one of {BACKENDS}, got {backend!r}")
+    _check_budget(steps, seconds, backend)
     photo = _check(photo, start, prior)
     size = tuple(photo.shape[-2:])
     photo = photo.to(start.device)
@@ -452,22 +487,8 @@ def refine_maps(
 
     torch.manual_seed(seed)
     params = _Parameters(start, settings.coarse, settings.levels)
-    opt = torch.optim.Adam(params.groups(settings.lr, settings.normal_lr_scale))
     loss_fn = RefineLoss(photo, prior, scene, settings, backend)
-    losses = []
-    hold = round(settings.lobe_first * steps)
-    for step in range(steps):
-        for group in opt.param_groups:  # details wait until the lobe has settled
-            group["lr"] = 0.0 if group["detail"] and step < hold else group["base_lr"]
-        opt.zero_grad(set_to_none=True)
-        loss = loss_fn(params.svbrdf())
-        loss.backward()
-        opt.step()
-        losses.append(float(loss.detach()))
-        if callback is not None:
-            callback(step + 1, steps, losses[-1])
-        if seconds is not None and time.perf_counter() - t0 >= seconds:
-            break
+    losses = _optimise(params, loss_fn, settings, steps, seconds, callback, t0)
     with torch.no_grad():
         out = params.svbrdf().detach()
     return Refinement(out, scene, len(losses), time.perf_counter() - t0, torch.tensor(losses))

@@ -4,9 +4,12 @@
 
     L = sum_lights  I c * [ diffuse + specular(D V F / 4) ] * cos * falloff
 
-then runs the image stages (vignetting, exposure, noise, clip, gamma). Only declared
-effects become stages: an undeclared effect is absent from the computation, not
-multiplied by zero (the tests count the ops a render runs to prove it).
+then runs the image stages (vignetting, exposure, noise, clip, gamma). The plan is built
+by phase from the registry of :mod:`svbrdf_render.effects`, where each effect declares its
+stage: the ``shading`` terms summed into the BRDF, the ``light`` factors applied per light,
+the ``image`` stages on the sum. Only declared effects become stages: an undeclared effect
+is absent from the computation, not multiplied by zero (the tests count the ops a render
+runs to prove it).
 
 Precision: float16/bfloat16 maps are upcast and the work runs in float32 (float64 stays
 float64); the result has that compute dtype. Autocast is disabled inside, since the
@@ -27,23 +30,16 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from . import brdf, fused
-from .errors import MapError
-from .geometry import (
-    cross_norm_sq,
-    dot,
-    safe_normalize,
-    surface_positions,
-    toward,
-    unit_and_sq,
-)
+from . import fused
+from .effects import EFFECTS, LightPath, Surface, effects_of_phase, resolve_effects
+from .errors import MapError, SceneError
+from .geometry import dot, safe_normalize, surface_positions, toward, unit_and_sq
 from .maps import SVBRDF
 from .scene import Scene
 
-__all__ = ["render", "log_radiance", "RenderPlan", "build_plan", "BACKENDS"]
+__all__ = ["render", "apply_image_effects", "log_radiance", "RenderPlan", "build_plan", "BACKENDS"]
 
 BACKENDS = ("eager", "compiled")
-_GAMMA_FLOOR = 1e-8
 
 
 @dataclass(frozen=True)
@@ -97,8 +93,8 @@ def _geometry(scene: Scene, shape: torch.Size, device, dtype) -> _Geometry:
 class RenderPlan:
     """The stages a scene's effects declare, ready to run.
 
-    ``stages`` lists them by name in execution order; ``shade`` and ``finish`` are the two
-    phases (``shade`` is what the compiled backend fuses).
+    ``stages`` lists them by name in execution order; ``shade`` runs the ``shading`` and
+    ``light`` phases (what the compiled backend fuses), ``finish`` the ``image`` phase.
     """
 
     effects: dict[str, dict[str, Any]]
@@ -107,15 +103,20 @@ class RenderPlan:
     finish: Callable[..., Tensor]
 
 
+def _stages(fx: dict[str, dict[str, Any]], phase: str) -> list[Callable]:
+    """The stages of the declared effects of ``phase``, in pipeline order, built by each
+    effect's own builder (:mod:`svbrdf_render.effects`)."""
+    out = []
+    for name, params in effects_of_phase(fx, phase).items():
+        build = EFFECTS[name].stage
+        if build is not None:  # stage-less effects are parameters of the one they require
+            out.append(build(params, fx))
+    return out
+
+
 def _build_shade(fx: dict[str, dict[str, Any]]) -> Callable[..., Tensor]:
-    with_diffuse = "diffuse" in fx
-    spec = fx.get("specular")
-    fresnel_model = fx["fresnel"]["model"] if "fresnel" in fx else None
-    masking_model = fx["masking"]["model"] if "masking" in fx else None
-    exact_masking = masking_model in ("smith", "height-correlated")
-    with_cosine = "cosine" in fx
-    falloff = fx.get("falloff")
-    min_d2 = falloff["min_distance"] ** 2 if falloff else 0.0
+    terms = _stages(fx, "shading")
+    factors = _stages(fx, "light")
 
     def shade(normal, diffuse, roughness, specular, p, geo: _Geometry) -> Tensor:
         # -- surface ------------------------------------------------------------------
@@ -123,40 +124,26 @@ def _build_shade(fx: dict[str, dict[str, Any]]) -> Callable[..., Tensor]:
         v, _ = unit_and_sq(toward(geo.cam, geo.cam_w, p))
         cos_v = dot(n, v, -3)
         front = cos_v > 0
-        cv = cos_v.clamp_min(0)
-        kd = brdf.diffuse_des18(diffuse, specular) if with_diffuse else None
-        if spec is not None:
-            alpha = brdf.alpha_from_roughness(roughness, spec["alpha_min"], spec["alpha_floor"])
-            sin2_v = cross_norm_sq(n, v, -3) if exact_masking else None
+        surface = Surface(n, v, cos_v.clamp_min(0), diffuse, roughness, specular)
+        brdf_terms = [prepare(surface) for prepare in terms]
         total = None
         for pos, w, rgb in geo.lights:
             # -- light geometry -----------------------------------------------------
             l, d2 = unit_and_sq(toward(pos, w, p))  # noqa: E741 - the math's name
             cos_l = dot(n, l, -3)
             visible = front & (cos_l > 0)
-            cl = cos_l.clamp_min(0)
-            # -- BRDF terms ---------------------------------------------------------
-            f = kd
-            if spec is not None:
-                h, _ = unit_and_sq(l + v)
-                lobe = brdf.ggx_d(dot(n, h, -3), cross_norm_sq(n, h, -3), alpha) * 0.25
-                if masking_model is not None:
-                    sin2_l = cross_norm_sq(n, l, -3) if exact_masking else None
-                    lobe = lobe * brdf.visibility(masking_model, cl, sin2_l, cv, sin2_v, alpha)
-                if fresnel_model is not None:
-                    lobe = lobe * brdf.fresnel(fresnel_model, specular, dot(v, h, -3))
-                else:
-                    lobe = lobe * specular
-                f = lobe if f is None else f + lobe
-            if f is None:  # neither diffuse nor specular declared: black
+            light = LightPath(l, d2, cos_l.clamp_min(0), pos, w)
+            # -- BRDF: the sum of the declared terms --------------------------------
+            f = None
+            for term in brdf_terms:
+                t = term(light)
+                f = t if f is None else f + t
+            if f is None:  # no BRDF term declared: black
                 f = torch.zeros_like(cos_l)
             # -- light factors ------------------------------------------------------
             radiance = f * rgb
-            if with_cosine:
-                radiance = radiance * cl
-            if falloff is not None and not (isinstance(w, float) and w == 0.0):
-                eff_d2 = d2 if isinstance(w, float) else w * d2 + (1 - w)
-                radiance = radiance / eff_d2.clamp_min(min_d2)
+            for factor in factors:
+                radiance = factor(radiance, surface, light)
             zero = torch.zeros((), dtype=radiance.dtype, device=radiance.device)
             radiance = torch.where(visible, radiance, zero)
             total = radiance if total is None else total + radiance
@@ -166,43 +153,7 @@ def _build_shade(fx: dict[str, dict[str, Any]]) -> Callable[..., Tensor]:
 
 
 def _build_finish(fx: dict[str, dict[str, Any]]) -> Callable[..., Tensor]:
-    stages: list[Callable[[Tensor, Tensor, _Geometry, Any], Tensor]] = []
-
-    if "vignetting" in fx:
-        strength = fx["vignetting"]["strength"]
-
-        def vignetting(x, p, geo, gen):
-            # cos of the angle between the camera axis (towards the patch centre) and the
-            # ray to each pixel; 1 everywhere for a directional camera.
-            v, _ = unit_and_sq(toward(geo.cam, geo.cam_w, p))
-            axis, _ = unit_and_sq(geo.cam)
-            c = dot(v, axis, -3).clamp(0, 1)
-            c2 = c * c
-            return x * (1 - strength * (1 - c2 * c2))
-
-        stages.append(vignetting)
-    if "exposure" in fx:
-        gain = 2.0 ** fx["exposure"]["ev"]
-        stages.append(lambda x, p, geo, gen: x * gain)
-    if "noise" in fx:
-        sigma, shot, seed = fx["noise"]["sigma"], fx["noise"]["shot"], fx["noise"]["seed"]
-
-        def noise(x, p, geo, gen):
-            if gen is None:
-                gen = torch.Generator(device=x.device).manual_seed(seed)
-            z = torch.randn(x.shape, generator=gen, dtype=x.dtype, device=x.device)
-            if shot > 0:  # variance sigma^2 + shot * x, x clamped before the sqrt
-                return x + z * torch.sqrt(sigma * sigma + shot * x.clamp_min(0))
-            return x + z * sigma
-
-        stages.append(noise)
-    if "clip" in fx:
-        top = fx["clip"]["max"]
-        stages.append(lambda x, p, geo, gen: x.clamp(0, top))
-    if "gamma" in fx:
-        inv = 1.0 / fx["gamma"]["gamma"]
-        # Clamped before the power: pow(0, 1/2.2) has an infinite slope.
-        stages.append(lambda x, p, geo, gen: x.clamp_min(_GAMMA_FLOOR).pow(inv))
+    stages = _stages(fx, "image")
 
     def finish(x: Tensor, p: Tensor, geo: _Geometry, generator) -> Tensor:
         for stage in stages:
@@ -214,8 +165,6 @@ def _build_finish(fx: dict[str, dict[str, Any]]) -> Callable[..., Tensor]:
 
 _PLANS: dict[str, RenderPlan] = {}
 _COMPILED: dict[str, Callable[..., Tensor]] = {}
-#: The effects ``shade`` reads (the rest are image stages, run by ``finish``).
-_SHADE_EFFECTS = frozenset({"diffuse", "specular", "fresnel", "masking", "cosine", "falloff"})
 
 
 def build_plan(effects: dict[str, dict[str, Any]]) -> RenderPlan:
@@ -231,6 +180,32 @@ def build_plan(effects: dict[str, dict[str, Any]]) -> RenderPlan:
         )
         _PLANS[key] = plan
     return plan
+
+
+def apply_image_effects(x: Tensor, effects, *, generator: torch.Generator | None = None) -> Tensor:
+    """Run the ``image`` phase of an effect declaration on rendered radiance ``x``.
+
+    What :func:`render` does after shading, by the same stages: ``effects`` is any
+    declaration :class:`Scene` takes (a scene's ``effects`` included); its ``shading`` and
+    ``light`` effects are skipped, its image effects run in pipeline order. ``x`` is
+    ``(..., 3, H, W)`` linear radiance; ``generator`` overrides the ``noise`` seed as in
+    :func:`render`. Image effects that read the camera (vignetting) need the scene: render
+    with :func:`render` for those.
+
+    Example:
+        >>> import torch
+        >>> from svbrdf_render import apply_image_effects
+        >>> apply_image_effects(torch.full((1, 3, 2, 2), 0.25), {"exposure": {"ev": 1.0}})[0, 0, 0, 0]
+        tensor(0.5000)
+    """
+    image = effects_of_phase(resolve_effects(effects), "image")
+    for name in image:
+        if EFFECTS[name].needs_camera:
+            raise SceneError(
+                f"apply_image_effects: effect {name!r} reads the camera; render the scene with "
+                "render() instead"
+            )
+    return build_plan(image).finish(x, None, None, generator)
 
 
 def _is_compile_failure(exc: Exception) -> bool:
@@ -306,7 +281,8 @@ def _compile_with_fallback(key: str, fn: Callable[..., Any]) -> Callable[..., An
 
 def _shade_key(plan: RenderPlan) -> str:
     # What ``shade`` depends on: plans that differ only in image effects share it.
-    return repr([(k, sorted(v.items())) for k, v in plan.effects.items() if k in _SHADE_EFFECTS])
+    shading = effects_of_phase(plan.effects, "shading", "light")
+    return repr([(k, sorted(v.items())) for k, v in shading.items()])
 
 
 def _compiled_shade(plan: RenderPlan) -> Callable[..., Tensor]:

@@ -18,8 +18,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from svbrdf_render import DES18_EFFECTS, SVBRDF, Camera, Flash, Scene, render
-from svbrdf_render.renderer import build_plan
+from svbrdf_render import DES18_EFFECTS, SVBRDF, Camera, Flash, Scene, apply_image_effects, render
 
 from ..errors import DataError
 from .jpeg import jpeg_roundtrip
@@ -259,7 +258,7 @@ def _photos(packed: Tensor, scenes: Sequence[Scene]) -> Tensor:
 
     The cameras and flashes become per-sample configurations of one scene (shape ``(B, 1)``)
     for the shading, the costly part; each photo's exposure, noise, clip and gamma then run
-    through the renderer's own image stages (:func:`svbrdf_render.renderer.build_plan`), noise
+    through the renderer's own image stages (:func:`svbrdf_render.apply_image_effects`), noise
     seeded from its scene as :func:`render` seeds it. So each photo is what
     ``render(maps[k], scenes[k])`` makes on that device (on the CPU the very bytes: tested;
     to rounding where the flashes' colours differ, which the shading then takes as white and
@@ -290,7 +289,7 @@ def _photos(packed: Tensor, scenes: Sequence[Scene]) -> Tensor:
     photos = []
     for k, s in enumerate(scenes):
         stages = {name: v for name, v in s.effects.items() if name in _IMAGE_STAGES}
-        photos.append(build_plan(stages).finish(x[k : k + 1], None, None, None))
+        photos.append(apply_image_effects(x[k : k + 1], stages))
     return torch.cat(photos)[:, 0]
 
 
@@ -305,7 +304,7 @@ def _jpeg(photos: Tensor, qualities: Sequence[int | None], gammas: Sequence[dict
     out = jpeg_roundtrip(photos.index_select(0, where), [qualities[k] for k in coded])
     for j, k in enumerate(coded):
         if gammas[k] is not None:
-            out[j : j + 1] = build_plan({"gamma": gammas[k]}).finish(out[j : j + 1], None, None, None)
+            out[j : j + 1] = apply_image_effects(out[j : j + 1], {"gamma": gammas[k]})
     return photos.index_copy(0, where, out)
 
 
