@@ -15,6 +15,9 @@ masking        shading  ``model`` ("schlick-ggx" | "smith" | "height-correlated"
 cosine         light    \u2014 : multiply by ``max(n.l, 0)``
 falloff        light    ``min_distance`` (1e-3): divide by the squared distance to point
                         lights (directional lights are unaffected)
+beam           light    ``exponent`` (2.0): a flash's soft beam, ``cos^exponent`` of the angle
+                        between the ray to a pixel and the light's axis (aimed at the patch
+                        centre); directional lights are unaffected
 vignetting     image    ``strength`` (1.0): ``1 - strength (1 - cos^4 theta)`` with theta
                         the angle of a pixel off the camera axis
 exposure       image    ``ev`` (0.0): multiply by ``2**ev``
@@ -72,6 +75,7 @@ __all__ = [
 #: Where an effect acts, in pipeline order (see the module docstring for each stage's form).
 PHASES = ("shading", "light", "image")
 _GAMMA_FLOOR = 1e-8
+_TINY = 1e-12
 
 
 @dataclass(frozen=True)
@@ -208,13 +212,35 @@ def _falloff(params, declared):
     return falloff
 
 
+def _beam(params, declared):
+    k = params["exponent"]
+
+    def beam(x, s: Surface, light: LightPath):
+        w = light.w
+        if isinstance(w, float) and w == 0.0:  # directional: no beam
+            return x
+        # The light is aimed at the patch centre (the origin): its axis points from the
+        # light to the origin, and -l from the light to the pixel. Clamped above 0 so the
+        # power's slope stays finite (the clamp passes no gradient there).
+        axis, _ = unit_and_sq(light.pos)
+        spread = dot(light.l, axis, -3).clamp(_TINY, 1.0).pow(k)
+        return x * (spread if isinstance(w, float) else w * spread + (1 - w))
+
+    return beam
+
+
 def _check_falloff(p):
     return None if p["min_distance"] > 0 else f"min_distance must be > 0, got {p['min_distance']}"
+
+
+def _check_beam(p):
+    return None if 0 <= p["exponent"] <= 1e3 else f"exponent must be in [0, 1000], got {p['exponent']}"
 
 
 _register("cosine", "light", "max(n.l, 0)", stage=_cosine)
 _register("falloff", "light", "inverse-square distance", stage=_falloff, check=_check_falloff,
           min_distance=1e-3)
+_register("beam", "light", "flash beam cos^exponent", stage=_beam, check=_check_beam, exponent=2.0)
 
 
 # -- image: stages on the summed radiance ----------------------------------------------------
