@@ -16,7 +16,7 @@ import pytest
 import torch
 
 import svbrdf_models as sm
-from svbrdf_models import capture
+from svbrdf_models import capture, tiles
 from svbrdf_models.batch import ProgressBar
 from svbrdf_models.cli import main
 from svbrdf_models.errors import DataError
@@ -454,7 +454,7 @@ def test_tiles_the_memory_cannot_hold_are_refused_before_the_model_loads(tmp_pat
     def no_model(*args, **kwargs):
         raise AssertionError("the model was loaded before the size was judged")
 
-    monkeypatch.setattr(capture, "available_memory", lambda: 2**30)
+    monkeypatch.setattr(tiles, "available_memory", lambda: 2**30)
     monkeypatch.setattr(sm.modelfile, "load_model", no_model)
     code, out = _run(photo_file, "--tiles", "--map-size", "8192", "--refine", "0", "-o", tmp_path / "maps",
                      capsys=capsys)  # fmt: skip
@@ -473,7 +473,7 @@ def test_a_tiled_capture_says_its_cost_and_checks_each_photo(tmp_path, photo_fil
     assert f"--tiles --map-size 256: {capture.tile_count(256, model.resolution)} tiles" in out.err
     assert f"about {cost:.1f} GiB of memory" in out.err
     # without --map-size the size is each photo's own: judged per photo, before its tiles run
-    monkeypatch.setattr(capture, "available_memory", lambda: 2**20)
+    monkeypatch.setattr(tiles, "available_memory", lambda: 2**20)
     with pytest.raises(DataError) as e:
         capture.capture_one(model, photo_file, tmp_path / "one", capture.CaptureOptions(tiles=True))
     assert str(e.value).startswith(f"{photo_file}: --tiles: a tiled capture of ")

@@ -240,7 +240,7 @@ def test_command_refuses_another_material_before_loading_the_model(tmp_path, cap
     def no_model(*args, **kwargs):
         raise AssertionError("the model was loaded")
 
-    monkeypatch.setattr("svbrdf_models.cli._load_predict_model", no_model)
+    monkeypatch.setattr("svbrdf_models.commands.predict._load_predict_model", no_model)
     code = main(["predict", str(path), "-o", str(tmp_path / "out")])
     err = capsys.readouterr().err
     assert code == 2 and "holds maps (diffuse.png) with no material.json" in err

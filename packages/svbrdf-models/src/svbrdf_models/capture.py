@@ -12,21 +12,12 @@ The pieces of ``svbrdf-models predict`` (and ``svbrdf-train predict``), each usa
 It needs svbrdf-render and this package only (Pillow through ``svbrdf-models[photo]``, which is
 ``svbrdf-render[io]``): no training code, no tracking.
 
-Photos are judged before any pixel is decoded where the file header allows it. Refused, with a
-:class:`PhotoError` naming the file and what to do: a missing file or a folder, a file that is no
-image, an image that is neither JPEG nor PNG, fewer than :data:`MIN_SIDE` pixels on the short side
-(or a crop that small), more than :data:`MAX_PIXELS` pixels, a grey image (the albedo's colour cannot
-be recovered from it), a translucent alpha channel, a crop that does not fit in the photo; with
-refinement, maps asked smaller than :data:`svbrdf_render.MIN_REFINE_SIDE`.
-Processed with a note: an EXIF orientation (applied), a 16-bit PNG (read at full precision), an
-opaque alpha channel (dropped), a palette or CMYK image (converted), RGB channels that are all
-equal (a grey picture saved as RGB), many clipped pixels, a black square (nothing lit: the maps
-are guesses and a re-rendering RMSE near 0 says nothing), a square smaller than the model's
-resolution (upsampled).
-
-A tiled capture (``--tiles``) holds about :data:`TILED_BYTES_PER_PIXEL` bytes per pixel of its
-maps: :func:`check_tiled_memory` refuses, before any work, a size this machine's available
-memory cannot hold.
+The steps live in modules of their own, re-exported here: reading and judging photos
+(:mod:`svbrdf_models.photos`: what is refused, what is noted), tiles and their memory cost
+(:mod:`svbrdf_models.tiles`), the flash fit and the relit preview (:mod:`svbrdf_models.relight`).
+This module runs them for one photo (:func:`capture_one`: with refinement, maps asked smaller
+than :data:`svbrdf_render.MIN_REFINE_SIDE` are refused; a square smaller than the model's
+resolution is noted, upsampled) and writes the batch's ``summary.json`` (:func:`write_summary`).
 """
 
 from __future__ import annotations
@@ -34,10 +25,6 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
-import os
-import struct
-import warnings
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,33 +32,33 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from svbrdf_render import (
-    DES18_DISTANCE,
-    DES18_EFFECTS,
-    MAP_NAMES,
-    MIN_REFINE_SIDE,
-    SVBRDF,
-    Camera,
-    FlashFit,
-    MapFileError,
-    PointLight,
-    Refinement,
-    Scene,
-    fit_flash,
-    linear_to_srgb,
-    read_image,
-    render,
-    safe_normalize,
-    srgb_to_linear,
-)
+from svbrdf_render import MAP_NAMES, MIN_REFINE_SIDE, SVBRDF, Refinement, Scene, linear_to_srgb
 from svbrdf_render.files import write_text
 
 from .errors import DataError
 from .figures import HEAT_MAX, error_heatmap, image_grid
 from .material import to_directx
-from .modelfile import square_photo
-from .photos import exif_orientation, orient
+from .photos import MAX_PIXELS, MIN_SIDE, PhotoError, load_photo, orient, square
 from .refining import BACKEND, check_refine, pick_backend, refine_prediction, rerender, rerender_rmse
+from .relight import (  # noqa: F401 - RELIT_*, _relight_raw: re-exported, where they were
+    FLASH_FIT,
+    RELIT_FRAMES,
+    RELIT_SIZE,
+    _relight_raw,
+    _relit_grid,
+    _relit_versions,
+    flash_consistency,
+    relight_frames,
+)
+from .tiles import (  # noqa: F401 - TILED_*: re-exported, where they were
+    TILED_BYTES_PER_PIXEL,
+    TILED_FIXED_BYTES,
+    available_memory,
+    check_tiled_memory,
+    tile_count,
+    tile_predict,
+    tiled_capture_bytes,
+)
 
 __all__ = [
     "ALBEDO_ENCODINGS",
@@ -101,24 +88,6 @@ __all__ = [
     "write_summary",
 ]
 
-#: Photos (and crops) with a shorter side below this many pixels are refused: too little to see.
-MIN_SIDE = 64
-#: Photos with more pixels than this are refused before decoding (50 megapixels).
-MAX_PIXELS = 50_000_000
-#: Image formats read (as Pillow names them; MPO is the JPEG some phones save).
-PHOTO_FORMATS = ("JPEG", "MPO", "PNG")
-#: Share of blown-out pixels (every channel at the top) above which a note warns of overexposure.
-CLIPPED_SHARE = 0.02
-#: A square whose brightest value (as stored in the file, 0-1) is below this is black: noted.
-BLACK_LEVEL = 1.5 / 255
-#: Peak memory of a tiled capture per pixel of its maps: the photo at that size, the blended maps
-#: and their weights, the flash fit's re-renderings and gradients, the figures and the files'
-#: buffers (about 70 float32 values). Measured as capture_one's peak resident memory with
-#: --tiles: 4.1 GiB above the program at 4096 px (263 bytes per pixel), 240-270 bytes per pixel
-#: added from 512 to 4096 px; so 8192 px maps need about 18 GiB.
-TILED_BYTES_PER_PIXEL = 280
-#: ... and beyond the per-pixel part, whatever the size (measured: about 270 MiB at 512 px).
-TILED_FIXED_BYTES = 320 * 2**20
 #: ``--normal-convention`` values: OpenGL (y up, the project's own) or DirectX (y down).
 NORMAL_CONVENTIONS = ("opengl", "directx")
 #: The smallest square (photo pixels) ``--tileable`` takes: the blend bands of
@@ -132,372 +101,6 @@ NORMAL_ALIASES = {"gl": "opengl", "dx": "directx"}
 RELIT_FORMATS = ("gif", "png", "none")
 #: How diffuse.png and specular.png store the albedos: linear (Des18) or sRGB (texture tools).
 ALBEDO_ENCODINGS = ("linear", "srgb")
-#: Frames of the relit preview, and the largest side it is rendered at.
-RELIT_FRAMES = 24
-RELIT_SIZE = 256
-#: How :func:`flash_consistency` fits the flash (:func:`svbrdf_render.fit_flash` options). 60
-#: steps at twice fit_flash's step size: on the 21 real-dev photos the RMSE is within 0.0005
-#: of 150 steps at 0.05 on 20 of them and lower on the last (a local minimum escaped), in a
-#: third of the time.
-FLASH_FIT = {"steps": 60, "lr": 0.1, "fit_size": 128}
-
-_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-_GREY_MODES = ("1", "L", "LA", "La", "I", "I;16", "I;16B", "I;16L", "I;16N", "F")
-
-
-class PhotoError(DataError):
-    """A photo that cannot be captured: names the file, what is wrong, and what to do."""
-
-    def __init__(self, path, problem: str, hint: str = ""):
-        self.path = str(path)
-        self.problem = problem
-        self.hint = hint
-        super().__init__(f"{self.path}: {problem}" + (f"; {hint}" if hint else ""))
-
-
-# -- reading ---------------------------------------------------------------------------------
-
-
-def square(photo: Tensor, crop: tuple[int, int, int] | None = None, *, path=None) -> Tensor:
-    """The square of ``(C, H, W)`` to capture: ``crop = (x, y, size)`` (left column, top row, side,
-    in pixels), or the largest centred square when ``crop`` is None. A crop that does not fit, or
-    is smaller than :data:`MIN_SIDE`, is a :class:`PhotoError` (naming ``path`` when given)."""
-    if crop is None:
-        return square_photo(photo, None)
-    x, y, size = (int(v) for v in crop)
-    _, h, w = photo.shape
-    where = path if path is not None else "photo"
-    if size < MIN_SIDE:
-        raise PhotoError(
-            where, f"the crop is {size} px, smaller than {MIN_SIDE}", "give a larger --crop SIZE"
-        )
-    if x < 0 or y < 0 or x + size > w or y + size > h:
-        raise PhotoError(
-            where,
-            f"the crop {x},{y},{size} does not fit in the {w}x{h} photo (as displayed, after EXIF "
-            "orientation)",
-            f"give --crop X,Y,SIZE with X+SIZE <= {w} and Y+SIZE <= {h}",
-        )
-    return photo[:, y : y + size, x : x + size].contiguous()
-
-
-def _png_bit_depth(path: Path) -> int | None:
-    with open(path, "rb") as f:
-        head = f.read(26)
-    if len(head) < 26 or not head.startswith(_PNG_MAGIC) or head[12:16] != b"IHDR":
-        return None
-    return struct.unpack(">B", head[24:25])[0]
-
-
-def _inspect(path: Path, notes: list[str]) -> int:
-    """Judge the file from its header (and alpha); returns its EXIF orientation."""
-    with _open_image(path) as im:
-        fmt, mode = im.format, im.mode
-        _check_header(path, im)
-        _check_alpha(path, im, notes)
-        if mode == "P":
-            notes.append("palette image (at most 256 colours) converted to RGB: expect banding")
-        elif mode == "CMYK":
-            notes.append("CMYK image converted to RGB")
-        orientation, orientation_note = exif_orientation(im)
-    if fmt == "PNG" and _png_bit_depth(path) == 16:
-        notes.append("16-bit PNG read at full precision")
-    if orientation_note:
-        notes.append(orientation_note)
-    return orientation
-
-
-def _open_image(path: Path):
-    """The PIL image of ``path``, not yet decoded; a file that is no image is a :class:`PhotoError`."""
-    from PIL import Image
-
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-            return Image.open(path)
-    except Image.DecompressionBombError as e:
-        raise PhotoError(
-            path, f"is far too large ({e})", f"downscale it below {MAX_PIXELS / 1e6:.0f} megapixels"
-        ) from None
-    except Exception as e:  # UnidentifiedImageError, OSError, SyntaxError...
-        raise PhotoError(
-            path,
-            f"cannot decode it as an image ({type(e).__name__})",
-            "give a JPEG or PNG photo (convert HEIC or RAW files first)",
-        ) from None
-
-
-def _check_header(path: Path, im) -> None:
-    """Refuse an image that is not a JPEG or PNG, too large, too small or grey."""
-    fmt, mode, (w, h) = im.format, im.mode, im.size
-    if fmt not in PHOTO_FORMATS:
-        raise PhotoError(path, f"is a {fmt} image, not a JPEG or PNG", "convert it to PNG or JPEG")
-    if w * h > MAX_PIXELS:
-        raise PhotoError(
-            path,
-            f"has {w}x{h} = {w * h / 1e6:.1f} megapixels, more than {MAX_PIXELS / 1e6:.0f}",
-            "downscale it (the maps are made at a few hundred to a few thousand pixels)",
-        )
-    if min(w, h) < MIN_SIDE:
-        raise PhotoError(
-            path,
-            f"is {w}x{h}, smaller than {MIN_SIDE} px on its short side",
-            "take a larger photo (the material should fill a square of at least a few hundred pixels)",
-        )
-    if mode in _GREY_MODES or (mode == "P" and im.palette is not None and im.palette.mode == "L"):
-        raise PhotoError(
-            path,
-            f"is a grey image (mode {mode})",
-            "the diffuse colour cannot be recovered from it; give the photo in colour",
-        )
-
-
-def _check_alpha(path: Path, im, notes: list[str]) -> None:
-    """Refuse a translucent alpha channel; note an opaque one (dropped)."""
-    mode = im.mode
-    if not (mode in ("RGBA", "RGBa", "PA") or (mode == "P" and "transparency" in im.info)):
-        return
-    try:
-        lo, _ = im.convert("RGBA").getchannel("A").getextrema()
-    except Exception as e:
-        raise PhotoError(path, f"cannot decode it ({type(e).__name__}: {e})", "is it complete?") from None
-    if lo < 255:
-        raise PhotoError(
-            path,
-            f"has a translucent alpha channel (lowest alpha {lo}/255)",
-            "a photo is opaque: export it without transparency (flattened)",
-        )
-    notes.append("opaque alpha channel dropped")
-
-
-def load_photo(
-    path, *, linear: bool = False, crop: tuple[int, int, int] | None = None
-) -> tuple[Tensor, list[str]]:
-    """Read a flash photo: ``(3, S, S)`` linear float32, the square to capture, and notes.
-
-    The EXIF orientation is applied; ``crop = (x, y, size)`` in pixels of the oriented photo picks
-    the square, else the largest centred one; values are decoded from sRGB unless ``linear``.
-    Refused photos raise :class:`PhotoError` (see the module's docstring for which).
-    """
-    path = Path(path)
-    if not path.exists():
-        raise PhotoError(path, "no such file", "check the path")
-    if not path.is_file():
-        raise PhotoError(path, "is a folder, not a photo", "give the photo files (e.g. DIR/*.jpg)")
-    notes: list[str] = []
-    orientation = _inspect(path, notes)
-    try:
-        image = read_image(path, channels=3)
-    except MapFileError as e:
-        raise PhotoError(
-            path, f"cannot decode it ({e.problem})", "is it a complete PNG or JPEG file?"
-        ) from None
-    if bool(
-        ((image[0] - image[1]).abs().max() < 1.5 / 255) & ((image[1] - image[2]).abs().max() < 1.5 / 255)
-    ):
-        notes.append(
-            "R, G and B are equal everywhere: a grey picture saved as colour? The diffuse will be grey"
-        )
-    image = square(orient(image, orientation), crop, path=path)
-    clipped = float((image.amin(0) >= 254 / 255).float().mean())  # blown out to white
-    if clipped > CLIPPED_SHARE:
-        notes.append(f"{clipped:.0%} of the square is clipped (overexposed): expose for the highlight")
-    if float(image.max()) < BLACK_LEVEL:
-        notes.append(
-            "the square is black (no value above 1/255): nothing lit to recover, so the maps are "
-            "guesses and a re-rendering RMSE near 0 says nothing; check the exposure and the flash"
-        )
-    return (image if linear else srgb_to_linear(image)), notes
-
-
-# -- predicting --------------------------------------------------------------------------------
-
-
-def _positions(length: int, tile: int, stride: int) -> list[int]:
-    if length <= tile:
-        return [0]
-    n = math.ceil((length - tile) / stride) + 1
-    return sorted({round(i * (length - tile) / (n - 1)) for i in range(n)})
-
-
-def _window(tile: int) -> Tensor:
-    """Raised cosine (Hann) that never reaches 0: ``sin^2(pi (i + 1/2) / tile)``; with 50% overlap
-    neighbouring windows sum to exactly 1."""
-    i = torch.arange(tile, dtype=torch.float64)
-    return torch.sin(math.pi * (i + 0.5) / tile).square().float()
-
-
-def tile_predict(
-    predict_fn: Callable[[Tensor], SVBRDF], photo: Tensor, tile: int, overlap: float = 0.5, *, batch: int = 8
-) -> SVBRDF:
-    """Maps of a photo larger than the model's input, from overlapping tiles blended without seams.
-
-    Args:
-        predict_fn: ``(N, 3, tile, tile)`` linear photos -> SVBRDF of N materials of that size.
-        photo: ``(3, H, W)`` linear, ``H, W >= tile``.
-        tile: side of a tile (the model's resolution).
-        overlap: share of a tile its neighbour covers (0.5: half).
-        batch: tiles per call of ``predict_fn``.
-
-    Tiles start at evenly spread positions that end flush with the borders; each tile's maps are
-    weighted by a separable raised-cosine window, summed, and divided by the sum of the weights,
-    so the result is a smooth partition of unity. Normals are re-normalised after blending;
-    the other maps are clamped to [0, 1]. Returns a batch of one at ``H x W``.
-    """
-    _, h, w = photo.shape
-    if h < tile or w < tile:
-        raise DataError(f"tile_predict: the photo is {w}x{h}, smaller than a tile ({tile})")
-    if not 0 <= overlap < 1:
-        raise DataError(f"tile_predict: overlap must be in [0, 1), got {overlap}")
-    stride = max(1, round(tile * (1 - overlap)))
-    corners = [(y, x) for y in _positions(h, tile, stride) for x in _positions(w, tile, stride)]
-    win = _window(tile)
-    weight = (win[:, None] * win[None, :])[None]  # (1, tile, tile)
-    acc = torch.zeros(10, h, w)
-    total = torch.zeros(1, h, w)
-    for start in range(0, len(corners), batch):
-        chunk = corners[start : start + batch]
-        x = torch.stack([photo[:, y : y + tile, x : x + tile] for y, x in chunk])
-        maps = predict_fn(x)
-        packed = torch.cat([maps.normal, maps.diffuse, maps.roughness, maps.specular], 1).float().cpu()
-        for k, (y, x) in enumerate(chunk):
-            acc[:, y : y + tile, x : x + tile] += packed[k] * weight
-            total[:, y : y + tile, x : x + tile] += weight
-    out = (acc / total)[None]
-    return SVBRDF(
-        safe_normalize(out[:, 0:3], dim=1),
-        out[:, 3:6].clamp(0, 1),
-        out[:, 6:7].clamp(0, 1),
-        out[:, 7:10].clamp(0, 1),
-        validate=False,
-    )
-
-
-def tile_count(size: int, tile: int, overlap: float = 0.5) -> int:
-    """How many tiles :func:`tile_predict` runs on a ``size x size`` photo."""
-    return len(_positions(size, tile, max(1, round(tile * (1 - overlap))))) ** 2
-
-
-def tiled_capture_bytes(size: int) -> int:
-    """About how much memory a tiled capture of ``size x size`` maps takes at its peak, beyond
-    the program and the model (see :data:`TILED_BYTES_PER_PIXEL`)."""
-    return TILED_BYTES_PER_PIXEL * size * size + TILED_FIXED_BYTES
-
-
-def available_memory() -> int | None:
-    """Bytes of memory this process may still take: the kernel's ``MemAvailable`` (what can be
-    had without swapping), lowered to a cgroup's limit when the process runs under one; None
-    where neither can be read."""
-    found = []
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    found.append(int(line.split()[1]) * 1024)
-                    break
-    except (OSError, ValueError, IndexError):
-        pass
-    if not found:
-        try:
-            found.append(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-        except (OSError, ValueError, AttributeError):
-            pass
-    try:  # cgroup v2: the limit minus what the group uses
-        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
-        if limit.isdigit():
-            used = int(Path("/sys/fs/cgroup/memory.current").read_text().strip())
-            found.append(max(0, int(limit) - used))
-    except (OSError, ValueError):
-        pass
-    return min(found) if found else None
-
-
-def check_tiled_memory(size: int, what: str) -> None:
-    """Refuse (:class:`DataError`, one line starting with ``what``) a tiled capture of ``size x
-    size`` maps that needs more memory than :func:`available_memory` says there is; a tiled
-    capture past it would be killed by the system, or swap for hours, after minutes of work."""
-    need, have = tiled_capture_bytes(size), available_memory()
-    if have is None or need <= have:
-        return
-    largest = math.isqrt(max(0, have - TILED_FIXED_BYTES) // TILED_BYTES_PER_PIXEL)
-    raise DataError(
-        f"{what}: a tiled capture of {size}x{size} maps needs about {need / 2**30:.1f} GiB of memory, "
-        f"but {have / 2**30:.1f} GiB are available; give a --map-size of at most {largest} px, or "
-        "free memory"
-    )
-
-
-# -- judging and showing -------------------------------------------------------------------------
-
-
-def flash_consistency(svbrdf: SVBRDF, photo: Tensor, **fit_options) -> FlashFit:
-    """Fit a flash so that the maps re-render the photo (:func:`svbrdf_render.fit_flash`).
-
-    ``photo`` is ``(3, H, W)`` or ``(1, 3, H, W)`` linear, resampled (area) to the maps' size if it
-    differs. ``FlashFit.rmse`` is the self-consistency figure: how well the maps explain the photo.
-    ``fit_options`` override :data:`FLASH_FIT`.
-    """
-    if photo.dim() == 3:
-        photo = photo[None]
-    photo = photo.float()
-    if tuple(photo.shape[-2:]) != tuple(svbrdf.size):
-        photo = F.interpolate(photo, size=tuple(svbrdf.size), mode="area")
-    with torch.inference_mode(False), torch.enable_grad():
-        return fit_flash(svbrdf.detach().to(torch.float32), photo, **{**FLASH_FIT, **fit_options})
-
-
-def _relight_raw(svbrdf: SVBRDF, n: int, radius: float, height: float) -> Tensor:
-    """``(n, 3, H, W)`` linear renderings of the first material under a point light circling it
-    at intensity 1, not clipped."""
-    angles = torch.arange(n, dtype=torch.float32) * (2 * math.pi / n)
-    pos = torch.stack([radius * angles.cos(), radius * angles.sin(), torch.full_like(angles, height)], -1)
-    maps = svbrdf[0].detach().to(torch.float32)
-    scene = Scene(Camera(torch.tensor([0.0, 0.0, DES18_DISTANCE])), (PointLight(pos, 1.0),), DES18_EFFECTS)
-    return render(maps, scene)[0]  # (n, 3, H, W)
-
-
-def _expose(frames: Tensor, intensity=None) -> Tensor:
-    """Frames scaled by ``intensity`` (None: so that their brightest 1% just reaches 0.9),
-    clipped to [0, 1]."""
-    if intensity is None:
-        sample = frames.flatten()[:: max(1, frames.numel() // 1_000_000)]
-        top = float(torch.quantile(sample, 0.99))
-        intensity = 0.9 / top if top > 0 else 1.0
-    return (frames * float(intensity)).nan_to_num(0.0).clamp(0, 1)
-
-
-def relight_frames(
-    svbrdf: SVBRDF, n: int = RELIT_FRAMES, *, radius: float = 1.5, height: float = 1.6, intensity=None
-) -> Tensor:
-    """``(n, 3, H, W)`` linear renderings of the first material under a point light circling it.
-
-    The camera stays on the axis at the Des18 distance; the light goes round at ``radius`` from the
-    axis and ``height`` above the patch. ``intensity=None`` exposes all frames alike so that their
-    brightest 1% just reaches 0.9; values are clipped to [0, 1].
-    """
-    return _expose(_relight_raw(svbrdf, n, radius, height), intensity)
-
-
-def _relit_versions(versions: list[SVBRDF]) -> Tensor:
-    """``(V, RELIT_FRAMES, 3, S, S)``: the relit frames of each version, at the last version's size
-    (at most :data:`RELIT_SIZE`), all exposed alike."""
-    side = min(RELIT_SIZE, max(versions[-1].size))
-    raw = [_relight_raw(v if tuple(v.size) == (side, side) else v.resize(side), RELIT_FRAMES, 1.5, 1.6)
-           for v in versions]  # fmt: skip
-    return _expose(torch.stack(raw))
-
-
-def _relit_grid(frames: Tensor, names: list[str] | None = None, cols: int = 6) -> Tensor:
-    """The relit frames ``(V, n, 3, H, W)`` as a grid: rows of ``cols`` frames; with several
-    versions (``names``), one row per version for each group of angles."""
-    n = frames.shape[1]
-    names = names or [""]
-    rows, labels = [], []
-    for i in range(0, n, cols):
-        for v, name in enumerate(names):
-            rows.append(list(linear_to_srgb(frames[v, i : i + cols])))
-            labels.append(f"{name} {i * 360 // n}°".strip())
-    return image_grid(rows, [f"+{k * 360 // n}°" for k in range(cols)], labels)
 
 
 def _resample(photo: Tensor, size: int) -> Tensor:

@@ -244,13 +244,7 @@ def log_pyfunc_model(
         "svbrdf.precision": trained.precision,
         "svbrdf.sha256": trained.sha256,
     }
-    model_id = None
-    if run_id is not None:  # MLflow would put it in the active (or default) experiment instead
-        client = mlflow.MlflowClient()
-        run = client.get_run(run_id)
-        model_id = client.create_logged_model(
-            run.info.experiment_id, artifact_path, run_id, tags=tags, params=run.data.params
-        ).model_id
+    model_id = _run_model_id(run_id, artifact_path, tags)
     with tempfile.TemporaryDirectory() as tmp, _quiet("mlflow.pyfunc"):
         code = Path(tmp) / "svbrdf_model.py"
         code.write_text(_CODE)
@@ -269,3 +263,15 @@ def log_pyfunc_model(
             step=trained.steps if step is None else step,
             artifact_path=None,
         )
+
+
+def _run_model_id(run_id: str | None, name: str, tags: dict[str, str]) -> str | None:
+    """The id of a new logged model of run ``run_id`` (in the run's experiment, with its params),
+    or None without a run: MLflow would put the model in the active (or default) experiment."""
+    if run_id is None:
+        return None
+    client = mlflow.MlflowClient()
+    run = client.get_run(run_id)
+    return client.create_logged_model(
+        run.info.experiment_id, name, run_id, tags=tags, params=run.data.params
+    ).model_id

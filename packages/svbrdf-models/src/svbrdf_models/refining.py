@@ -144,7 +144,8 @@ def refine_prediction(
     # into ordinary ones: autograd cannot save inference tensors for the backward pass).
     with torch.inference_mode(False), torch.enable_grad():
         photo = photo.detach().to(device, torch.float32).clone()
-        start = without_checkerboard(SVBRDF(**{k: t.detach().clone() for k, t in start.maps().items()}, validate=False))
+        copy = {k: t.detach().clone() for k, t in start.maps().items()}
+        start = without_checkerboard(SVBRDF(**copy, validate=False))
         result = refine_maps(
             photo,
             start,

@@ -1,0 +1,237 @@
+"""``svbrdf-models predict``: maps from flash photos, with the shipped model or another one."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from svbrdf_render import DEFAULT_REFINE_STEPS
+from svbrdf_render.cli import float_range, int_range
+
+from .._registry import Registry
+
+__all__ = ["MAX_MAP_SIZE", "add_parser", "run"]
+
+#: Largest --map-size: photos are refused over 50 megapixels (about 7071 px on a side).
+MAX_MAP_SIZE = 8192
+
+EPILOG_PREDICT = """\
+examples:
+  svbrdf-models predict photo.jpg -o maps/           # the shipped model, refined {refine} steps
+  svbrdf-models predict photo.jpg -o maps/ --refine 0                 # the network's maps only
+  svbrdf-models predict shots/*.png -o maps/ --linear --bits 16 --refine-seconds 20
+  svbrdf-models predict big.jpg --model ours.pt -o maps/ --tiles --map-size 1024
+  svbrdf-models predict IMG_0042.jpg -o maps/ --crop 600,200,1800 --map-size 512
+
+The model: --model (a file of svbrdf-train export, an https URL whose name carries its
+SHA-256 prefix, models:/NAME/VERSION or runs:/ID/PATH of MLflow, pretrained[:NAME]); without
+it, the model shipped inside svbrdf-models (pretrained), named on stderr; its model card says
+what it was trained on and how well it does on real materials. Downloads wait at most
+SVBRDF_DOWNLOAD_TIMEOUT seconds (default 30) for the server. --tiles says what it will cost
+(tiles, memory) before starting, and refuses a --map-size this machine's memory cannot hold.
+Training checkpoints and MLflow runs of fits: `svbrdf-train predict --checkpoint/--run`.
+
+"""
+
+
+def add_parser(sub) -> None:
+    """The ``predict`` sub-command and its options: the photos, the model and refinement here,
+    the square and the files written in :func:`_add_output_options`."""
+    from ..batch import help_text
+
+    p = sub.add_parser(
+        "predict",
+        help="maps from flash photos: network, then refinement against the photo",
+        description="Capture normal, diffuse, roughness and specular maps from flash photos: the "
+        "network's maps, refined against the photo at its own resolution, judged by re-rendering.",
+        epilog=EPILOG_PREDICT.format(refine=DEFAULT_REFINE_STEPS) + help_text(DEFAULT_REFINE_STEPS),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("photos", nargs="+", type=Path, metavar="PHOTO")
+    p.add_argument("-o", "--out", type=Path, required=True, help="output folder")
+    p.add_argument(
+        "--model",
+        metavar="SOURCE",
+        help="model file, URL, MLflow URI or pretrained[:NAME] "
+        "(default: pretrained, the model shipped with svbrdf-models)",
+    )
+    p.add_argument(
+        "--refine",
+        type=int_range(0),
+        default=DEFAULT_REFINE_STEPS,
+        metavar="STEPS",
+        help=f"refinement steps per photo, 0 for the network's maps only (default: {DEFAULT_REFINE_STEPS})",
+    )
+    p.add_argument(
+        "--refine-seconds",
+        type=float_range(0, above=True),
+        metavar="S",
+        help="stop refining a photo after S seconds (default: no time bound)",
+    )
+    p.add_argument(
+        "--scene",
+        type=Path,
+        metavar="FILE",
+        help="the capture's scene (YAML) to refine under (default: a flash found per photo)",
+    )
+    p.add_argument(
+        "--backend",
+        choices=["auto", "eager", "compiled"],
+        default="auto",
+        help="the renderer's backend for refinement (default: auto, compiled from 512x512 up, where "
+        "it is faster than its compile time costs)",
+    )
+    _add_output_options(p)
+
+
+def _add_output_options(p) -> None:
+    """``predict``'s options for the square read and the maps and figures written."""
+    from ..capture import ALBEDO_ENCODINGS, RELIT_FORMATS
+
+    p.add_argument(
+        "--linear",
+        action="store_true",
+        help="research use, Des18's convention: the photos hold linear values (default: sRGB) and "
+        "diffuse.png/specular.png are written linear (unless --albedo-encoding srgb)",
+    )
+    p.add_argument(
+        "--crop",
+        metavar="X,Y,SIZE",
+        type=_crop,
+        help="the square to capture, in pixels of the photo as displayed (default: centred)",
+    )
+    p.add_argument("--tiles", action="store_true", help="predict at high resolution from overlapping tiles")
+    p.add_argument(
+        "--map-size",
+        type=int_range(1, MAX_MAP_SIZE),
+        metavar="N",
+        help="with --tiles or --refine: side of the maps (default: the square's own side)",
+    )
+    p.add_argument(
+        "--normal",
+        "--normal-convention",
+        dest="normal_convention",
+        type=_normal_convention,
+        default="opengl",
+        metavar="{opengl,directx,gl,dx}",
+        help="normal.png's convention: directx (dx) stores the normal's y (green) flipped, as "
+        "Unreal and 3ds Max expect (default: opengl, as Blender, Substance, glTF expect)",
+    )
+    p.add_argument("--bits", type=int, choices=[8, 16], default=8, help="PNG bit depth (default: 8)")
+    p.add_argument(
+        "--albedo-encoding",
+        choices=ALBEDO_ENCODINGS,
+        help="how diffuse.png and specular.png store values (default: srgb, as texture tools expect; "
+        "linear with --linear). basecolor.png is sRGB whatever this says",
+    )
+    p.add_argument("--exr", action="store_true", help="also write the maps as OpenEXR (linear half floats)")
+    p.add_argument(
+        "--tileable",
+        action="store_true",
+        help="make the maps' opposite edges match, for materials that repeat (a band at the edges "
+        "is blended; material.json gives the seam error before and after)",
+    )
+    p.add_argument("--relit", choices=RELIT_FORMATS, default="gif", help="relit preview (default: gif)")
+    p.add_argument("--device", default="cpu", help="cpu, cuda, cuda:K or auto (default: cpu)")
+
+
+def _normal_convention(text: str) -> str:
+    from ..capture import NORMAL_ALIASES, NORMAL_CONVENTIONS
+
+    convention = NORMAL_ALIASES.get(text.lower(), text.lower())
+    if convention not in NORMAL_CONVENTIONS:
+        raise argparse.ArgumentTypeError(f"expected opengl (gl) or directx (dx), got {text!r}")
+    return convention
+
+
+def _crop(text: str) -> tuple[int, int, int]:
+    try:
+        x, y, size = (int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected X,Y,SIZE (three integers in pixels), got {text!r}"
+        ) from None
+    if x < 0 or y < 0 or size <= 0:
+        raise argparse.ArgumentTypeError(f"X and Y must be >= 0 and SIZE > 0, got {text!r}")
+    return x, y, size
+
+
+def run(args, registry: Registry, out) -> int:
+    """``predict``: the options checked, the model loaded and announced, the photos captured."""
+    from svbrdf_render.files import check_output_folder
+
+    from ..batch import capture_batch, check_material_folders, pick_device
+
+    options = _capture_options(args)
+    device = pick_device(args.device)  # a GPU that is not there is named as such
+    check_output_folder(args.out, "-o")  # before the model is loaded and the first photo is done
+    check_material_folders(args.photos, args.out)
+    if args.tiles and args.map_size is not None:  # refused before the model loads
+        from ..tiles import check_tiled_memory
+
+        check_tiled_memory(args.map_size, f"--tiles --map-size {args.map_size}")
+    model = _load_predict_model(args.model, device, args.map_size if args.tiles else None)
+    summary = {"model": model.source, "step": model.steps, "resolution": model.resolution,
+               "refine": args.refine, "refine_seconds": args.refine_seconds}  # fmt: skip
+    return capture_batch(model, args.photos, args.out, options, prog="svbrdf-models", summary=summary)
+
+
+def _capture_options(args):
+    """The :class:`~svbrdf_models.capture.CaptureOptions` of ``predict``'s flags; flags that go
+    with another one given alone, and a scene that cannot be a photo's capture, are refused."""
+    from ..batch import load_scene
+    from ..capture import CaptureOptions
+    from ..errors import DataError
+
+    if args.map_size is not None and not (args.tiles or args.refine):
+        raise DataError("--map-size goes with --tiles or --refine STEPS > 0")
+    alone = [
+        f for f, v in (("--refine-seconds", args.refine_seconds), ("--scene", args.scene)) if v is not None
+    ]
+    if alone and not args.refine:
+        raise DataError(f"{' and '.join(alone)} go(es) with --refine STEPS > 0, not --refine 0")
+    return CaptureOptions(
+        linear=args.linear,
+        crop=args.crop,
+        tiles=args.tiles,
+        map_size=args.map_size,
+        bits=args.bits,
+        normal_convention=args.normal_convention,
+        relit=args.relit,
+        albedo_encoding=args.albedo_encoding or ("linear" if args.linear else "srgb"),
+        exr=args.exr,
+        tileable=args.tileable,
+        refine=args.refine,
+        refine_seconds=args.refine_seconds,
+        scene=None if args.scene is None else load_scene(args.scene),
+        backend=args.backend,
+    )
+
+
+def _load_predict_model(source, device, tile_size):
+    """The model of --model (the shipped one when None), announced on stderr."""
+    from ..errors import DataError
+    from ..modelfile import PRETRAINED, card_path, load_model
+
+    if source is None:
+        print(
+            f"no --model: using the model shipped with svbrdf-models (pretrained:{PRETRAINED}; "
+            f"its card: {card_path()})",
+            file=sys.stderr,
+        )
+    model = load_model(source or "pretrained", device)
+    if tile_size is not None and tile_size < model.resolution:
+        raise DataError(f"--map-size {tile_size} is smaller than the model's resolution ({model.resolution})")
+    print(model.describe(), file=sys.stderr)
+    if tile_size is not None:
+        from ..tiles import available_memory, tile_count, tiled_capture_bytes
+
+        have = available_memory()
+        print(
+            f"--tiles --map-size {tile_size}: {tile_count(tile_size, model.resolution)} tiles of "
+            f"{model.resolution} px per photo, about {tiled_capture_bytes(tile_size) / 2**30:.1f} GiB "
+            f"of memory" + (f" ({have / 2**30:.1f} GiB available)" if have is not None else ""),
+            file=sys.stderr,
+        )
+    return model
