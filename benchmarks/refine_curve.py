@@ -1,6 +1,6 @@
 #!/usr/bin/env python
 """What refinement buys, per second, on materials with ground truth: the figures behind
-``DEFAULT_REFINE_STEPS`` and the README's refinement table.
+``DEFAULT_REFINE_STEPS`` and the refinement table of docs/measured-refinement.md.
 
 For every material of a folder of Des18-layout strips (``unseen-dev``: materials unlike any Des18
 one; ``des18-dev``), the shipped model's maps (refined as the photo tools refine them,

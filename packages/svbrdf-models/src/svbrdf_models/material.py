@@ -43,7 +43,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from svbrdf_render import SVBRDF, linear_to_srgb, write_image
+from svbrdf_render import SVBRDF, encode_normal, linear_to_srgb, write_image
 from svbrdf_render.files import atomic_output, temporary_path, write_failure, write_text
 
 from .errors import DataError
@@ -184,7 +184,7 @@ def _maps(svbrdf: SVBRDF, options) -> list[_Map]:
     svbrdf = svbrdf.detach().to("cpu", torch.float32)
     mr = to_metal_rough(svbrdf)
     normal = svbrdf.normal
-    stored = ((to_directx(normal) if options.normal_convention == "directx" else normal)[0] + 1) / 2
+    stored = encode_normal((to_directx(normal) if options.normal_convention == "directx" else normal)[0])
     albedo = options.albedo_encoding
     encode = linear_to_srgb if albedo == "srgb" else (lambda x: x)
     base, metal, rough = mr.basecolor[0], mr.metallic[0], svbrdf.roughness[0]
@@ -200,7 +200,7 @@ def _maps(svbrdf: SVBRDF, options) -> list[_Map]:
              svbrdf.specular[0]),
     ]  # fmt: skip
     if options.normal_convention == "directx":
-        gl = (normal[0] + 1) / 2
+        gl = encode_normal(normal[0])
         maps.append(_Map("normal_opengl", gl, "linear", "tangent-space normal, opengl", gl))
     return maps
 

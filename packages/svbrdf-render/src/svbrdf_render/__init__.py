@@ -28,7 +28,7 @@ from .mapfiles import (
     write_image,
     write_map_folder,
 )
-from .maps import MAP_NAMES, SVBRDF
+from .maps import MAP_NAMES, SVBRDF, decode_normal, encode_normal, stored_value
 from .materialfiles import validate_materialx, write_gltf, write_materialx
 from .metalrough import MetalRough, from_metal_rough, roundtrip_error, to_metal_rough
 from .reference import render_reference
@@ -63,6 +63,9 @@ __all__ = [
     "EVAL_CONFIGS",
     "EVAL_SEED",
     "MAP_NAMES",
+    "encode_normal",
+    "decode_normal",
+    "stored_value",
     "PHOTO_EFFECTS",
     "SVBRDF",
     "Camera",

@@ -39,7 +39,7 @@ from ._optional import require
 from .errors import MapFileError
 from .files import atomic_output
 from .geometry import safe_normalize
-from .maps import MAP_NAMES, SVBRDF
+from .maps import MAP_NAMES, SVBRDF, decode_normal, encode_normal
 
 __all__ = [
     "Des18Sample",
@@ -289,10 +289,6 @@ class Des18Sample(NamedTuple):
     svbrdf: SVBRDF
 
 
-def _decode_normal(t: Tensor) -> Tensor:
-    return safe_normalize(t * 2 - 1, dim=-3)
-
-
 def read_des18(path) -> Des18Sample:
     """Read a Deschaintre 2018 strip (five square tiles side by side)."""
     path = Path(path)
@@ -318,7 +314,7 @@ def read_des18(path) -> Des18Sample:
     s = h
     tile = [img[:, :, i * s : (i + 1) * s].unsqueeze(0) for i in range(5)]
     svbrdf = SVBRDF(
-        _decode_normal(tile[1]),
+        decode_normal(tile[1]),
         tile[2],
         tile[3].mean(dim=1, keepdim=True),
         tile[4],
@@ -335,7 +331,7 @@ def _single(svbrdf: SVBRDF, what: str) -> SVBRDF:
 def _encode_maps(svbrdf: SVBRDF) -> dict[str, Tensor]:
     n = safe_normalize(svbrdf.normal.float(), dim=1)
     return {
-        "normal": ((n + 1) / 2)[0],
+        "normal": encode_normal(n)[0],
         "diffuse": svbrdf.diffuse[0],
         "roughness": svbrdf.roughness[0],
         "specular": svbrdf.specular[0],
@@ -412,7 +408,7 @@ def read_map_folder(folder, *, albedo_encoding: str = "auto") -> SVBRDF:
         if encoding == "srgb":
             maps[name] = srgb_to_linear(maps[name])
     return SVBRDF(
-        _decode_normal(maps["normal"].unsqueeze(0)),
+        decode_normal(maps["normal"].unsqueeze(0)),
         maps["diffuse"].unsqueeze(0),
         maps["roughness"].unsqueeze(0),
         maps["specular"].unsqueeze(0),

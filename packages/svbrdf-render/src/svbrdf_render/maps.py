@@ -26,13 +26,45 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from .errors import MapError
+from .geometry import safe_normalize
 
-__all__ = ["SVBRDF", "MAP_NAMES", "MAP_CHANNELS", "PACKED_CHANNELS"]
+__all__ = [
+    "SVBRDF",
+    "MAP_NAMES",
+    "MAP_CHANNELS",
+    "PACKED_CHANNELS",
+    "encode_normal",
+    "decode_normal",
+    "stored_value",
+]
 
 MAP_NAMES = ("normal", "diffuse", "roughness", "specular")
 MAP_CHANNELS = {"normal": 3, "diffuse": 3, "roughness": 1, "specular": 3}
 #: Channels of :meth:`SVBRDF.pack`: normal 3, diffuse 3, roughness 1, specular 3.
 PACKED_CHANNELS = 10
+
+
+def encode_normal(normal: Tensor) -> Tensor:
+    """A normal map as files store it: ``(n + 1) / 2`` per channel, in [0, 1] for unit normals.
+
+    The one place the project writes this encoding; map files, shards, metrics on stored values
+    and the material files all go through it (or :func:`decode_normal`).
+
+    >>> encode_normal(torch.tensor([0.0, 0.0, 1.0])).tolist()
+    [0.5, 0.5, 1.0]
+    """
+    return (normal + 1) / 2
+
+
+def decode_normal(stored: Tensor, dim: int = -3) -> Tensor:
+    """Unit normals from their stored values (:func:`encode_normal`'s inverse), renormalised
+    along ``dim`` (channels of ``(..., 3, H, W)`` by default) since 8-bit files round them."""
+    return safe_normalize(stored * 2 - 1, dim=dim)
+
+
+def stored_value(name: str, t: Tensor) -> Tensor:
+    """Map ``name`` on the values a map file stores: the normal encoded, the others as they are."""
+    return encode_normal(t) if name == "normal" else t
 
 
 def check_map_set(

@@ -105,7 +105,7 @@ from torch import Tensor
 
 from .errors import MapError
 from .mapfiles import linear_to_srgb
-from .maps import MAP_NAMES, SVBRDF, check_map_set
+from .maps import MAP_NAMES, SVBRDF, check_map_set, stored_value
 from .renderer import render
 from .sampling import evaluation_scene
 from .scene import Scene
@@ -286,7 +286,6 @@ def roundtrip_error(svbrdf: SVBRDF, scene: Scene | None = None) -> dict[str, Ten
         a, b = svbrdf.maps(), back.maps()
         out = {}
         for name in MAP_NAMES:
-            x, y = (a[name], b[name]) if name != "normal" else ((a[name] + 1) / 2, (b[name] + 1) / 2)
-            out[name] = _per_sample_rmse(x, y)
+            out[name] = _per_sample_rmse(stored_value(name, a[name]), stored_value(name, b[name]))
         out["render"] = _per_sample_rmse(_display(back, scene), _display(svbrdf, scene))
     return out

@@ -47,7 +47,7 @@ from .effects import DES18_EFFECTS
 from .errors import MapError, SceneError
 from .fit import fit_flash
 from .geometry import safe_normalize, surface_positions
-from .maps import MAP_NAMES, SVBRDF
+from .maps import MAP_NAMES, SVBRDF, stored_value
 from .renderer import BACKENDS, log_radiance, render
 from .scene import DES18_DISTANCE, Camera, Flash, PointLight, Scene
 
@@ -64,7 +64,7 @@ __all__ = [
 ]
 
 #: The refinement budget the photo tools use when none is given (chosen from the accuracy
-#: curve of ``benchmarks/refine_curve.py``; see the README).
+#: curve of ``benchmarks/refine_curve.py``; see docs/measured-refinement.md).
 DEFAULT_REFINE_STEPS = 100
 
 #: Photos with a shorter side below this are refused by the photo tools (the renderer itself
@@ -179,10 +179,6 @@ def _normal(slopes: Tensor) -> Tensor:
 def _view(rendering: Tensor) -> Tensor:
     """``(B, 3, H, W)`` of a rendering of shape ``(B, 1, 3, H, W)`` (one view per material)."""
     return rendering[:, 0] if rendering.dim() == 5 else rendering
-
-
-def _stored(name: str, t: Tensor) -> Tensor:
-    return (t + 1) / 2 if name == "normal" else t
 
 
 class _Parameters:
@@ -365,7 +361,7 @@ class RefineLoss:
         self.eps = settings.eps
         self.backend = backend
         self.target = log_radiance(photo.clamp(0, 1), settings.eps)
-        self.prior = {name: _stored(name, t) for name, t in prior.maps().items()}
+        self.prior = {name: stored_value(name, t) for name, t in prior.maps().items()}
         self.weights = {name: float(settings.prior.get(name, 0.0)) for name in MAP_NAMES}
         self.ring_weight = float(settings.rings)
         self.ring_index, self.ring_count, self.ring_present = _ring_bins(scene, photo.shape, photo.device)
@@ -395,7 +391,7 @@ class RefineLoss:
             loss = loss + self.ring_weight * self.rings(maps)
         for name, t in maps.maps().items():
             if self.weights[name] > 0:
-                loss = loss + self.weights[name] * (_stored(name, t) - self.prior[name]).abs().mean()
+                loss = loss + self.weights[name] * (stored_value(name, t) - self.prior[name]).abs().mean()
         return loss
 
 

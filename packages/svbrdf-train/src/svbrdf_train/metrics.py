@@ -16,7 +16,16 @@ import math
 import torch
 from torch import Tensor
 
-from svbrdf_render import DES18_DISTANCE, MAP_NAMES, SVBRDF, Scene, evaluation_scene, linear_to_srgb, render
+from svbrdf_render import (
+    DES18_DISTANCE,
+    MAP_NAMES,
+    SVBRDF,
+    Scene,
+    evaluation_scene,
+    linear_to_srgb,
+    render,
+    stored_value,
+)
 
 __all__ = ["map_rmse", "render_rmse", "display_rendering", "per_sample_rmse", "preview_flash", "METRIC_NAMES"]
 
@@ -26,7 +35,7 @@ METRIC_NAMES = (*MAP_NAMES, "render")
 
 def _stored(svbrdf: SVBRDF) -> dict[str, Tensor]:
     m = svbrdf.maps()
-    return {name: (m[name] + 1) / 2 if name == "normal" else m[name] for name in MAP_NAMES}
+    return {name: stored_value(name, m[name]) for name in MAP_NAMES}
 
 
 def per_sample_rmse(a: Tensor, b: Tensor) -> Tensor:

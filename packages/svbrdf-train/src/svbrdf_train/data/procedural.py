@@ -8,7 +8,7 @@ its palette), its relief scaled by a drawn strength (30% of materials flattened,
 nearly flat), and its photo rendered by
 svbrdf-render under a jittered phone flash held a little off the patch's axis
 (:func:`photo_scene`). The ranges were moved towards real materials with
-``svbrdf-train data compare`` (README, "Training data").
+``svbrdf-train data compare`` (docs/svbrdf-train.md, "Training data").
 
 =========  ===================================================================
 family     what it draws

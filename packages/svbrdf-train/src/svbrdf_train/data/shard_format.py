@@ -27,7 +27,7 @@ FORMAT_VERSION = 1
 #: Channels of each image dataset, in the order of ``SVBRDF.pack`` after the photo.
 SHARD_DATASETS = {"input": 3, "normal": 3, "diffuse": 3, "roughness": 1, "specular": 3}
 #: h5py filter settings of the image datasets. gzip level 4 after byte shuffling: the best
-#: trade of size and read speed measured on procedural and Des18 samples (see the README).
+#: trade of size and read speed measured on procedural and Des18 samples (docs/measured-speed.md).
 COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
 
 #: Root attributes the writer sets itself.

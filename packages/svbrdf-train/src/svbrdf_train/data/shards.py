@@ -44,7 +44,7 @@ import torch
 from torch import Tensor
 from torch.utils.data import Dataset
 
-from svbrdf_render import safe_normalize
+from svbrdf_render import encode_normal, safe_normalize
 from svbrdf_render.files import is_write_failure, temporary_path, write_failure
 
 from ..errors import DataError, ShardError
@@ -221,7 +221,7 @@ class ShardWriter:
         normal = safe_normalize(maps[:, 0:3].detach().float(), dim=1)
         arrays = {
             "input": _quantise(x, self.bits),
-            "normal": _quantise((normal + 1) / 2, self.bits),
+            "normal": _quantise(encode_normal(normal), self.bits),
             "diffuse": _quantise(maps[:, 3:6], self.bits),
             "roughness": _quantise(maps[:, 6:7], self.bits),
             "specular": _quantise(maps[:, 7:10], self.bits),
@@ -311,7 +311,7 @@ def _decode(arrays: dict[str, np.ndarray], bits: int) -> tuple[Tensor, Tensor]:
     """Stored ``(H, W, C)`` integers -> the photo ``(3, H, W)`` and the packed maps ``(10, H, W)``."""
     stored = np.concatenate([arrays[name] for name in SHARD_DATASETS], axis=-1)  # (H, W, 13)
     values = torch.from_numpy(stored).permute(2, 0, 1).float().mul_(1.0 / ((1 << bits) - 1))
-    normal = values[3:6].mul_(2).sub_(1)
+    normal = values[3:6].mul_(2).sub_(1)  # svbrdf_render.decode_normal, in place (a hot path)
     # No zero-length normal can come out: 2 q / top - 1 is never 0 for an odd top = 2**bits - 1,
     # so every component is at least 1 / top away from 0, and a plain division is safe.
     normal.div_(normal.square().sum(dim=0, keepdim=True).sqrt_())

@@ -17,6 +17,7 @@ from typing import Any
 from torch import Tensor
 
 from svbrdf_models.figures import image_grid
+from svbrdf_render import encode_normal
 from svbrdf_render.mapfiles import linear_to_srgb
 
 from ..errors import DataError
@@ -32,7 +33,7 @@ def map_tiles(maps: Tensor) -> list[Tensor]:
     normal as ``(n + 1) / 2``, albedos sRGB-encoded, roughness grey."""
     m = maps.detach().float().cpu()
     return [
-        ((m[0:3] + 1) / 2).clamp(0, 1),
+        encode_normal(m[0:3]).clamp(0, 1),
         linear_to_srgb(m[3:6]),
         m[6:7].clamp(0, 1).expand(3, -1, -1),
         linear_to_srgb(m[7:10]),
