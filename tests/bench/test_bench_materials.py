@@ -10,7 +10,7 @@ from click.testing import CliRunner
 from conftest import random_svbrdf
 from svbrdf_bench.cli import cli
 from svbrdf_bench.errors import BenchError
-from svbrdf_bench.report import COLUMNS, ModelEntry, Report
+from svbrdf_bench.report import COLUMNS, ModelEntry, Report, averaging_note, terminal
 from svbrdf_bench.testset import test_set as make_test_set
 from svbrdf_render import write_des18
 
@@ -36,8 +36,8 @@ def test_a_material_with_three_strips_weighs_as_much_as_one_with_one():
     assert low <= mean <= high
     (row,) = [r for r in report.against_reference() if r["column"] == "render"]
     assert row["rmse_difference"] == pytest.approx(-0.1) and row["relative"] == pytest.approx(-0.1 / 0.4)
-    assert "4 strips of 2 materials" in report.averaging_note()
-    text = report.terminal()
+    assert "4 strips of 2 materials" in averaging_note(report)
+    text = terminal(report)
     assert "mean over materials; 95% bootstrap interval over materials" in text
     assert "0.3000" in text
     per_strip = report.per_strip_json()
@@ -48,7 +48,7 @@ def test_a_material_with_three_strips_weighs_as_much_as_one_with_one():
 def test_without_groups_the_tables_stay_per_image():
     report = _report(groups=None)
     assert report.interval(report.models[0], "rmse", "render")[0] == pytest.approx(0.2)
-    assert "over test images" in report.terminal() and "4 test images" in report.averaging_note()
+    assert "over test images" in terminal(report) and "4 test images" in averaging_note(report)
 
 
 def _folder(tmp_path, names):

@@ -122,7 +122,7 @@ def test_every_run_logs_the_test_set_and_where_it_comes_from(bench):
 
 
 def test_the_experiment_is_tagged_and_holds_the_view_the_links_open(bench):
-    from svbrdf_bench.runner import BENCH_COLUMNS, BENCH_VIEW, BENCHMARK_TAG
+    from svbrdf_bench.mlflow_view import BENCH_COLUMNS, BENCH_VIEW, BENCHMARK_TAG
     from svbrdf_train.tracking import FIT_VIEW, VIEW_TAG_PREFIX, ui_url
 
     uri, client, results, output = bench

@@ -158,7 +158,7 @@ def test_report_rebuild_keeps_the_refined_rows(refined, tmp_path):
 
 def test_without_refine_nothing_changes(refined):
     """The default, --refine 0: no refined rows, no capture-time table, plot or figures."""
-    from svbrdf_bench.report import build_report
+    from svbrdf_bench.report import build_report, terminal
 
     _, _, parent = refined
     report = build_report(parent)
@@ -166,7 +166,7 @@ def test_without_refine_nothing_changes(refined):
     for e in report.models:  # as a run without --refine logs them
         e.per_sample.pop("photo/rerender_rmse")
         e.figures = {k: v for k, v in e.figures.items() if "seconds_per_image" not in k}
-    text = report.terminal()
+    text = terminal(report)
     assert "+refine" not in text and "Refinement" not in text and "pure-optimisation" not in text
     assert "s/image" not in text
 

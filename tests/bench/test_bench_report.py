@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from svbrdf_bench.report import COLUMNS, ModelEntry, Report
+from svbrdf_bench.report import COLUMNS, ModelEntry, Report, clock_note, headline, table_lines, terminal
+from svbrdf_bench.report.tables import against_table, cost_table, time_table
 
 N = 40
 
@@ -58,33 +59,33 @@ def test_verdicts_against_mean_are_the_paired_bootstrap_signs():
 
 def test_headline_says_in_words_who_does_not_beat_mean():
     report = _report()
-    good, mixed = report.headline()
+    good, mixed = headline(report)
     assert good.startswith("good beats the constant-map baseline `mean` on every map and on renderings")
     assert mixed.startswith(
         "mixed does NOT beat the constant-map baseline `mean` on diffuse, roughness, specular, render: "
         "it has learned nothing that transfers there"
     )
     assert "worse on diffuse" in mixed and "within noise on roughness, specular, render" in mixed
-    text = report.terminal().splitlines()
+    text = terminal(report).splitlines()
     assert text[0].startswith("svbrdf-bench: good, mixed, mean (baseline), photo (baseline)")
     assert text[1:3] == [good, mixed]
     # On synthetic test images the claim is not about transfer.
-    synthetic = _report(test_set="32 procedural materials (seed 20221)").headline()[1]
+    synthetic = headline(_report(test_set="32 procedural materials (seed 20221)"))[1]
     assert "even on synthetic test images" in synthetic and "transfers" not in synthetic
 
 
 def test_without_baselines_the_headline_says_nothing_is_compared():
     report = _report(baselines="-")
     report.models = [e for e in report.models if not e.baseline]
-    assert report.against_reference() == [] and report._against_table(False) == []
-    assert report.headline()[0].startswith("No baseline was evaluated (--no-baselines)")
+    assert report.against_reference() == [] and table_lines(against_table(report), False) == []
+    assert headline(report)[0].startswith("No baseline was evaluated (--no-baselines)")
 
 
 def test_costs_pair_trained_models_only_and_say_when_they_do_not_beat_mean():
     report = _report()
     costs = report.costs()
     assert {(c["model"], c["versus"]) for c in costs} == {("good", "mixed")}
-    lines = report._cost_lines(False)
+    lines = table_lines(cost_table(report), False)
     assert lines[0] == "What accuracy costs (trained models)"
     assert any(
         line.startswith("mixed does not beat the constant-map baseline `mean` on renderings")
@@ -94,18 +95,18 @@ def test_costs_pair_trained_models_only_and_say_when_they_do_not_beat_mean():
 
 def test_clock_note_reads_the_tag_and_says_wall_clock_when_absent():
     report = _report()
-    note = report.clock_note()
+    note = clock_note(report)
     assert "good: the CPU clock (process CPU time divided by torch threads)" in note
     assert "mixed: the wall clock (none recorded)" in note
     for e in report.trained:
         e.clock = "cuda"
-    assert report.clock_note() == (
+    assert clock_note(report) == (
         "training time budgeted and reported on the GPU clock (wall time with the device synchronised)"
     )
 
 
 def test_time_table_shows_budget_and_wall_time_and_dashes_for_baselines():
-    table = _report()._time_table(False)
+    table = table_lines(time_table(_report()), False)
     head = table[1]
     assert "train time, budget clock (s)" in head and "train wall (s)" in head
     good = table[3].split()

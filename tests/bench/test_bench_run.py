@@ -290,8 +290,8 @@ def test_a_reused_child_carries_every_param_of_its_fit():
     """More params than MLflow takes in one batch (100), all copied; the recipe tag is the fit's."""
     from mlflow.entities import Param
 
+    from svbrdf_bench.children import reused_child
     from svbrdf_bench.layout import TRAIN_RUN_TAG
-    from svbrdf_bench.runner import _reused_child
 
     client = _client()
     experiment = client.create_experiment("tests-reused-child")
@@ -301,7 +301,7 @@ def test_a_reused_child_carries_every_param_of_its_fit():
     client.log_batch(fitted, params=items[:100])
     client.log_batch(fitted, params=items[100:])
     parent = client.create_run(experiment).info.run_id
-    child = client.get_run(_reused_child(client, experiment, parent, "ours-second", fitted))
+    child = client.get_run(reused_child(client, experiment, parent, "ours-second", fitted))
     assert child.data.params == params
     assert child.data.tags[TRAIN_RUN_TAG] == fitted and child.data.tags["mlflow.parentRunId"] == parent
     assert child.data.tags["recipe"] == "ours" and child.info.run_name == "ours-second (reused)"
@@ -344,10 +344,10 @@ def test_two_reused_fits_of_one_recipe_get_a_row_each(bench, tmp_path):
     assert "min of training per model" not in result.stdout.splitlines()[0]
     # The benchmark's children of reused fits carry the recipe tag too, and are finished: a recipe
     # name must still resolve to a fit with a checkpoint, never to such a child.
+    from svbrdf_bench.children import resolve_reuse
     from svbrdf_bench.layout import TRAIN_RUN_TAG
-    from svbrdf_bench.runner import _resolve_reuse
 
-    ((label, picked),) = _resolve_reuse(["ours"])
+    ((label, picked),) = resolve_reuse(["ours"])
     assert label == "ours" and TRAIN_RUN_TAG not in client.get_run(picked).data.tags
 
 

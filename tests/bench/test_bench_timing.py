@@ -21,8 +21,10 @@ import torch
 from svbrdf_bench.errors import BenchError
 from svbrdf_bench.plots import dominated_by, pareto, pareto_front
 from svbrdf_bench.render_table import measure, timing_warning, to_records
-from svbrdf_bench.report import ModelEntry, Report
-from svbrdf_bench.runner import _latency, _step_spread
+from svbrdf_bench.report import ModelEntry, Report, markdown, table_lines, terminal
+from svbrdf_bench.report import words as report_words
+from svbrdf_bench.report.tables import time_table
+from svbrdf_bench.scoring import _latency, _step_spread
 from svbrdf_bench.timing import (
     CPU_WAIT_LIMIT,
     LATENCY_METRIC,
@@ -167,7 +169,7 @@ def test_load_reads_high_while_burners_share_the_cpu_and_the_report_says_so():
     assert t.load.cpu_wait is not None and t.load.cpu_wait > CPU_WAIT_LIMIT, t.load
     assert t.load.unreliable
     report = _report({"fast": 0.0, "slow": 0.0}, latency={"fast": t.metrics(LATENCY_METRIC)})
-    assert "TIMINGS UNRELIABLE" in report.terminal() and "fast" in report.timing_warning()
+    assert "TIMINGS UNRELIABLE" in terminal(report) and "fast" in report_words.timing_warning(report)
 
 
 # -- the report ---------------------------------------------------------------------------------
@@ -195,13 +197,13 @@ def _report(shift: dict[str, float], *, latency: dict[str, dict] | None = None, 
 
 def test_report_shows_median_and_iqr_and_no_warning_on_an_idle_machine():
     report = _report({"no-attn": 0.0, "ours": -0.02})
-    assert report.timing_warning() is None
-    table = "\n".join(report._time_table(True))
+    assert report_words.timing_warning(report) is None
+    table = "\n".join(table_lines(time_table(report), True))
     assert "| 10.0 [0.5] |" in table and "| 20.0 [0.5] |" in table
-    notes = report.timing_notes()
+    notes = report_words.timing_notes(report)
     assert "median [interquartile range] of 20 timed runs" in notes[0]
     assert "under the 10% limit" in notes[1]
-    assert "UNRELIABLE" not in report.markdown({})
+    assert "UNRELIABLE" not in markdown(report, {})
     records = {r["model"]: r for r in report.records()}
     assert records["ours"]["time_latency_iqr_ms"] == 0.5 and records["ours"]["time_latency_unreliable"] is False
 
@@ -212,23 +214,23 @@ def test_report_warns_in_words_when_the_load_makes_timings_unreliable():
         **Load(30.0, 2, threads=2, cpu_wait=0.45, other_cpus=1.6, load_average=3.9).metrics(LATENCY_METRIC),
     }  # fmt: skip
     report = _report({"no-attn": 0.0, "ours": -0.02}, latency={"ours": busy})
-    warning = report.timing_warning()
+    warning = report_words.timing_warning(report)
     assert warning.startswith("TIMINGS UNRELIABLE") and "latency of ours was measured" in warning
     assert "45% of the time" in warning and "more than 10% of the time" in warning and "11%" in warning
-    md = report.markdown({})
+    md = markdown(report, {})
     assert f"**{warning}**" in md.splitlines()
-    assert warning in report.terminal().splitlines()
+    assert warning in terminal(report).splitlines()
     assert "| 1343.7 [400.0] |" in md
-    assert "wide spread (IQR over 10% of the median latency): ours (30%)" in report.timing_notes()
+    assert "wide spread (IQR over 10% of the median latency): ours (30%)" in report_words.timing_notes(report)
     assert "measured on a busy machine" in md  # the front says so too
 
 
 def test_report_of_an_older_run_without_spread_or_load():
     old = {"time/latency_ms": 19.3}
     report = _report({"a": 0.0, "b": -0.02}, latency={"a": old, "b": old})
-    assert report.timing_warning() is None
-    assert "| 19.3 |" in "\n".join(report._time_table(True))
-    assert any("was not recorded" in n for n in report.timing_notes())
+    assert report_words.timing_warning(report) is None
+    assert "| 19.3 |" in "\n".join(table_lines(time_table(report), True))
+    assert any("was not recorded" in n for n in report_words.timing_notes(report))
 
 
 # -- the noise-aware Pareto front ----------------------------------------------------------------
@@ -254,7 +256,7 @@ def test_report_front_uses_the_paired_bootstrap(tmp_path):
     front = noise.latency_front()
     assert front["front"] == ["no-attn"] and front["dominated"] == {"ours": "no-attn"}
     assert front["within_noise"] == [("no-attn", "ours")]
-    words = noise._front_lines()[0]
+    words = report_words.front_lines(noise)[0]
     assert "ours (no-attn is faster and within noise of it in render RMSE)" in words
     better = _report({"no-attn": 0.0, "ours": -0.02})  # ours is slower but better beyond noise
     front = better.latency_front()

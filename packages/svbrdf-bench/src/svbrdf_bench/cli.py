@@ -11,7 +11,7 @@ import sys
 import click
 
 from svbrdf_render.files import EXIT_STATUS
-from svbrdf_train.cli import OneLineErrors, run_main
+from svbrdf_train import OneLineErrors, run_main
 
 from . import __version__
 

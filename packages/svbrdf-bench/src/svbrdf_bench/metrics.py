@@ -24,8 +24,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from svbrdf_render import MAP_NAMES, SVBRDF, evaluation_scene
-from svbrdf_train.metrics import display_rendering, map_rmse, per_sample_rmse
+from svbrdf_render import MAP_NAMES, SVBRDF, evaluation_scene, stored_value
+from svbrdf_train import display_rendering, map_rmse, per_sample_rmse
 
 from .errors import BenchError
 
@@ -78,8 +78,7 @@ def _stored(svbrdf: SVBRDF) -> dict[str, np.ndarray]:
     """The maps as files store them, in [0, 1], as float64 ``(B, C, H, W)`` arrays."""
     out = {}
     for name, t in svbrdf.maps().items():
-        v = (t + 1) / 2 if name == "normal" else t
-        out[name] = v.detach().to("cpu", torch.float64).numpy()
+        out[name] = stored_value(name, t).detach().to("cpu", torch.float64).numpy()
     return out
 
 
@@ -130,9 +129,7 @@ def evaluate(pred: SVBRDF, target: SVBRDF, *, lpips: LpipsFn | None = None) -> d
     if lpips is not None:
         pm, tm = pred.maps(), target.maps()
         for name in MAP_NAMES:
-            p, t = pm[name].detach(), tm[name].detach()
-            if name == "normal":
-                p, t = (p + 1) / 2, (t + 1) / 2
+            p, t = stored_value(name, pm[name].detach()), stored_value(name, tm[name].detach())
             if p.shape[1] == 1:
                 p, t = p.expand(-1, 3, -1, -1), t.expand(-1, 3, -1, -1)
             out[f"lpips/{name}"] = np.asarray(lpips(p.float(), t.float()), dtype=np.float64).reshape(b)

@@ -34,15 +34,18 @@ every row's forward+backward), so that a burst of other work slows every row ali
 is read on the clock of ``torch.utils.benchmark`` (:func:`svbrdf_bench.timing.time_once`), and
 the machine's load over the rounds is read once and kept on every row (``Row.load``);
 :func:`timing_warning` says in words when it makes the times unreliable.
+
+:func:`measure` reads as its steps: the rows (``_cases``), their warm-up, the timed rounds, then
+the accuracy against the reference. The rows, and how they are shown (Markdown, records, metric
+names), are :mod:`svbrdf_bench.render_rows`'s; their names are importable from here too.
 """
 
 from __future__ import annotations
 
-import math
 import time
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 
 import torch
 
@@ -58,7 +61,8 @@ from svbrdf_render import (
 from svbrdf_render.examples import EXAMPLES, example_material
 
 from .errors import BenchError
-from .timing import CPU_WAIT_LIMIT, Load, LoadProbe, summarize, time_once
+from .render_rows import Row, format_table, metric_key, timing_warning, to_records
+from .timing import LoadProbe, summarize, time_once
 
 __all__ = [
     "DTYPES",
@@ -81,32 +85,6 @@ DTYPES: dict[str, torch.dtype] = {
 EFFECT_DTYPE = "float32"
 BASELINE = "des18"
 _REL_FLOOR = 1e-4
-
-
-@dataclass
-class Row:
-    """One way of rendering, timed and compared with the float64 reference.
-
-    Times in ms (``first_call_s`` in s): medians, and interquartile ranges (``*_iqr_ms``);
-    errors are NaN where not measured (see ``note``).
-    """
-
-    dtype: str
-    backend: str
-    effects: str  # "des18", "-fresnel", "+noise", ...
-    forward_ms: float = math.nan
-    forward_backward_ms: float = math.nan
-    forward_iqr_ms: float = math.nan
-    forward_backward_iqr_ms: float = math.nan
-    first_call_s: float = math.nan
-    max_abs_error: float = math.nan
-    max_rel_error: float = math.nan
-    grad_error: float = math.nan
-    note: str = ""
-    forward_samples: list[float] = field(default_factory=list, repr=False)
-    forward_backward_samples: list[float] = field(default_factory=list, repr=False)
-    load: Load | None = field(default=None, repr=False)
-    """The machine's load over the timed rounds (the same for every row of one table)."""
 
 
 # -- inputs ---------------------------------------------------------------------------------
@@ -204,11 +182,26 @@ def _reason(exc: BaseException) -> str:
 
 @dataclass
 class _Case:
+    """One row to measure: its effects, the maps it renders (shared by the rows of one dtype) and
+    how it renders them."""
+
     row: Row
     effects: tuple[str, ...]
     run: Callable[[], torch.Tensor]
     maps: SVBRDF
     ok: bool = True
+
+    def forward(self, device: torch.device) -> torch.Tensor:
+        _clear(self.maps)
+        out = self.run()
+        _sync(device)
+        return out
+
+    def forward_backward(self, device: torch.device) -> torch.Tensor:
+        out = self.forward(device)
+        out.mean().backward()
+        _sync(device)
+        return out
 
 
 def measure(
@@ -240,27 +233,11 @@ def measure(
     say = progress or (lambda msg: None)
     if size < 1 or materials < 1 or repeats < 1:
         raise BenchError(f"size, materials and repeats must be >= 1, got {size}, {materials} and {repeats}")
-    backends = list(dict.fromkeys(backends))
-    dtypes = list(dict.fromkeys(dtypes))
-    for b in backends:
-        if b not in BACKENDS:
-            raise BenchError(f"unknown backend {b!r}; choose from {', '.join(BACKENDS)}")
-    for d in dtypes:
-        if d not in DTYPES:
-            raise BenchError(f"unknown dtype {d!r}; choose from {', '.join(DTYPES)}")
+    backends, dtypes = _checked(backends, BACKENDS, "backend"), _checked(dtypes, DTYPES, "dtype")
     if not backends or not dtypes:
         raise BenchError("at least one backend and one dtype are needed")
     variants = dict(effect_variants())
-    if isinstance(effects, str):
-        if effects not in ("each", "none"):
-            raise BenchError(f"effects must be 'each', 'none' or a list of labels, got {effects!r}")
-        toggles = [k for k in variants if k != BASELINE] if effects == "each" else []
-    else:
-        toggles = list(dict.fromkeys(effects))
-        unknown = [t for t in toggles if t not in variants]
-        if unknown:
-            raise BenchError(f"unknown effect toggle(s) {unknown}; choose from {', '.join(variants)}")
-        toggles = [t for t in toggles if t != BASELINE]
+    toggles = _toggles(effects, variants)
     try:
         dev = torch.device(device)
         torch.empty(0, device=dev)
@@ -269,19 +246,49 @@ def measure(
 
     base = bench_materials(materials, size, seed).to(dev)
     scene = training_scene(materials, generator=torch.Generator().manual_seed(seed)).to(dev)
+    cases = _cases(base, scene, variants, dtypes, backends, toggles)
+    _warm_up(cases, dev, say)
+    _time_rounds([c for c in cases if c.ok], repeats, dev, say)
+    _accuracy([c for c in cases if c.ok], base, scene, variants, dev, say)
+    return [c.row for c in cases]
+
+
+def _checked(values: Sequence[str], known, what: str) -> list[str]:
+    """``values`` without repeats, each one of ``known``."""
+    values = list(dict.fromkeys(values))
+    for v in values:
+        if v not in known:
+            raise BenchError(f"unknown {what} {v!r}; choose from {', '.join(known)}")
+    return values
+
+
+def _toggles(effects: str | Sequence[str], variants: dict[str, tuple[str, ...]]) -> list[str]:
+    """The effect-toggle rows asked for: every one (``"each"``), none (``"none"``) or those listed."""
+    if isinstance(effects, str):
+        if effects not in ("each", "none"):
+            raise BenchError(f"effects must be 'each', 'none' or a list of labels, got {effects!r}")
+        return [k for k in variants if k != BASELINE] if effects == "each" else []
+    toggles = list(dict.fromkeys(effects))
+    unknown = [t for t in toggles if t not in variants]
+    if unknown:
+        raise BenchError(f"unknown effect toggle(s) {unknown}; choose from {', '.join(variants)}")
+    return [t for t in toggles if t != BASELINE]
+
+
+def _cases(
+    base: SVBRDF, scene, variants, dtypes: list[str], backends: list[str], toggles: list[str]
+) -> list[_Case]:
+    """The rows in table order: Des18 for every dtype x backend, then per backend the float32
+    effect toggles (after a float32 Des18 row, their baseline, when float32 is not among dtypes)."""
     maps_by_dtype: dict[str, SVBRDF] = {}
-
-    def maps_for(dtype: str) -> SVBRDF:
-        if dtype not in maps_by_dtype:
-            maps_by_dtype[dtype] = _trainable(base, DTYPES[dtype])
-        return maps_by_dtype[dtype]
-
     cases: list[_Case] = []
 
     def add(dtype: str, backend: str, label: str) -> None:
         fx = variants[label]
         sc = scene.with_effects(fx)
-        maps = maps_for(dtype)
+        if dtype not in maps_by_dtype:
+            maps_by_dtype[dtype] = _trainable(base, DTYPES[dtype])
+        maps = maps_by_dtype[dtype]
 
         def run(maps=maps, sc=sc, backend=backend) -> torch.Tensor:
             return render(maps, sc, backend=backend)
@@ -296,66 +303,65 @@ def measure(
             add(EFFECT_DTYPE, backend, BASELINE)
         for label in toggles:
             add(EFFECT_DTYPE, backend, label)
+    return cases
 
-    def forward(case: _Case) -> torch.Tensor:
-        _clear(case.maps)
-        out = case.run()
-        _sync(dev)
-        return out
 
-    def forward_backward(case: _Case) -> torch.Tensor:
-        out = forward(case)
-        out.mean().backward()
-        _sync(dev)
-        return out
-
-    def timed(fn: Callable[[], object]) -> float:
-        _sync(dev)
-        return time_once(fn)
-
-    # -- warm-up: the first call compiles (compiled backend) --------------------------------
+def _warm_up(cases: list[_Case], dev: torch.device, say: Callable[[str], None]) -> None:
+    """Two forward+backward calls per row, the first timed (``first_call_s``: it compiles on the
+    compiled backend); a row that fails is noted and left out of what follows."""
     compile_failed = False
     for i, case in enumerate(cases, 1):
         row = case.row
-        name = f"{row.dtype}/{row.backend}/{row.effects}"
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
                 t0 = time.perf_counter()
-                forward_backward(case)
+                case.forward_backward(dev)
                 row.first_call_s = time.perf_counter() - t0
-                forward_backward(case)  # allocator and caches settled
+                case.forward_backward(dev)  # allocator and caches settled
             except Exception as e:  # a compiler missing, out of memory: note it, go on
                 case.ok = False
                 row.note = f"failed: {_reason(e)}"
-        # The renderer's own words when it falls back to eager (svbrdf_render.renderer).
-        failures = [
-            str(w.message)
-            for w in caught
-            if str(w.message).startswith(("torch.compile failed", "torch.compile unavailable"))
-        ]
-        for w in caught:  # the others, as if not caught
-            if str(w.message) not in failures:
-                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        failures = _compile_failures(caught)
         if failures:
             compile_failed = True
             row.note = f"{failures[0][:160]} (timed eager)"
         elif compile_failed and row.backend == "compiled" and case.ok and not row.note:
             row.note = "torch.compile failed on an earlier row: this one may run eager"
         _clear(case.maps)
-        say(
-            f"warm-up {i}/{len(cases)} {name}: first call {row.first_call_s:.2f} s"
-            + (f" ({row.note})" if row.note else "")
-        )
+        name = f"{row.dtype}/{row.backend}/{row.effects}"
+        note = f" ({row.note})" if row.note else ""
+        say(f"warm-up {i}/{len(cases)} {name}: first call {row.first_call_s:.2f} s{note}")
 
-    # -- timing: the rows take turns -------------------------------------------------------
-    live = [c for c in cases if c.ok]
+
+def _compile_failures(caught: list[warnings.WarningMessage]) -> list[str]:
+    """The renderer's own words when it falls back to eager (svbrdf_render.renderer); the other
+    warnings are issued again, as if not caught."""
+    failures = [
+        str(w.message)
+        for w in caught
+        if str(w.message).startswith(("torch.compile failed", "torch.compile unavailable"))
+    ]
+    for w in caught:
+        if str(w.message) not in failures:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return failures
+
+
+def _time_rounds(live: list[_Case], repeats: int, dev: torch.device, say: Callable[[str], None]) -> None:
+    """``repeats`` rounds, the rows taking turns (every forward, then every forward+backward);
+    each row's medians and IQRs, and the machine's load over the rounds."""
+
+    def timed(fn: Callable[[], object]) -> float:
+        _sync(dev)
+        return time_once(fn)
+
     probe = LoadProbe(torch.get_num_threads())
     for r in range(repeats):
         for case in live:
-            case.row.forward_samples.append(timed(lambda case=case: forward(case)))
+            case.row.forward_samples.append(timed(lambda case=case: case.forward(dev)))
         for case in live:
-            case.row.forward_backward_samples.append(timed(lambda case=case: forward_backward(case)))
+            case.row.forward_backward_samples.append(timed(lambda case=case: case.forward_backward(dev)))
         for case in live:
             _clear(case.maps)
         say(f"round {r + 1}/{repeats} timed ({len(live)} rows)")
@@ -368,7 +374,10 @@ def measure(
     if live:
         say(f"load while timing: {load.words()}")
 
-    # -- accuracy: against the eager float64 rendering, one reference per effect set -------
+
+def _accuracy(live: list[_Case], base: SVBRDF, scene, variants, dev: torch.device, say) -> None:
+    """Each row's rendering and gradients against the eager float64 rendering of the same maps,
+    one reference per effect set."""
     by_effects: dict[str, list[_Case]] = {}
     for case in live:
         by_effects.setdefault(case.row.effects, []).append(case)
@@ -379,7 +388,7 @@ def measure(
         ref = ref.detach()
         ref_grads = [t.grad for t in _leaves(ref_maps)]
         for case in group:
-            out = forward_backward(case).detach()
+            out = case.forward_backward(dev).detach()
             row = case.row
             if "noise" not in case.effects or row.dtype == "float64":
                 row.max_abs_error, row.max_rel_error = _diff(out, ref)
@@ -390,91 +399,6 @@ def measure(
             del out
         del ref, ref_grads, ref_maps
         say(f"accuracy {j}/{len(by_effects)}: {label} against float64")
-    return [c.row for c in cases]
 
 
 # -- output ---------------------------------------------------------------------------------
-
-COLUMNS = (
-    ("dtype", "dtype"),
-    ("backend", "backend"),
-    ("effects", "effects"),
-    ("forward_ms", "fwd ms"),
-    ("forward_backward_ms", "fwd+bwd ms"),
-    ("forward_iqr_ms", "fwd IQR ms"),
-    ("forward_backward_iqr_ms", "fwd+bwd IQR ms"),
-    ("first_call_s", "first call s"),
-    ("max_abs_error", "max abs err"),
-    ("max_rel_error", "max rel err"),
-    ("grad_error", "grad err"),
-    ("note", "note"),
-)
-
-
-def _fmt(key: str, value) -> str:
-    if isinstance(value, str):
-        return value.replace("|", "/")
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return "-"
-    if key.endswith("_ms"):
-        return f"{value:.1f}" if value >= 10 else f"{value:.2f}"
-    if key == "first_call_s":
-        return f"{value:.2f}"
-    if value == 0:
-        return "0"
-    return f"{value:.2e}"
-
-
-def format_table(rows: Sequence[Row]) -> str:
-    """A Markdown table, one line per row; ``-`` where a value was not measured."""
-    keep = [c for c in COLUMNS if c[0] != "note" or any(r.note for r in rows)]
-    head = [title for _, title in keep]
-    align = ["---" if key in ("dtype", "backend", "effects", "note") else "---:" for key, _ in keep]
-    lines = ["| " + " | ".join(head) + " |", "| " + " | ".join(align) + " |"]
-    for r in rows:
-        lines.append("| " + " | ".join(_fmt(key, getattr(r, key)) for key, _ in keep) + " |")
-    return "\n".join(lines)
-
-
-def timing_warning(rows: Sequence[Row]) -> str | None:
-    """A sentence when the load over the timed rounds makes the times unreliable, else None."""
-    load = next((r.load for r in rows if r.load is not None), None)
-    if load is None or not load.unreliable:
-        return None
-    return (
-        f"warning: the times are unreliable: the machine was busy while they were measured ({load.words()}); "
-        f"above {100 * CPU_WAIT_LIMIT:.0f}% of the time waiting for a CPU a time is inflated by more than "
-        "the spread expected on an idle machine, by an amount that depends on what else ran"
-    )
-
-
-def to_records(rows: Sequence[Row]) -> list[dict]:
-    """Plain dicts (CSV/JSON): the table's columns, NaN as None, the timing samples, and the load
-    over the timed rounds (``load_cpu_wait``, ``load_other_cpus``, ``load_average``,
-    ``load_unreliable``; None where not read)."""
-    out = []
-    for r in rows:
-        d = asdict(r)
-        d.pop("load")
-        load = r.load
-        d |= {
-            "load_cpu_wait": load.cpu_wait if load else None,
-            "load_other_cpus": load.other_cpus if load else None,
-            "load_average": load.load_average if load else None,
-            "load_unreliable": load.unreliable if load else None,
-        }
-        for k, v in d.items():
-            if isinstance(v, float) and math.isnan(v):
-                d[k] = None
-        out.append(d)
-    return out
-
-
-def metric_key(row: Row, name: str) -> str:
-    """``name/dtype/backend/effects`` with MLflow-safe effects (``no-fresnel``, ``with-noise``)."""
-    label = row.effects
-    if label.startswith("-"):
-        label = "no-" + label[1:]
-    elif label.startswith("+"):
-        label = "with-" + label[1:]
-    return f"{name}/{row.dtype}/{row.backend}/{label}"

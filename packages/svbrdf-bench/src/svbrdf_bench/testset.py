@@ -77,7 +77,7 @@ class TestSet(Dataset):
                 f"{self.description}: sample {index} is {h}x{w}, smaller than the {r} px the models run at"
             )
         if h != r:
-            from svbrdf_train.data.fov import resize_sample
+            from svbrdf_train import resize_sample
 
             sample = resize_sample(sample, r)
         return {"input": sample["input"], "maps": sample["maps"], "name": sample["name"]}
@@ -86,12 +86,12 @@ class TestSet(Dataset):
 def test_set(path: str | Path | None, resolution: int, count: int, group_by: str = "auto") -> TestSet:
     """The benchmark's test set (see the module doc); ``group_by``: how real samples are grouped
     into materials (``auto``, ``des18``, ``file``)."""
-    from svbrdf_train.data.materials import GROUP_BY, group_samples
+    from svbrdf_train import GROUP_BY, group_samples
 
     if group_by not in GROUP_BY:
         raise BenchError(f"--group-by {group_by}: choose one of {', '.join(GROUP_BY)}")
     if path is None:
-        from svbrdf_train.data import ProceduralMaterials
+        from svbrdf_train import ProceduralMaterials
 
         if group_by == "des18":
             raise BenchError(
@@ -100,8 +100,7 @@ def test_set(path: str | Path | None, resolution: int, count: int, group_by: str
             )
         data = ProceduralMaterials(count, resolution, seed=TEST_SEED)
         return TestSet(data, resolution, f"{count} procedural materials (seed {TEST_SEED})")
-    from svbrdf_train.errors import DataError
-    from svbrdf_train.fitdata import open_materials
+    from svbrdf_train import DataError, open_materials
 
     try:
         data, what = open_materials(path, "--test-data")

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from svbrdf_train.commands.options import experiment_option
+from svbrdf_train import experiment_option
 
 EPILOG = """\b
 Examples:
@@ -152,12 +152,37 @@ def render(size, materials, repeats, backend, effects, quick, out, device, seed,
     Renders MATERIALS materials x 9 configurations (the training scene: 3 directional, 6 point
     lights) at SIZE x SIZE and prints a Markdown table, one row per way of rendering.
     """
-    import torch
+    from ..render_table import format_table, measure, to_records
 
-    from svbrdf_render import __version__ as render_version
+    settings = _settings(size, materials, repeats, backend, quick)
+    header, meta = _describe(settings, effects, seed, device)
+    tracker = None if no_track else _tracker(settings, effects, seed, experiment, meta)
+    status = "FAILED"
+    try:
+        click.echo(header, err=True)
+        start = time.perf_counter()
+        rows = measure(**settings, effects=effects, seed=seed, device=device, progress=_Progress())
+        total = time.perf_counter() - start
+        meta["total_s"] = round(total, 1)
+        table = format_table(rows)
+        click.echo(f"{header}\n\n{table}")
+        files = _write(out, header, table, to_records(rows), meta)
+        click.echo(f"wrote {', '.join(str(f) for f in files)} ({total:.0f} s in all)", err=True)
+        if tracker is not None:
+            _log(tracker, rows, files, total)
+        status = "FINISHED"
+    except KeyboardInterrupt:
+        status = "KILLED"
+        raise
+    finally:
+        if tracker is not None:
+            tracker.finish(status)
 
+
+def _settings(size, materials, repeats, backend, quick) -> dict:
+    """The sizes and backends to measure: the flags, else the defaults (``--quick``'s when given);
+    as :func:`~svbrdf_bench.render_table.measure`'s arguments."""
     from ..errors import BenchError
-    from ..render_table import format_table, measure, metric_key, to_records
 
     size = size if size is not None else (32 if quick else 256)
     materials = materials if materials is not None else (2 if quick else 8)
@@ -167,58 +192,32 @@ def render(size, materials, repeats, backend, effects, quick, out, device, seed,
         if value < 1:
             raise BenchError(f"{name} must be at least 1, got {value}")
     backends = ["eager", "compiled"] if backend == "both" else [backend]
+    return {"size": size, "materials": materials, "repeats": repeats, "backends": backends}
+
+
+def _describe(settings: dict, effects: str, seed: int, device: str) -> tuple[str, dict]:
+    """The table's header (with a warning when other processes load the machine) and the
+    settings as render.json's ``meta``."""
+    import torch
+
+    from svbrdf_render import __version__ as render_version
+
+    from ..errors import BenchError
+
     try:
         device_name = _device_name(device)
     except (RuntimeError, ValueError) as e:
         raise BenchError(f"--device {device!r}: {str(e).splitlines()[0]}") from None
-
+    size, materials, repeats = settings["size"], settings["materials"], settings["repeats"]
     threads = torch.get_num_threads()
     header = (
         f"svbrdf-bench render: {materials} materials x 9 configurations at {size}x{size}, "
         f"median of {repeats}; torch {torch.__version__}, {threads} threads, device {device_name}, "
         f"svbrdf-render {render_version}"
     )
-    meta = {
-        "size": size,
-        "materials": materials,
-        "configurations": 9,
-        "repeats": repeats,
-        "backends": backends,
-        "effects": effects,
-        "seed": seed,
-        "torch": torch.__version__,
-        "threads": threads,
-        "device": device_name,
-        "svbrdf_render": render_version,
-    }
-
-    tracker = None
-    if not no_track:
-        from svbrdf_train.tracking import MlflowTracker, git_revision
-
-        sha, dirty = git_revision()
-        tracker = MlflowTracker(
-            experiment=experiment,
-            run_name=f"render-{size}px",
-            tags={
-                "kind": "render",
-                "torch": torch.__version__,
-                "device": device_name,
-                "threads": str(threads),
-                "version.svbrdf-render": render_version,
-                "git_sha": sha,
-                "git_dirty": str(dirty).lower(),
-            },
-            params={
-                "size": str(size),
-                "materials": str(materials),
-                "repeats": str(repeats),
-                "backends": ",".join(backends),
-                "effects": effects,
-                "seed": str(seed),
-            },
-        )
-
+    meta = {"size": size, "materials": materials, "configurations": 9, "repeats": repeats,
+            "backends": settings["backends"], "effects": effects, "seed": seed, "torch": torch.__version__,
+            "threads": threads, "device": device_name, "svbrdf_render": render_version}  # fmt: skip
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
     meta["load_average"] = round(load, 2)
     if load > 0.5 * (os.cpu_count() or 1):
@@ -227,46 +226,41 @@ def render(size, materials, repeats, backend, effects, quick, out, device, seed,
             "running; the times will be slower and noisier"
         )
         header += f"\n\n{note}"
+    return header, meta
 
-    status = "FAILED"
-    try:
-        click.echo(header, err=True)
-        start = time.perf_counter()
-        rows = measure(
-            size=size,
-            materials=materials,
-            repeats=repeats,
-            backends=backends,
-            effects=effects,
-            seed=seed,
-            device=device,
-            progress=_Progress(),
-        )
-        total = time.perf_counter() - start
-        meta["total_s"] = round(total, 1)
-        table = format_table(rows)
-        records = to_records(rows)
-        click.echo(f"{header}\n\n{table}")
-        files = _write(out, header, table, records, meta)
-        click.echo(f"wrote {', '.join(str(f) for f in files)} ({total:.0f} s in all)", err=True)
-        if tracker is not None:
-            metrics = {"total_s": total}
-            for row in rows:
-                for attr, name in METRICS:
-                    value = getattr(row, attr)
-                    if value == value:  # not NaN
-                        metrics[metric_key(row, name)] = value
-            tracker.log_metrics(metrics, step=0)
-            for f in files:
-                tracker.log_artifact(f)
-            click.echo(tracker.describe(), err=True)
-        status = "FINISHED"
-    except KeyboardInterrupt:
-        status = "KILLED"
-        raise
-    finally:
-        if tracker is not None:
-            tracker.finish(status)
+
+def _tracker(settings: dict, effects: str, seed: int, experiment: str, meta: dict):
+    """The MLflow run of this table (tagged kind=render)."""
+    from svbrdf_render import __version__ as render_version
+    from svbrdf_train import MlflowTracker, git_revision
+
+    sha, dirty = git_revision()
+    return MlflowTracker(
+        experiment=experiment,
+        run_name=f"render-{settings['size']}px",
+        tags={"kind": "render", "torch": meta["torch"], "device": meta["device"],
+              "threads": str(meta["threads"]), "version.svbrdf-render": render_version, "git_sha": sha,
+              "git_dirty": str(dirty).lower()},
+        params={"size": str(settings["size"]), "materials": str(settings["materials"]),
+                "repeats": str(settings["repeats"]), "backends": ",".join(settings["backends"]),
+                "effects": effects, "seed": str(seed)},
+    )  # fmt: skip
+
+
+def _log(tracker, rows, files: list[Path], total: float) -> None:
+    """Every measured figure as a metric (``fwd_ms/float32/eager/des18``...), and the files."""
+    from ..render_table import metric_key
+
+    metrics = {"total_s": total}
+    for row in rows:
+        for attr, name in METRICS:
+            value = getattr(row, attr)
+            if value == value:  # not NaN
+                metrics[metric_key(row, name)] = value
+    tracker.log_metrics(metrics, step=0)
+    for f in files:
+        tracker.log_artifact(f)
+    click.echo(tracker.describe(), err=True)
 
 
 COMMANDS = [render]

@@ -19,10 +19,10 @@ def report(parent_run_id, out):
       svbrdf-bench report 3f2a...                # the tables
       svbrdf-bench report 3f2a... -o again/      # and report.md, CSV/JSON, plots
     """
-    from ..report import build_report, write_report
+    from ..report import build_report, terminal, write_report
 
     built = build_report(parent_run_id)
-    click.echo(built.terminal())
+    click.echo(terminal(built))
     if out is not None:
         write_report(built, out)
         click.echo(f"report: {out}/report.md", err=True)

@@ -7,8 +7,7 @@ from pathlib import Path
 
 import click
 
-from svbrdf_train.commands.fit import system_metrics_option
-from svbrdf_train.commands.options import experiment_option
+from svbrdf_train import experiment_option, system_metrics_option
 
 from ..presets import PRESETS
 
@@ -220,29 +219,7 @@ def _once(flag: str, values: tuple):
     help="Leave out the untrained baselines `mean` and `photo` (and the comparison with `mean`).",
 )
 @system_metrics_option()
-def run(
-    models,
-    preset,
-    from_runs,
-    from_models,
-    allow_trained_strips,
-    test_data,
-    group_by,
-    real_data,
-    real_encoding,
-    real_pattern,
-    test_count,
-    minutes,
-    sets,
-    out,
-    device,
-    size,
-    experiment,
-    refine,
-    refine_backend,
-    refine_flash,
-    no_baselines,
-):
+def run(**flags):
     """Train (or reuse) each model under one budget, test all on the same images, compare;
     score model files trained elsewhere beside them as reference rows (--from-models).
 
@@ -250,49 +227,55 @@ def run(
     intervals, next to training time, throughput, inference latency, size and memory, and
     whether each model beats constant maps derived from the photo (the `mean` baseline).
     """
+    from ..runner import run_bench
+
+    run_bench(_bench_options(flags))
+
+
+def _bench_options(flags: dict):
+    """The benchmark's :class:`~svbrdf_bench.runner.BenchOptions` from the command's flags;
+    refuses a bad refinement budget, a reused run in the trash, and nothing to compare."""
     from ..errors import BenchError
     from ..presets import get_preset
     from ..refinement import RefinePlan, parse_budgets, parse_flash
-    from ..runner import BASELINES, BenchOptions, run_bench
+    from ..runner import BASELINES, BenchOptions
 
-    plan = RefinePlan(parse_budgets(refine), refine_backend, parse_flash(refine_flash))
-    chosen = _split(models)
-    reused = _split(from_runs)
+    refine = parse_budgets(flags["refine"])
+    plan = RefinePlan(refine, flags["refine_backend"], parse_flash(flags["refine_flash"]))
+    chosen, reused, files = _split(flags["models"]), _split(flags["from_runs"]), _split(flags["from_models"])
     for item in reused:
         if re.fullmatch(r"[0-9a-f]{32}", item):  # a run id (else a recipe: its last finished run)
-            from svbrdf_train.checkpoint import check_run_kept
+            from svbrdf_train import check_run_kept
 
             hint = f"restore it (mlflow runs restore --run-id {item}) or give another run"
             check_run_kept(item, "--from-runs", hint)
-    files = _split(from_models)
     if not chosen and not reused and not files:
         raise BenchError(
             "nothing to compare: give --models A,B (recipes), --from-runs ID,... "
             "and/or --from-models FILE,..."
         )
-    run_bench(
-        BenchOptions(
-            models=chosen,
-            preset=get_preset(preset),
-            from_runs=reused,
-            from_models=files,
-            allow_trained_strips=allow_trained_strips,
-            test_data=str(test_data) if test_data else None,
-            group_by=group_by,
-            real_data=str(real_data) if real_data else None,
-            real_encoding=real_encoding,
-            real_pattern=real_pattern,
-            test_count=test_count,
-            minutes=minutes,
-            overrides=list(sets),
-            out=out,
-            device=device,
-            experiment=experiment,
-            size=size,
-            baselines=[] if no_baselines else list(BASELINES),
-            refine=plan,
-            say=lambda s: click.echo(s, err=not s.startswith("svbrdf-bench:")),
-        )
+    test_data, real_data = flags["test_data"], flags["real_data"]
+    return BenchOptions(
+        models=chosen,
+        preset=get_preset(flags["preset"]),
+        from_runs=reused,
+        from_models=files,
+        allow_trained_strips=flags["allow_trained_strips"],
+        test_data=str(test_data) if test_data else None,
+        group_by=flags["group_by"],
+        real_data=str(real_data) if real_data else None,
+        real_encoding=flags["real_encoding"],
+        real_pattern=flags["real_pattern"],
+        test_count=flags["test_count"],
+        minutes=flags["minutes"],
+        overrides=list(flags["sets"]),
+        out=flags["out"],
+        device=flags["device"],
+        experiment=flags["experiment"],
+        size=flags["size"],
+        baselines=[] if flags["no_baselines"] else list(BASELINES),
+        refine=plan,
+        say=lambda s: click.echo(s, err=not s.startswith("svbrdf-bench:")),
     )
 
 
