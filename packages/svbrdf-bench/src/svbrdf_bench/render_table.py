@@ -118,8 +118,8 @@ def effect_variants() -> list[tuple[str, tuple[str, ...]]]:
     """``(label, effects)``: the Des18 set, then each Des18 effect off, each image effect on."""
     variants = [(BASELINE, tuple(DES18_EFFECTS))]
     for e in DES18_EFFECTS:
-        # fresnel and masking modify the lobe: without the specular lobe they go too.
-        drop = {"specular", "fresnel", "masking"} if e == "specular" else {e}
+        # an effect that requires another (fresnel, masking: the specular lobe) goes with it
+        drop = {e} | {x for x in DES18_EFFECTS if e in EFFECTS[x].requires}
         variants.append((f"-{e}", tuple(x for x in DES18_EFFECTS if x not in drop)))
     extra = [e for e in PHOTO_EFFECTS if e not in DES18_EFFECTS]
     extra += [e for e in ("gamma",) if e in EFFECTS and e not in extra]
