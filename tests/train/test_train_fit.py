@@ -198,15 +198,15 @@ def test_default_store_is_mlflow_db_in_the_working_folder_with_artifacts_beside_
 def test_a_non_finite_gradient_behind_a_finite_loss_stops_before_the_step(tmp_path, monkeypatch):
     """sqrt at 0 has an infinite derivative: the loss stays finite, every gradient becomes NaN.
     The step checks the gradient norm, stops without stepping, and names the gradient."""
-    import svbrdf_train.step as step
+    import svbrdf_train.losses as losses  # the step's loss (recipe.loss.setup()) calls generator_loss
 
-    real_loss = step.generator_loss
+    real_loss = losses.generator_loss
 
     def poisoned(pred, target, **kwargs):
         total, terms = real_loss(pred, target, **kwargs)
         return total + (0.0 * pred.roughness.sum()).sqrt(), terms
 
-    monkeypatch.setattr(step, "generator_loss", poisoned)
+    monkeypatch.setattr(losses, "generator_loss", poisoned)
     result, _ = _fit(tmp_path, "radn")
     assert result.status == "FAILED" and result.exit_code == 1
     assert result.message.startswith("non-finite generator gradient at step 1;")

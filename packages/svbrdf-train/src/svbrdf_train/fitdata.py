@@ -38,7 +38,7 @@ import math
 import operator
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import torch
@@ -46,10 +46,11 @@ from torch.utils.data import ConcatDataset, Dataset, Subset, default_collate
 
 from .data import Des18Folder, PhotoSettings, ProceduralMaterials
 from .errors import DataError
-from .recipe import DataSection, Recipe
 
 __all__ = [
+    "DataSettings",
     "build_datasets",
+    "section_datasets",
     "data_paths",
     "device_batch",
     "open_materials",
@@ -58,6 +59,20 @@ __all__ = [
     "Mixture",
     "Resized",
 ]
+
+
+class DataSettings(Protocol):
+    """What the data sets are made from: the recipe's ``data`` section
+    (:class:`svbrdf_train.recipe.DataSection`, a dataclass; ``data.setup(resolution)`` calls
+    :func:`section_datasets`)."""
+
+    source: str
+    path: str | tuple[str, ...] | None
+    count: int
+    seed: int
+    validation: int
+    capture: str
+    mix: tuple[dict, ...] | None
 
 
 def data_paths(path: str | tuple[str, ...] | list[str] | None) -> list[Path]:
@@ -84,14 +99,19 @@ def _split_off(data: Dataset, validation: int, what: str) -> tuple[Dataset, Data
     return Subset(data, range(n - validation)), Subset(data, range(n - validation, n))
 
 
-def build_datasets(recipe: Recipe) -> tuple[Dataset, Dataset]:
-    """``(train, validation)`` for the recipe, both at ``train.resolution``.
+def build_datasets(recipe: Any) -> tuple[Dataset, Dataset]:
+    """``(train, validation)`` for a :class:`~svbrdf_train.recipe.Recipe`, both at its
+    ``train.resolution``: ``recipe.data.setup(recipe.train.resolution)``."""
+    return section_datasets(recipe.data, recipe.train.resolution)
+
+
+def section_datasets(d: DataSettings, res: int) -> tuple[Dataset, Dataset]:
+    """``(train, validation)`` of the data section ``d``, both at ``res`` pixels.
 
     Raises:
         DataError: a missing or empty source, shards of another resolution, too few samples
             to hold out ``validation``; for a mix, starting with the entry (``data.mix[1] (des18)``).
     """
-    d, res = recipe.data, recipe.train.resolution
     if d.source != "mix":
         return _source_datasets(d, res)
     trains, vals, weights = [], [], []
@@ -118,7 +138,7 @@ def build_datasets(recipe: Recipe) -> tuple[Dataset, Dataset]:
     return Mixture(trains, weights, d.count, seed=d.seed), val_set
 
 
-def _source_datasets(d: DataSection, res: int) -> tuple[Dataset, Dataset]:
+def _source_datasets(d: DataSettings, res: int) -> tuple[Dataset, Dataset]:
     if d.source == "procedural":
         photo = PhotoSettings.preset(d.capture)
         return (

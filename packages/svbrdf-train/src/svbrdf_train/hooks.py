@@ -1,20 +1,25 @@
-"""What a fit does between its steps, as hooks the training loop calls after each step.
+"""What a fit does between its steps, as hooks that declare when they run, and their runner.
 
-=================  ==========================================================================
-hook               after a step
-=================  ==========================================================================
-BudgetWarning      once the pace is known, warns if the schedule stops learning early, and
-                   if the step budget ends the fit long before its time budget
-Logging            the progress line; ``train/...`` metrics every ``train.log_every`` steps
-Validation         ``val/...`` metrics and a sample grid every ``train.validate_every`` steps
-Checkpoints        the full state to ``OUT/last.pt`` every ``train.checkpoint_every`` steps or
-                   ``train.checkpoint_minutes``; the weights to MLflow every
-                   ``train.upload_minutes``
-=================  ==========================================================================
+=================  =====================================  ======================================
+hook               runs (:class:`Cadence`)                does
+=================  =====================================  ======================================
+BudgetWarning      after every step                       once the pace is known, warns if the
+                                                          schedule stops learning early, and if
+                                                          the step budget ends the fit long
+                                                          before its time budget
+Logging            every ``train.log_every`` steps        ``train/...`` metrics: the window's
+                   (the progress line after every step)   mean loss terms, rate and schedule
+Validation         every ``train.validate_every`` steps,  ``val/...`` metrics and a sample grid
+                   main process only
+Checkpoints        every ``train.checkpoint_every``       the full state to ``OUT/last.pt``; the
+                   steps and ``train.checkpoint_minutes`` weights to MLflow every
+                                                          ``train.upload_minutes``
+=================  =====================================  ======================================
 
 Every hook also runs after the last step (``StepEnd.last``: the step budget, the time budget
-or a stop request). A hook is any object with ``after_step(run, end)``; the loop calls them in
-order, on every process (a hook that logs acts on the main process only).
+or a stop request), so a fit that ends early still logs its last window. A hook is any object
+with a ``cadence`` and ``after_step(run, end)`` (and, if it must see every step, ``observe(run,
+end)``); :class:`HookRunner` is the one place that decides, after each step, which hooks run.
 """
 
 from __future__ import annotations
@@ -34,7 +39,10 @@ from .step import GanStep
 from .tracking import Tracker
 from .validation import Validator
 
-__all__ = ["Run", "StepEnd", "Hook", "BudgetWarning", "Logging", "Validation", "Checkpoints"]
+__all__ = [
+    "Run", "StepEnd", "Cadence", "Timer", "Hook", "HookRunner",
+    "BudgetWarning", "Logging", "Validation", "Checkpoints",
+]  # fmt: skip
 #: Checkpoint fields a user of the weights needs (predict, --init); the rest is for resuming.
 WEIGHT_FIELDS = (
     "recipe", "step", "epoch", "generator", "discriminator", "run_id", "init",
@@ -89,11 +97,76 @@ class StepEnd:
     terms: dict[str, float]
     samples: int  # of all processes
     last: bool  # the fit stops after this step
-    checkpoint_due: bool = False  # train.checkpoint_minutes have passed since the last one
+
+
+@dataclass(frozen=True)
+class Cadence:
+    """When (and where) a hook runs: after every ``steps``-th step, after a step that ends at
+    least ``minutes`` of wall time after the hook last ran (or the fit started), and after the
+    last step (``at_end``); None leaves that measure out. ``main_only``: on the main process
+    only (a hook that acts on every process, such as a checkpoint's gathering, leaves it off)."""
+
+    steps: int | None = None
+    minutes: float | None = None
+    at_end: bool = True
+    main_only: bool = False
+
+    def due(self, end: StepEnd, minutes_passed: bool) -> bool:
+        """Whether a hook of this cadence runs after ``end`` (``minutes_passed``: of every process)."""
+        if self.at_end and end.last:
+            return True
+        return minutes_passed or (self.steps is not None and end.step % self.steps == 0)
+
+
+class Timer:
+    """Wall time (monotonic) since :meth:`reset`, against a number of minutes (None: never due)."""
+
+    def __init__(self, minutes: float | None):
+        self.minutes = minutes
+        self.reset()
+
+    def reset(self) -> None:
+        self.since = time.monotonic()
+
+    def passed(self) -> bool:
+        return self.minutes is not None and time.monotonic() - self.since >= self.minutes * 60
 
 
 class Hook(Protocol):
+    """What the runner needs of a hook: when it runs, and what it does then. A hook that must
+    see every step (to sum a window) also has ``observe(run, end)``, called after every step
+    before the hook's own ``after_step``."""
+
+    cadence: Cadence
+
     def after_step(self, run: Run, end: StepEnd) -> None: ...
+
+
+class HookRunner:
+    """The hooks of a fit, in order, each run when its :class:`Cadence` says.
+
+    Time cadences must agree on every process (a checkpoint gathers from all of them), so the
+    loop asks :meth:`minutes_passed` on each process, OR-s the answers over processes with its
+    own stop flags (one all-reduce: :meth:`Dist.any`) and hands them to :meth:`after_step`.
+    """
+
+    def __init__(self, hooks: list):
+        self.hooks = list(hooks)
+        self._timers = [Timer(hook.cadence.minutes) for hook in self.hooks]
+
+    def minutes_passed(self) -> list[bool]:
+        """Per hook, whether its ``cadence.minutes`` have passed on this process."""
+        return [timer.passed() for timer in self._timers]
+
+    def after_step(self, run: Run, end: StepEnd, minutes_passed: list[bool]) -> None:
+        """Each hook in order: ``observe`` (if it has one), then ``after_step`` when it is due."""
+        for hook, timer, passed in zip(self.hooks, self._timers, minutes_passed, strict=True):
+            observe = getattr(hook, "observe", None)
+            if observe is not None:
+                observe(run, end)
+            if hook.cadence.due(end, passed) and (run.dist.main or not hook.cadence.main_only):
+                hook.after_step(run, end)
+                timer.reset()
 
 
 class BudgetWarning:
@@ -108,6 +181,8 @@ class BudgetWarning:
     estimate long, never short: a warning is due; without one, the pace is looked at again
     once it is known.
     """
+
+    cadence = Cadence(steps=1)
 
     def __init__(self, run: Run):
         self.done = run.recipe.train.max_minutes is None  # a step budget is known now
@@ -163,31 +238,35 @@ class BudgetWarning:
 
 
 class Logging:
-    """The progress line after every step; the mean loss terms, rate and schedule every
-    ``train.log_every`` steps and after the last (``train/...``)."""
+    """The progress line after every step (:meth:`observe`); the window's mean loss terms, rate
+    and schedule every ``train.log_every`` steps and after the last (``train/...``)."""
 
     SHOWN = ("loss", "adv", "render", "svbrdf", "d_loss")
 
     def __init__(self, run: Run):
+        self.cadence = Cadence(steps=run.recipe.train.log_every)
         self.sums: dict[str, float] = {}
         self.count = 0
         self.window = (run.watch.seconds, 0)  # (training seconds, samples) since the last log
+        self.rate = 0.0  # samples per second of training time in the window
 
-    def after_step(self, run: Run, end: StepEnd) -> None:
+    def observe(self, run: Run, end: StepEnd) -> None:
         for k, v in end.terms.items():
             self.sums[k] = self.sums.get(k, 0.0) + v
         self.count += 1
         seconds = run.watch.seconds
         self.window = (self.window[0], self.window[1] + end.samples)
-        rate = self.window[1] / max(seconds - self.window[0], 1e-9)
-        run.progress.update(end.step, {k: end.terms[k] for k in self.SHOWN if k in end.terms}, rate, seconds)
-        if end.step % run.recipe.train.log_every and end.step != run.order.total_steps:
-            return
+        self.rate = self.window[1] / max(seconds - self.window[0], 1e-9)
+        shown = {k: end.terms[k] for k in self.SHOWN if k in end.terms}
+        run.progress.update(end.step, shown, self.rate, seconds)
+
+    def after_step(self, run: Run, end: StepEnd) -> None:
+        seconds = run.watch.seconds
         metrics = {f"train/{k}": v / self.count for k, v in self.sums.items()}
         metrics.update(
             {
                 "train/lr": run.gan.g_opt.param_groups[0]["lr"],
-                "train/samples_per_s": rate,
+                "train/samples_per_s": self.rate,
                 "train/epoch": end.step / run.order.steps_per_epoch,
                 "train/seconds": seconds,
             }
@@ -200,12 +279,11 @@ class Validation:
     """``val/`` (and ``val_real/``) metrics, with the training time so far so that curves can be
     drawn against time, and the sample grid as ``samples/step_N.png`` (main process)."""
 
-    def __init__(self):
+    def __init__(self, run: Run):
+        self.cadence = Cadence(steps=run.recipe.train.validate_every, main_only=True)
         self.metrics: dict[str, float] = {}  # the last validation's
 
     def after_step(self, run: Run, end: StepEnd) -> None:
-        if not run.dist.main or not (end.last or end.step % run.recipe.train.validate_every == 0):
-            return
         metrics, grid = run.validator(run.gan.generator)
         if metrics:
             run.tracker.log_metrics({**metrics, "val/train_seconds": run.watch.seconds}, end.step)
@@ -231,29 +309,21 @@ class Checkpoints:
     """
 
     def __init__(self, run: Run):
-        self.saved = self.uploaded = time.monotonic()
-
-    def time_due(self, run: Run) -> bool:
-        """Whether ``train.checkpoint_minutes`` have passed (ask every process: :class:`StepEnd`)."""
-        minutes = run.recipe.train.checkpoint_minutes
-        return minutes is not None and time.monotonic() - self.saved >= minutes * 60
+        t = run.recipe.train
+        self.cadence = Cadence(steps=t.checkpoint_every, minutes=t.checkpoint_minutes)
+        self.upload = Timer(t.upload_minutes)  # checked when a checkpoint is written (main process)
 
     def after_step(self, run: Run, end: StepEnd) -> None:
-        every = run.recipe.train.checkpoint_every
-        if not (end.last or end.checkpoint_due or (every is not None and end.step % every == 0)):
-            return
         rngs = run.dist.gather(run.gan.rng_state())
         if run.dist.main:
             state = run.state(rngs)
             save_checkpoint(run.ckpt_path, state)
-            minutes = run.recipe.train.upload_minutes
-            if end.last or (minutes is not None and time.monotonic() - self.uploaded >= minutes * 60):
+            if end.last or self.upload.passed():
                 self._upload(run, state)
         run.dist.barrier()
         run.saved_at = end.step
-        self.saved = time.monotonic()
 
     def _upload(self, run: Run, state: dict[str, Any]) -> None:
         weights = save_checkpoint(run.out / WEIGHTS_NAME, {k: state[k] for k in WEIGHT_FIELDS})
         run.tracker.log_artifact(weights, "checkpoints")
-        self.uploaded = time.monotonic()
+        self.upload.reset()

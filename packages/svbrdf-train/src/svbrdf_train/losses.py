@@ -14,6 +14,8 @@ function                              what
 :func:`discriminator_loss`            the discriminator's GAN objective on real and fake logits
 :func:`generator_adversarial_loss`    ``L_adv``: the generator's GAN objective on fake logits
 :func:`generator_loss`                ``L_G``, every term returned separately for logging
+:class:`GanLoss`                      both objectives of a fit, built once from the recipe's
+                                      ``loss`` section (``loss.setup()``)
 ====================================  ================================================================
 
 GAN objectives (``kind``), both computed from logits:
@@ -36,13 +38,14 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
-from types import MappingProxyType
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
 from svbrdf_render import MAP_NAMES, SVBRDF, Scene, log_radiance, render
+
+from .paper_weights import MAP_WEIGHTS
 
 __all__ = [
     "MAP_WEIGHTS",
@@ -53,12 +56,9 @@ __all__ = [
     "discriminator_loss",
     "generator_adversarial_loss",
     "generator_loss",
+    "GanLoss",
 ]
 
-#: The paper's per-map weights of ``L_svbrdf`` (read-only).
-MAP_WEIGHTS: Mapping[str, float] = MappingProxyType(
-    {"normal": 1.0, "diffuse": 1.0, "roughness": 0.5, "specular": 0.5}
-)
 #: The GAN objectives :func:`discriminator_loss` and :func:`generator_adversarial_loss` know.
 GAN_KINDS = ("bce", "lsgan")
 
@@ -127,6 +127,7 @@ def map_loss(
         ValueError: an unknown map name, a negative or non-finite weight, mismatched shapes.
 
     Example:
+        >>> pred, target = SVBRDF.constant(1, 8), SVBRDF.constant(1, 8, roughness=0.7)
         >>> total, terms = map_loss(pred, target)
         >>> sorted(terms)
         ['diffuse', 'normal', 'roughness', 'specular']
@@ -394,3 +395,54 @@ def _weighted_total(terms: Mapping[str, Tensor], weights: LossWeights) -> Tensor
             part = getattr(weights, name) * terms[name]
             total = part if total is None else total + part
     return total
+
+
+# -- the objectives of a fit ---------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class GanLoss:
+    """The generator's and the discriminator's objectives of one fit, with their settings.
+
+    The recipe's ``loss`` section builds it (``recipe.loss.setup()``). Calling it gives
+    :func:`generator_loss` with these weights; :meth:`discriminator` gives
+    :func:`discriminator_loss`; :meth:`looks` is what the discriminator sees of renderings,
+    ``log(R + eps)``, as the rendering loss compares them.
+    """
+
+    weights: LossWeights
+    map_weights: Mapping[str, float]
+    gan: str = "bce"
+    eps: float = 0.01
+
+    def __call__(
+        self,
+        pred: SVBRDF,
+        target: SVBRDF,
+        *,
+        fake_logits: list[Tensor] | None = None,
+        rendered: tuple[Tensor, Tensor] | None = None,
+        scene: Scene | None = None,
+        backend: str = "eager",
+    ) -> tuple[Tensor, dict[str, Tensor]]:
+        """``(L_G, terms)`` of :func:`generator_loss` (its arguments, less the settings)."""
+        return generator_loss(
+            pred,
+            target,
+            scene=scene,
+            weights=self.weights,
+            map_weights=self.map_weights,
+            fake_logits=fake_logits,
+            gan=self.gan,
+            eps=self.eps,
+            backend=backend,
+            rendered=rendered,
+        )
+
+    def discriminator(self, real_logits: list[Tensor], fake_logits: list[Tensor]) -> Tensor:
+        """The discriminator's loss (:func:`discriminator_loss`) of this fit's ``gan`` kind."""
+        return discriminator_loss(real_logits, fake_logits, self.gan)
+
+    def looks(self, renderings: Tensor) -> Tensor:
+        """What the discriminator sees of ``renderings``: ``log(R + eps)``."""
+        return log_radiance(renderings, self.eps)

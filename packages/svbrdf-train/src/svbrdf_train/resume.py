@@ -8,12 +8,13 @@ is restored by the fit, so the resumed fit reaches the same weights as one that 
 
 from __future__ import annotations
 
-from dataclasses import replace
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from .checkpoint import CHECKPOINT_NAME, load_checkpoint, remove_leftovers
 from .errors import CheckpointError
-from .recipe import Recipe, recipe_differences, recipe_from_dict
+from .recipe import Recipe, check_recipe, recipe_differences, recipe_from_dict, with_overrides
 
 __all__ = ["RESUMABLE_CHANGES", "check_out", "resolve_resume", "check_world"]
 
@@ -58,14 +59,30 @@ def check_out(out: Path, *, resume: bool, force: bool, init: str | None, main: b
     return None
 
 
-def resolve_resume(recipe: Recipe | None, state: dict | None) -> Recipe:
-    """The recipe to run: the given one, or the checkpoint's with the given budgets."""
+def resolve_resume(
+    recipe: Recipe | None,
+    state: dict | None,
+    ckpt: str | Path = CHECKPOINT_NAME,
+    overrides: Mapping[str, Any] | None = None,
+) -> Recipe:
+    """The recipe to run: the given one, or the checkpoint's (from ``state``, read from ``ckpt``)
+    with the given budgets: those of ``recipe``, or else the dotted ``overrides`` (``--set``,
+    ``--max-steps``...) applied to the checkpoint's recipe.
+
+    The result is checked (:func:`~svbrdf_train.recipe.check_recipe`) once: a checked
+    ``recipe`` stays checked (it equals the checkpoint's in every field the checks read), the
+    checkpoint's recipe is checked here, naming ``ckpt``.
+
+    Raises:
+        CheckpointError: the given recipe or overrides change more than :data:`RESUMABLE_CHANGES`.
+        RecipeError: the checkpoint's recipe or the overrides are wrong.
+    """
     if state is None:
         assert recipe is not None
         return recipe
-    saved = recipe_from_dict(state["recipe"], where="checkpoint recipe")
+    saved = recipe_from_dict(state["recipe"], where=str(ckpt), check=False)
     if recipe is None:
-        return saved
+        recipe = with_overrides(saved, overrides or {})  # checked when it changes anything
     changed = recipe_differences(saved, recipe, ignore=RESUMABLE_CHANGES)
     if changed:
         raise CheckpointError(
@@ -75,8 +92,12 @@ def resolve_resume(recipe: Recipe | None, state: dict | None) -> Recipe:
             "start a new fit (another --out) "
             "to train something else"
         )
-    # keep the checkpoint's name/size/source; take the new budgets
-    return replace(saved, train=recipe.train, data=replace(saved.data, workers=recipe.data.workers))
+    # every other field is the checkpoint's: keep its name, size and source too
+    meta = {"name": saved.name, "size": saved.size, "description": saved.description, "source": saved.source}
+    out = recipe.with_meta(**meta)
+    if not out.checked:
+        check_recipe(out, str(ckpt))
+    return out
 
 
 def check_world(state: dict, world: int, ckpt: Path) -> None:

@@ -20,10 +20,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
-from .recipe import OptimSection
+import torch
 
-__all__ = ["LrSchedule", "WARN_BELOW", "WARN_WITHIN"]
+__all__ = ["DecaySettings", "LrSchedule", "ScheduledRate", "WARN_BELOW", "WARN_WITHIN"]
 
 #: The fit warns when its rate would fall below this fraction of its start ...
 WARN_BELOW = 0.01
@@ -31,12 +32,22 @@ WARN_BELOW = 0.01
 WARN_WITHIN = 0.1
 
 
+class DecaySettings(Protocol):
+    """What a schedule reads of the recipe's ``optim`` section
+    (:class:`svbrdf_train.recipe.OptimSection`, which makes its schedule: ``optim.schedule``)."""
+
+    decay: float
+    decay_every_samples: int | None
+    decay_every_epochs: int | None
+    warmup_samples: int
+
+
 @dataclass(frozen=True)
 class LrSchedule:
     """The rate factor of a fit: ``optim``'s settings, ``per_step`` samples a step (batch x
     processes) and ``samples_per_epoch`` (what an epoch period means)."""
 
-    optim: OptimSection
+    optim: DecaySettings
     per_step: int
     samples_per_epoch: int
 
@@ -108,3 +119,24 @@ class LrSchedule:
             f"{self.cause()} with optim.decay={self.optim.decay:g} does it, and the network will "
             f"barely learn after that; {fix}, or set optim.decay=1 for a constant rate"
         )
+
+
+@dataclass(frozen=True)
+class ScheduledRate:
+    """One optimiser's learning rate along a schedule: ``base x schedule.factor(step)``.
+
+    ``optim.setup`` returns it with its optimiser. :meth:`at` sets the rate of a generator
+    step before the step runs, so the optimiser holds, after the step, the rate the step used
+    (what the fit logs as ``train/lr``); a resumed fit sets it from its step alone.
+    """
+
+    optimiser: torch.optim.Optimizer
+    base: float
+    schedule: LrSchedule
+
+    def at(self, step: int) -> float:
+        """Set the rate of every parameter group for generator step ``step``; return it."""
+        rate = self.base * self.schedule.factor(step)
+        for group in self.optimiser.param_groups:
+            group["lr"] = rate
+        return rate

@@ -33,13 +33,11 @@ import torch
 from torch import Tensor, nn
 
 from svbrdf_models import create_discriminator, create_generator
-from svbrdf_render import SVBRDF, Scene, log_radiance, render, training_scene
+from svbrdf_render import SVBRDF, Scene, render, training_scene
 
 from . import distributed
 from .checkpoint import load_weights, rng_state, set_rng_state
-from .losses import LossWeights, discriminator_loss, generator_loss
 from .recipe import Recipe
-from .schedule import LrSchedule
 
 __all__ = ["GanStep", "scene_rows", "unwrap"]
 
@@ -94,6 +92,9 @@ def _grad_norm(module: nn.Module) -> Tensor:
 class GanStep:
     """G, D, their optimisers and schedule, and one step of training them (module doc).
 
+    The recipe's sections build the pieces: ``optim.setup`` each optimiser and the rate it
+    follows, ``loss.setup`` the objectives (:class:`~svbrdf_train.losses.GanLoss`).
+
     Args:
         recipe: what to train (networks, losses, optimiser, ``train`` settings).
         dist: this process and its peers (one process: ``distributed.Dist()``).
@@ -111,13 +112,14 @@ class GanStep:
         if recipe.discriminator is not None:
             d = recipe.discriminator
             self.discriminator = create_discriminator(d.name, d.config).to(self.device)
-        self.g_opt = torch.optim.Adam(self.generator.parameters(), lr=o.lr, betas=tuple(o.betas))
-        self.d_opt = None
+        self.schedule = o.schedule(t.batch * dist.world, epoch_samples)
+        self.g_opt, g_rate = o.setup(self.generator.parameters(), self.schedule)
+        self.d_opt, self._rates = None, [g_rate]
         if self.discriminator is not None:
-            self.d_opt = torch.optim.Adam(self.discriminator.parameters(), lr=o.d_lr, betas=tuple(o.betas))
-        self.schedule = LrSchedule(o, t.batch * dist.world, epoch_samples)
+            self.d_opt, d_rate = o.setup(self.discriminator.parameters(), self.schedule, discriminator=True)
+            self._rates.append(d_rate)
         self.scene_gen = torch.Generator().manual_seed(t.seed + 7919)
-        self.weights = LossWeights(adv=recipe.loss.adv, render=recipe.loss.render, svbrdf=recipe.loss.svbrdf)
+        self.loss = recipe.loss.setup()
         self.step = 0
         # What a step calls: the networks, wrapped by prepare() for several processes or compiling.
         self.G: nn.Module = self.generator
@@ -197,7 +199,8 @@ class GanStep:
         Returns the loss terms, and the name of a non-finite loss term or gradient (then
         nothing is stepped with it, on any process).
         """
-        self._set_rates()
+        for rate in self._rates:  # the rates of this step (the schedule is a function of it)
+            rate.at(self.step)
         photo = batch["input"].to(self.device, non_blocking=True)
         if self.recipe.train.channels_last:
             photo = photo.contiguous(memory_format=torch.channels_last)
@@ -220,15 +223,6 @@ class GanStep:
         if self.recipe.train.precision == "bf16":
             return torch.autocast(self.device.type, dtype=torch.bfloat16)
         return contextlib.nullcontext()
-
-    def _set_rates(self) -> None:
-        """Both optimisers' rates for this step, from the schedule (a function of the step)."""
-        f = self.schedule.factor(self.step)
-        o = self.recipe.optim
-        for opt, base in ((self.g_opt, o.lr), (self.d_opt, o.d_lr)):
-            if opt is not None:
-                for group in opt.param_groups:
-                    group["lr"] = base * f
 
     def scene(self) -> Scene:
         """This process's rows of one scene drawn for the whole (all-process) batch."""
@@ -255,15 +249,14 @@ class GanStep:
         return fake, real
 
     def _discriminator_step(self, pred: SVBRDF, target: SVBRDF, rendered, out: dict) -> str | None:
-        loss = self.recipe.loss
         fake, real = rendered
         n = target.normal.shape[0]
         both = SVBRDF.cat([target, pred.detach()])
-        looks = log_radiance(torch.cat([real, fake.detach()]), loss.eps)
+        looks = self.loss.looks(torch.cat([real, fake.detach()]))
         with self._autocast():
             logits = self.D(maps=both, renderings=looks)  # one pass: one DDP sync
         logits = [x.float() for x in logits]
-        d_loss = discriminator_loss([x[:n] for x in logits], [x[n:] for x in logits], loss.gan)
+        d_loss = self.loss.discriminator([x[:n] for x in logits], [x[n:] for x in logits])
         (bad,) = self.dist.any(not torch.isfinite(d_loss.detach()))
         if bad:
             return "discriminator"
@@ -285,23 +278,14 @@ class GanStep:
         d.requires_grad_(False)
         try:
             with self._autocast():
-                logits = self._judge(maps=pred, renderings=log_radiance(rendered[0], self.recipe.loss.eps))
+                logits = self._judge(maps=pred, renderings=self.loss.looks(rendered[0]))
         finally:
             d.requires_grad_(True)
         return [x.float() for x in logits]
 
     def _generator_step(self, pred: SVBRDF, target: SVBRDF, rendered, out: dict) -> str | None:
-        loss = self.recipe.loss
-        total, terms = generator_loss(
-            pred,
-            target,
-            weights=self.weights,
-            map_weights=loss.maps,
-            fake_logits=self._fake_logits(pred, rendered),
-            gan=loss.gan,
-            eps=loss.eps,
-            rendered=rendered,
-        )
+        fake_logits = self._fake_logits(pred, rendered)
+        total, terms = self.loss(pred, target, fake_logits=fake_logits, rendered=rendered)
         name = _first_bad(terms)
         (bad,) = self.dist.any(name is not None)
         if bad:

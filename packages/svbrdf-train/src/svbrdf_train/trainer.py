@@ -31,7 +31,7 @@ from . import distributed
 from .checkpoint import CHECKPOINT_NAME, check_resumable, check_run_kept
 from .clock import WARMUP_STEPS, Stopwatch, TrainClock
 from .errors import CheckpointError
-from .hooks import BudgetWarning, Checkpoints, Logging, Run, StepEnd, Validation
+from .hooks import BudgetWarning, Checkpoints, HookRunner, Logging, Run, StepEnd, Validation
 from .order import BatchOrder
 from .progress import Interrupt, Progress, format_duration
 from .recipe import Recipe, check_recipe
@@ -58,6 +58,8 @@ class FitOptions:
         parent_run: make the MLflow run a child of this run (a benchmark's parent run).
         init: start from these weights (a checkpoint file, a fit's folder or an MLflow run id;
             :mod:`svbrdf_train.init`) in a new fit and a new run.
+        overrides: with ``resume`` and no recipe, dotted overrides of the checkpoint's recipe
+            (``{"train.max_steps": 8}``; budgets and cadences: :data:`RESUMABLE_CHANGES`).
     """
 
     out: Path
@@ -70,6 +72,7 @@ class FitOptions:
     track: bool = True
     parent_run: str | None = None
     init: str | None = None
+    overrides: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -121,14 +124,15 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
                 f"restore it (mlflow runs restore --run-id {run_id}), resume without MLflow "
                 "(--no-track), or start a new fit and run (--force, without --resume)",
             )
-    recipe = resolve_resume(recipe, state)
-    check_recipe(recipe, recipe.source or recipe.name)  # a Recipe made in Python is checked too
+    recipe = resolve_resume(recipe, state, Path(o.out) / CHECKPOINT_NAME, o.overrides)
+    if not recipe.checked:  # made in Python: load_recipe's and a resumed one are checked already
+        check_recipe(recipe, recipe.source or recipe.name)
     run, real_name = _setup(recipe, options, dist, state)
     del state  # a paper-size checkpoint: over 1 GB
     if dist.main:
         _start_tracking(run, options, real_name)
-    validation = Validation()
-    hooks = [BudgetWarning(run), Logging(run), validation, Checkpoints(run)]
+    validation = Validation(run)
+    hooks = HookRunner([BudgetWarning(run), Logging(run), validation, Checkpoints(run)])
     status, message = _loop(run, hooks)
     run.progress.close()
     if status == "FINISHED" and not message:
@@ -160,11 +164,11 @@ def _setup(
     recipe: Recipe, options: FitOptions, dist: distributed.Dist, state: dict | None
 ) -> tuple[Run, str | None]:
     """The run of a fit: data, the step (weights from ``--init`` or the checkpoint), hooks' state."""
-    from .fitdata import build_datasets, real_validation_set
+    from .fitdata import real_validation_set
     from .tracking import made_with
 
     t, out = recipe.train, Path(options.out)
-    train_set, val_set = build_datasets(recipe)
+    train_set, val_set = recipe.data.setup(t.resolution)
     real = real_validation_set(recipe.data.real_validation, t.resolution)
     order = BatchOrder(train_set, recipe, dist.rank, dist.world, dist.device)
     gan = GanStep(recipe, dist, order.epoch_samples)
@@ -229,7 +233,7 @@ def _start_tracking(run: Run, options: FitOptions, real_name: str | None) -> Non
     run.progress.message(plan(run, real_name))
 
 
-def _loop(run: Run, hooks: list) -> tuple[str, str]:
+def _loop(run: Run, hooks: HookRunner) -> tuple[str, str]:
     """Steps until a budget, a stop request or a non-finite value: ``(status, message)``."""
     with Interrupt(run.progress) as interrupt:
         try:
@@ -248,9 +252,8 @@ def _loop(run: Run, hooks: list) -> tuple[str, str]:
             raise
 
 
-def _steps(run: Run, hooks: list, interrupt: Interrupt) -> tuple[str, str]:
+def _steps(run: Run, hooks: HookRunner, interrupt: Interrupt) -> tuple[str, str]:
     t, gan, dist = run.recipe.train, run.gan, run.dist
-    checkpoints = next(h for h in hooks if isinstance(h, Checkpoints))
     run.watch.start()
     for batch in run.order.batches(gan.step):
         terms, bad = gan(batch)
@@ -261,11 +264,9 @@ def _steps(run: Run, hooks: list, interrupt: Interrupt) -> tuple[str, str]:
 
             return "FAILED", nan_message(run, bad)
         time_up = t.max_minutes is not None and run.watch.seconds >= t.max_minutes * 60
-        stop, time_up, due = dist.any(interrupt.requested is not None, time_up, checkpoints.time_due(run))
+        stop, time_up, *passed = dist.any(interrupt.requested is not None, time_up, *hooks.minutes_passed())
         last = gan.step >= run.order.total_steps or stop or time_up
-        end = StepEnd(gan.step, terms, samples, last=last, checkpoint_due=due)
-        for hook in hooks:
-            hook.after_step(run, end)
+        hooks.after_step(run, StepEnd(gan.step, terms, samples, last=last), passed)
         if stop:
             return "KILLED", f"stopped by {interrupt.requested or 'another process'} at step {gan.step}"
         if time_up:

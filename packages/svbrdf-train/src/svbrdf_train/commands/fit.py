@@ -194,8 +194,8 @@ def fit(
             "recipe at the size it was started with"
         )
     _check_init_run(init)
-    overrides = _overrides(recipe_name, size, data, sets, max_minutes, max_steps)
-    recipe, out = _recipe_and_out(recipe_name, size, overrides, out, resume)
+    overrides, read = _overrides(recipe_name, size, data, sets, max_minutes, max_steps)
+    recipe, out = _recipe_and_out(recipe_name, size, overrides, out, resume, read)
     options = FitOptions(
         out=out,
         resume=resume,
@@ -207,6 +207,7 @@ def fit(
         init=init,
         progress=not quiet,
         track=not no_track,
+        overrides=overrides if recipe is None else {},  # --resume alone: the trainer applies them
     )
     with _output_lock(out) if _is_main() else contextlib.nullcontext():
         result = run_fit(recipe, options)
@@ -224,15 +225,18 @@ def _check_init_run(init: str | None) -> None:
         check_run_kept(init, "--init", hint)
 
 
-def _overrides(recipe_name, size, data, sets, max_minutes, max_steps) -> dict:
-    """The recipe overrides of the command line: ``--set`` items, then ``--data``, then the budgets."""
-    from ..recipe import load_recipe, parse_overrides
+def _overrides(recipe_name, size, data, sets, max_minutes, max_steps):
+    """The recipe overrides of the command line (``--set`` items, then ``--data``, then the
+    budgets), and the recipe file when reading them needed it (else None)."""
+    from ..recipe import parse_overrides, read_recipe
 
     overrides = parse_overrides(sets)
     data_overrides = _data_overrides(data)
+    read = None
     if recipe_name is not None and data_overrides.get("data.source") not in (None, "procedural"):
         # a mix keeps its entries: --data gives the path of those that name none
-        if load_recipe(recipe_name, size, overrides).data.source == "mix":
+        read = read_recipe(recipe_name)
+        if (read.settings(size, overrides).get("data") or {}).get("source") == "mix":
             del data_overrides["data.source"]
     clash = sorted(set(data_overrides) & set(overrides)) if data else []
     if clash:  # --data would win without a word
@@ -251,15 +255,15 @@ def _overrides(recipe_name, size, data, sets, max_minutes, max_steps) -> dict:
 
             raise RecipeError(f"{flag} {value:g} and --set {key}={overrides[key]} both set {key}; give one")
         overrides[key] = value
-    return overrides
+    return overrides, read
 
 
-def _recipe_and_out(recipe_name, size, overrides: dict, out: Path | None, resume: bool):
-    """The recipe to fit and its output folder: the named recipe (``runs/RECIPE-SIZE`` by default),
-    or with ``--resume`` alone the recipe saved in ``out``'s checkpoint, plus any budget change."""
-    from ..checkpoint import CHECKPOINT_NAME, check_resumable, load_checkpoint
+def _recipe_and_out(recipe_name, size, overrides: dict, out: Path | None, resume: bool, read=None):
+    """The recipe to fit and its output folder: the named recipe (``runs/RECIPE-SIZE`` by default;
+    ``read``: its file, when already read), or with ``--resume`` alone None: the fit reads the
+    recipe saved in ``out``'s checkpoint, and applies ``overrides`` (budget changes) to it."""
     from ..errors import RecipeError
-    from ..recipe import load_recipe, recipe_from_dict, with_overrides
+    from ..recipe import read_recipe
 
     if recipe_name is None and not resume:
         raise RecipeError(
@@ -271,11 +275,8 @@ def _recipe_and_out(recipe_name, size, overrides: dict, out: Path | None, resume
             raise RecipeError("--resume needs --out: the folder of the fit to continue")
         out = Path("runs") / f"{Path(recipe_name).stem}-{size}"
     if recipe_name is not None:
-        return load_recipe(recipe_name, size, overrides), out
-    state = load_checkpoint(out / CHECKPOINT_NAME, mmap=True)
-    check_resumable(state, str(out / CHECKPOINT_NAME))
-    saved = recipe_from_dict(state["recipe"], where=str(out / CHECKPOINT_NAME))
-    return with_overrides(saved, overrides), out
+        return (read or read_recipe(recipe_name)).recipe(size, overrides), out
+    return None, out
 
 
 def _summary(result) -> list[str]:

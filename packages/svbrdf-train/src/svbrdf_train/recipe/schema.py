@@ -1,0 +1,453 @@
+"""The recipe's sections: their fields, each field's range, and what each section builds.
+
+A :class:`Recipe` is six sections (``generator``, ``discriminator``, ``loss``, ``optim``,
+``data``, ``train``), each a frozen dataclass whose fields carry their default and their help
+(``svbrdf_models.param``) and whose ``__post_init__`` refuses a value out of range with one
+line naming the field. Settings that are each in range but cannot work together are refused
+by :func:`svbrdf_train.recipe.checks.check_recipe`.
+
+Sections build what they describe:
+
+- ``optim.setup(params, schedule)`` -> ``(Adam, ScheduledRate)``: the optimiser at the
+  section's rate and betas, and the rate it follows along :class:`~svbrdf_train.schedule.LrSchedule`
+  (``optim.schedule(per_step, samples_per_epoch)``);
+- ``loss.setup()`` -> :class:`~svbrdf_train.losses.GanLoss`: the generator's and the
+  discriminator's objectives with the section's weights;
+- ``data.setup(resolution)`` -> ``(train, validation)`` data sets
+  (:func:`svbrdf_train.fitdata.section_datasets`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from svbrdf_models import param
+
+from ..paper_weights import MAP_WEIGHTS
+
+if TYPE_CHECKING:  # annotations only: these modules read no recipe, so nothing imports back
+    import torch
+    from torch.utils.data import Dataset
+
+    from ..losses import GanLoss
+    from ..schedule import LrSchedule, ScheduledRate
+
+__all__ = [
+    "SIZES",
+    "MAX_SEED",
+    "MIN_RESOLUTION",
+    "MAX_RESOLUTION",
+    "CAPTURES",
+    "MIX_KEYS",
+    "MIX_SOURCES",
+    "NetworkSection",
+    "LossSection",
+    "OptimSection",
+    "DataSection",
+    "TrainSection",
+    "Recipe",
+    "SECTIONS",
+    "TOP_LEVEL",
+    "suggest",
+]
+
+#: Sizes every built-in recipe has: the paper's, one for a CPU in minutes, one for tests.
+SIZES = ("paper", "cpu", "smoke")
+#: Seeds are drawn from [0, MAX_SEED] (numpy's SeedSequence refuses negative ones).
+MAX_SEED = 2**32 - 1
+#: Training sizes in pixels: below, no network has a layer left; above, no GPU holds a batch.
+MIN_RESOLUTION, MAX_RESOLUTION = 8, 8192
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _check(ok: bool, field: str, value: Any, expected: str) -> None:
+    """ValueError ``"field must be expected, got value"`` unless ``ok``."""
+    if not ok:
+        raise ValueError(f"{field} must be {expected}, got {value!r}")
+
+
+def _finite(value: Any, field: str, *, low: float = 0.0, positive: bool = False) -> None:
+    ok = _number(value) and math.isfinite(value) and (value > low if positive else value >= low)
+    _check(ok, field, value, f"a finite number {'>' if positive else '>='} {low:g}")
+
+
+def _int_at_least(value: Any, field: str, low: int, *, none: str | None = None) -> None:
+    if value is None and none is not None:
+        return
+    expected = f"at least {low}" + (f" (or null: {none})" if none else "")
+    _check(value is not None and value >= low, field, value, expected)
+
+
+def _seed(value: int, field: str) -> None:
+    _check(0 <= value <= MAX_SEED, field, value, f"in [0, {MAX_SEED}] (2**32 - 1)")
+
+
+def suggest(key: str, options: Iterable[str]) -> str:
+    """`` (did you mean 'x'?)`` for the option closest to a mistyped ``key``, else ``""``."""
+    close = difflib.get_close_matches(key, list(options), n=1, cutoff=0.5)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+@dataclass(frozen=True)
+class NetworkSection:
+    name: str = param("ours", "registered name (svbrdf-models list)")
+    config: dict = param({}, "config dict of that network; may hold 'preset'")
+
+
+@dataclass(frozen=True)
+class LossSection:
+    adv: float = param(0.1, "lambda1: weight of the adversarial loss (0: no discriminator is trained)")
+    render: float = param(0.5, "lambda2: weight of the log rendering loss")
+    svbrdf: float = param(0.5, "lambda3: weight of the L1 map loss")
+    gan: str = param(
+        "bce", "adversarial objective: bce (eq. 3, non-saturating) or lsgan", choices=("bce", "lsgan")
+    )
+    maps: dict = param(
+        dict(MAP_WEIGHTS),
+        "per-map weights of the L1 map loss (the paper's: normal, diffuse 1; roughness, specular 0.5)",
+    )
+    eps: float = param(0.01, "offset of the log in the rendering loss")
+
+    def __post_init__(self):
+        for name in ("adv", "render", "svbrdf"):
+            _finite(getattr(self, name), name)
+        _finite(self.eps, "eps", positive=True)  # log(0) of a black rendering is -inf
+        if self.adv + self.render + self.svbrdf <= 0:
+            raise ValueError(
+                f"at least one of adv, render and svbrdf must be positive, got {self.adv}, "
+                f"{self.render} and {self.svbrdf}"
+            )
+        unknown = set(self.maps) - {"normal", "diffuse", "roughness", "specular"}
+        if unknown:
+            raise ValueError(
+                f"maps: unknown map {sorted(unknown)}; maps are normal, diffuse, roughness, specular"
+            )
+        for name, weight in self.maps.items():
+            _finite(weight, f"maps.{name}")
+        if self.svbrdf > 0 and not any(w > 0 for w in self.maps.values()):
+            raise ValueError(
+                f"svbrdf is {self.svbrdf} but every weight of maps is 0 ({self.maps}), so the map loss "
+                "is always 0; give a map a weight, or set svbrdf to 0"
+            )
+
+    def setup(self) -> GanLoss:
+        """The objectives this section describes: the generator's ``L_G`` with these weights and
+        the discriminator's, both of the ``gan`` kind (:class:`svbrdf_train.losses.GanLoss`)."""
+        from ..losses import GanLoss, LossWeights
+
+        weights = LossWeights(adv=self.adv, render=self.render, svbrdf=self.svbrdf)
+        return GanLoss(weights=weights, map_weights=self.maps, gan=self.gan, eps=self.eps)
+
+
+@dataclass(frozen=True)
+class OptimSection:
+    lr: float = param(2e-5, "Adam learning rate of the generator")
+    d_lr: float = param(2e-5, "Adam learning rate of the discriminator")
+    betas: tuple[float, float] = param((0.5, 0.999), "Adam betas")
+    g_steps_per_d: int = param(5, "generator steps per discriminator step (paper: 5)")
+    decay_every_samples: int | None = param(
+        400_000,
+        "step decay period in samples seen, whatever the data set size (paper: 2 epochs of 200k "
+        "= 400000); None: no decay",
+    )
+    decay_every_epochs: int | None = param(
+        None,
+        "the period in epochs instead (set decay_every_samples to null): the same as the paper only "
+        "on its 200k samples; on a small data set an epoch is a few steps",
+    )
+    decay: float = param(0.5, "learning-rate factor at each decay step (paper: halved)")
+    warmup_samples: int = param(0, "linear warm-up of both rates over this many samples (0: none)")
+
+    def __post_init__(self):
+        _finite(self.lr, "lr", positive=True)
+        _finite(self.d_lr, "d_lr", positive=True)
+        for i, beta in enumerate(self.betas):
+            _check(_number(beta) and 0 <= beta < 1, f"betas[{i}]", beta, "in [0, 1) (Adam's)")
+        _int_at_least(self.g_steps_per_d, "g_steps_per_d", 1)
+        for name in ("decay_every_samples", "decay_every_epochs"):
+            _int_at_least(getattr(self, name), name, 1, none="no decay")
+        if self.decay_every_samples is not None and self.decay_every_epochs is not None:
+            raise ValueError(
+                f"decay_every_samples={self.decay_every_samples} and decay_every_epochs="
+                f"{self.decay_every_epochs} are both set; keep one (--set optim.decay_every_samples=null "
+                "to count in epochs)"
+            )
+        _check(0 < self.decay <= 1, "decay", self.decay, "in (0, 1] (1: no decay)")
+        _int_at_least(self.warmup_samples, "warmup_samples", 0)
+
+    def schedule(self, per_step: int, samples_per_epoch: int) -> LrSchedule:
+        """The rate factor along the fit (:class:`svbrdf_train.schedule.LrSchedule`):
+        ``per_step`` samples a step (all processes), ``samples_per_epoch`` for an epoch period."""
+        from ..schedule import LrSchedule
+
+        return LrSchedule(self, per_step, samples_per_epoch)
+
+    def setup(
+        self, params: Iterable[torch.nn.Parameter], schedule: LrSchedule, *, discriminator: bool = False
+    ) -> tuple[torch.optim.Adam, ScheduledRate]:
+        """Adam over ``params`` with ``betas``, and the rate it follows: ``lr`` (``d_lr`` for the
+        ``discriminator``) times ``schedule``'s factor, set for each step by the returned
+        :class:`~svbrdf_train.schedule.ScheduledRate` (``rate.at(step)``)."""
+        import torch
+
+        from ..schedule import ScheduledRate
+
+        base = self.d_lr if discriminator else self.lr
+        optimiser = torch.optim.Adam(params, lr=base, betas=tuple(self.betas))
+        return optimiser, ScheduledRate(optimiser, base, schedule)
+
+
+#: The named photo captures of procedural data (``data.capture``; svbrdf_train.data.procedural's
+#: ``CAPTURE_PRESETS``).
+CAPTURES = ("des18", "phone")
+#: Keys of one ``data.mix`` entry, and the sources an entry may name.
+MIX_KEYS = ("source", "weight", "path", "count", "validation")
+MIX_SOURCES = ("procedural", "shards", "des18")
+
+
+@dataclass(frozen=True)
+class DataSection:
+    source: str = param(
+        "procedural",
+        "procedural (generated), shards (HDF5 files), des18 (a folder of strips) or mix (the "
+        "sources of data.mix, drawn at random with their weights)",
+        choices=("procedural", "shards", "des18", "mix"),
+    )
+    path: str | tuple[str, ...] | None = param(
+        None,
+        "shard file(s) or Des18 folder (--data); unused for procedural; for mix, the path of the "
+        "entries that give none",
+    )
+    count: int = param(
+        200_000,
+        "procedural samples per epoch (the paper trains on ~200k); for mix, samples per epoch "
+        "drawn from all sources",
+    )
+    seed: int = param(0, "procedural data seed; validation uses seed + 1, so the two never overlap")
+    validation: int = param(64, "held-out samples for periodic validation")
+    workers: int = param(0, "DataLoader worker processes (with generate: workers)")
+    generate: str = param(
+        "workers",
+        "where training batches are made: workers (a DataLoader over data.workers CPU processes; "
+        "0: in the training process) or device (in the training process, on the training device: "
+        "procedural materials and their photos are computed there, the whole batch at once, and "
+        "shards and Des18 strips are read on the CPU and moved). device suits a GPU, whose "
+        "training outruns CPU workers generating procedural data; on a CPU both give the same "
+        "bytes, on a GPU device gives the same materials with the GPU's own photo noise",
+        choices=("workers", "device"),
+    )
+    real_validation: str | None = param(
+        None,
+        "a Des18 folder or .h5 shards of real materials to validate on as well, brought to the "
+        "training resolution by resizing (logged as val_real/...); None: none",
+    )
+    mix: tuple[dict, ...] | None = param(
+        None,
+        "with source mix: entries {source, weight[, path, count, validation]}; each training "
+        "sample comes from entry i with probability weight_i / sum(weights); validation sets "
+        "are each entry's own, put together",
+    )
+    capture: str = param(
+        "des18",
+        "how procedural materials are photographed (training and validation alike): des18 (a "
+        "flash at 1.8-2.75 whose irradiance follows the distance, +-0.75 EV, linear, as the "
+        "Des18 inputs) or phone (the flashes fitted to real phone photos: distance 1.8-3.7 and "
+        "intensity 10-21 drawn independently, white balance within 8%, half of the photos "
+        "JPEG-compressed at quality 75-95)",
+        choices=CAPTURES,
+    )
+
+    def __post_init__(self):
+        _int_at_least(self.count, "count", 1)
+        _int_at_least(self.validation, "validation", 0)
+        _int_at_least(self.workers, "workers", 0)
+        _seed(self.seed, "seed")
+        paths = (self.path,) if isinstance(self.path, str) else self.path or ()
+        if any(not p.strip() for p in paths) or self.path == ():
+            raise ValueError(f"path must name files or folders (or be null), got {self.path!r}")
+        if self.real_validation is not None and not self.real_validation.strip():
+            raise ValueError(
+                f"real_validation must name a folder or shards (or be null), got {self.real_validation!r}"
+            )
+        if self.source == "mix":
+            if not self.mix:
+                raise ValueError("source 'mix' needs data.mix: a list of {source, weight} entries")
+            for i, entry in enumerate(self.mix):
+                _check_mix_entry(i, entry)
+        elif self.mix:
+            raise ValueError(f"data.mix is set but data.source is {self.source!r}; set data.source=mix")
+
+    def setup(self, resolution: int) -> tuple[Dataset, Dataset]:
+        """``(train, validation)``: the data sets this section describes, at ``resolution``
+        pixels (:func:`svbrdf_train.fitdata.section_datasets`; ``DataError`` when a source is
+        missing or too small)."""
+        from ..fitdata import section_datasets
+
+        return section_datasets(self, resolution)
+
+
+def _check_mix_entry(i: int, entry: Mapping[str, Any]) -> None:
+    where = f"mix[{i}]"
+    unknown = set(entry) - set(MIX_KEYS)
+    if unknown:
+        key = sorted(unknown)[0]
+        raise ValueError(f"{where}: unknown key {key!r}{suggest(key, MIX_KEYS)}; keys: {', '.join(MIX_KEYS)}")
+    if entry.get("source") not in MIX_SOURCES:
+        raise ValueError(
+            f"{where}.source must be one of {', '.join(MIX_SOURCES)}, got {entry.get('source')!r}"
+        )
+    weight = entry.get("weight")
+    number = isinstance(weight, (int, float)) and not isinstance(weight, bool)
+    if not number or not 0 < weight < float("inf"):
+        raise ValueError(f"{where}.weight must be a positive number (a relative frequency), got {weight!r}")
+    for key in ("count", "validation"):
+        value = entry.get(key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
+            raise ValueError(f"{where}.{key} must be a non-negative integer, got {value!r}")
+    path = entry.get("path")
+    paths = [path] if isinstance(path, str) else path
+    named = (
+        isinstance(paths, (list, tuple))
+        and bool(paths)
+        and all(isinstance(p, str) and p.strip() for p in paths)
+    )
+    if path is not None and not named:
+        raise ValueError(f"{where}.path must be a path or a list of paths, got {path!r}")
+    if entry["source"] == "procedural" and path is not None:
+        raise ValueError(f"{where}.path is {path!r} but its source is 'procedural', which reads no files")
+
+
+@dataclass(frozen=True)
+class TrainSection:
+    resolution: int = param(256, "training crop size in pixels")
+    batch: int = param(8, "samples per step")
+    epochs: int = param(20, "passes over the data")
+    max_steps: int | None = param(None, "stop after this many generator steps (None: no limit)")
+    max_minutes: float | None = param(None, "stop after this much training time (None: no limit)")
+    renderings: int = param(9, "light/view configurations per sample for the rendering loss and D")
+    seed: int = param(0, "seed of initialisation, sampling and dropout")
+    log_every: int = param(10, "log losses every this many steps")
+    validate_every: int = param(500, "validate every this many steps (and at the end)")
+    checkpoint_every: int | None = param(
+        None,
+        "write the full checkpoint (OUT/last.pt) every this many steps, and at the end (None: "
+        "by time only, checkpoint_minutes)",
+    )
+    checkpoint_minutes: float | None = param(
+        10.0,
+        "write the full checkpoint when this many minutes of wall time have passed since the "
+        "last one (None: by steps only); a paper-size one is about 1.2 GB",
+    )
+    upload_minutes: float | None = param(
+        60.0,
+        "upload the weights (OUT/weights.pt, no optimiser state) to the MLflow run at most this "
+        "often, and always at the end (None: only at the end)",
+    )
+    render_backend: str = param(
+        "compiled",
+        "renderer of the loss and discriminator renderings: compiled (torch.compile, 2-3x faster "
+        "forward+backward after a compile of seconds) or eager",
+        choices=("compiled", "eager"),
+    )
+    clock: str = param(
+        "auto",
+        "what max_minutes and the logged training time count: cpu (the process's CPU time over its "
+        "torch threads, which other programs on the machine cannot tilt), wall, or auto (cpu on a "
+        "CPU; on a GPU wall time with the GPU synchronised, i.e. GPU time)",
+        choices=("auto", "cpu", "wall"),
+    )
+    compile: bool = param(
+        False,
+        "torch.compile the generator and the discriminator (a compile of tens of seconds to "
+        "minutes when the fit starts)",
+    )
+    channels_last: bool = param(False, "keep the networks' images in NHWC memory layout for the convolutions")
+    precision: str = param(
+        "fp32",
+        "fp32, or bf16: the networks under bfloat16 autocast (the renderer and losses stay float32)",
+        choices=("fp32", "bf16"),
+    )
+
+    def __post_init__(self):
+        _check(
+            MIN_RESOLUTION <= self.resolution <= MAX_RESOLUTION,
+            "resolution",
+            self.resolution,
+            f"in [{MIN_RESOLUTION}, {MAX_RESOLUTION}] pixels (and what the generator takes)",
+        )
+        for name in ("batch", "epochs", "renderings", "log_every", "validate_every"):
+            _int_at_least(getattr(self, name), name, 1)
+        _int_at_least(self.checkpoint_every, "checkpoint_every", 1, none="by time only")
+        for name in ("checkpoint_minutes", "upload_minutes"):
+            if getattr(self, name) is not None:
+                _finite(getattr(self, name), name, positive=True)
+        for name in ("compile", "channels_last"):
+            _check(isinstance(getattr(self, name), bool), name, getattr(self, name), "true or false")
+        _int_at_least(self.max_steps, "max_steps", 1, none="no limit")
+        if self.max_minutes is not None:
+            _finite(self.max_minutes, "max_minutes")  # 0: stop after the first step
+        _seed(self.seed, "seed")
+
+
+#: The sections of a recipe and their classes.
+SECTIONS: dict[str, type] = {
+    "generator": NetworkSection,
+    "discriminator": NetworkSection,
+    "loss": LossSection,
+    "optim": OptimSection,
+    "data": DataSection,
+    "train": TrainSection,
+}
+#: The keys a recipe file may hold at its top level.
+TOP_LEVEL = {*SECTIONS, "description", "base", "sizes"}
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """A resolved recipe: every field known, nothing left to defaults elsewhere."""
+
+    name: str
+    size: str
+    description: str
+    generator: NetworkSection
+    discriminator: NetworkSection | None
+    loss: LossSection
+    optim: OptimSection
+    data: DataSection
+    train: TrainSection
+    source: str
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data (for MLflow params and the YAML artifact); tuples become lists."""
+
+        def plain(v):
+            if dataclasses.is_dataclass(v):
+                return {f.name: plain(getattr(v, f.name)) for f in dataclasses.fields(v)}
+            if isinstance(v, (tuple, list)):
+                return [plain(x) for x in v]
+            if isinstance(v, Mapping):
+                return {k: plain(x) for k, x in v.items()}
+            return v
+
+        return plain(self)
+
+    @property
+    def checked(self) -> bool:
+        """Whether :func:`~svbrdf_train.recipe.checks.check_recipe` passed this very object."""
+        return self.__dict__.get("_checked", False)
+
+    def with_meta(self, *, name: str, size: str, description: str, source: str) -> Recipe:
+        """This recipe under another name, size, description and source file; the checks read
+        none of these, so a checked recipe stays checked."""
+        out = dataclasses.replace(self, name=name, size=size, description=description, source=source)
+        if self.checked:
+            object.__setattr__(out, "_checked", True)
+        return out
