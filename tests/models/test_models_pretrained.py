@@ -15,13 +15,21 @@ from conftest import REPO
 from svbrdf_models.modelfile import PRETRAINED, card_path, pretrained_path
 
 MAX_BYTES = 20 * 10**6
+#: Every model shipped in the package (``pretrained:NAME``); ``pretrained`` alone is PRETRAINED.
+SHIPPED = sorted(p.stem for p in pretrained_path().parent.glob("*.pt"))
 
 
-def test_the_shipped_model_is_small_loads_and_predicts():
-    path = pretrained_path()
+def test_pretrained_alone_is_the_default_shipped_model():
+    assert PRETRAINED in SHIPPED
+    assert sm.load_model("pretrained").source == f"pretrained:{PRETRAINED}"
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_the_shipped_model_is_small_loads_and_predicts(name):
+    path = pretrained_path(name)
     assert path.stat().st_size <= MAX_BYTES
-    model = sm.load_model("pretrained")
-    assert model.source == f"pretrained:{PRETRAINED}"
+    model = sm.load_model(f"pretrained:{name}")
+    assert model.source == f"pretrained:{name}"
     assert model.steps > 0 and model.provenance["train_seconds"] > 0
     maps = model.predict(torch.rand(3, 256, 256) * 0.5)
     assert maps.diffuse.shape == (1, 3, model.resolution, model.resolution)
@@ -30,10 +38,12 @@ def test_the_shipped_model_is_small_loads_and_predicts():
         assert torch.isfinite(t).all() and t.min() >= -1 and t.max() <= 1
 
 
-def test_its_card_says_how_it_was_made_and_how_it_does():
-    card = card_path().read_text()
-    model = sm.load_model("pretrained")
-    for needed in ("des18-dev", "`mean`", "render", "diffuse", "roughness", "specular", "Data", "Hardware"):
+@pytest.mark.parametrize("name", SHIPPED)
+def test_its_card_says_how_it_was_made_and_how_it_does(name):
+    card = card_path(name).read_text()
+    model = sm.load_model(f"pretrained:{name}")
+    needed_words = ("unseen-dev", "des18-dev", "`mean`", "render", "diffuse", "roughness", "specular", "Data", "Hardware")
+    for needed in needed_words:
         assert needed in card, needed
     assert model.provenance["git_sha"][:7] in card
     assert f"{model.steps}" in card

@@ -12,6 +12,8 @@ import json
 import time
 from pathlib import Path
 
+from svbrdf_render import MAP_NAMES
+
 from .layout import PARENT_TAG, REPORT_ARTIFACTS
 from .testset import TestSet
 
@@ -39,7 +41,7 @@ BENCH_COLUMNS = (
     "test/ssim/render", "time/latency_ms", "model/params",
 )  # fmt: skip
 #: Maps of the table in the parent run's description.
-NOTE_COLUMNS = ("render", "normal", "diffuse", "roughness", "specular")
+NOTE_COLUMNS = ("render", *MAP_NAMES)
 #: MLflow truncates a run tag's value beyond 8000 characters: the description's table goes first.
 NOTE_LIMIT = 7500
 #: The fields of a row of results.json that become the parent run's metrics: accuracy (with the

@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from svbrdf_render import MAP_NAMES
+
 from .layout import FIT_WALL_METRIC, REAL_PREFIX, REAL_RERENDER, STEPS_METRIC, STEPS_WALL_METRIC, TEST_PREFIX
 from .refinement import RefinedRow, RefinePlan, refine_real, refine_rows, refined_label
 from .testset import TestSet
@@ -226,7 +228,7 @@ def comparison_grid(shown: dict[str, list], path: Path) -> Path:
             pred = items[k][1]
             rows.append((f"#{k} {label}", [linear_to_srgb(photo), *map_tiles(pred.pack()[0]),
                                           display_rendering(pred, flash)[0]]))  # fmt: skip
-    columns = ["input", "normal", "diffuse", "roughness", "specular", "flash"]
+    columns = ["input", *MAP_NAMES, "flash"]
     return sheet(rows, columns, path, min_tile=GRID_MIN_SIZE)
 
 
@@ -245,5 +247,5 @@ def real_grid(shown: dict[str, list], path: Path) -> Path:
             photo, maps, rendering = items[k]
             rows.append((f"#{k} {label}", [linear_to_srgb(photo), *map_tiles(maps.pack()[0]),
                                           linear_to_srgb(rendering.clamp(0, 1))]))  # fmt: skip
-    columns = ["photo", "normal", "diffuse", "roughness", "specular", "fitted flash"]
+    columns = ["photo", *MAP_NAMES, "fitted flash"]
     return sheet(rows, columns, path, min_tile=GRID_MIN_SIZE)

@@ -12,7 +12,7 @@ import torch
 from torch import Tensor
 
 from .geometry import safe_normalize
-from .maps import SVBRDF
+from .maps import MAP_NAMES, SVBRDF
 
 __all__ = ["EXAMPLES", "example_material"]
 
@@ -111,5 +111,5 @@ def example_material(name: str, size: int = 256, dtype: torch.dtype = torch.floa
         raise KeyError(f"unknown example material {name!r}; choose from {', '.join(EXAMPLES)}")
     maps = EXAMPLES[name][0](size)
     return SVBRDF(
-        *(maps[k].to(dtype).unsqueeze(0).contiguous() for k in ("normal", "diffuse", "roughness", "specular"))
+        *(maps[k].to(dtype).unsqueeze(0).contiguous() for k in MAP_NAMES)
     )

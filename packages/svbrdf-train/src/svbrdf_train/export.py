@@ -22,6 +22,7 @@ import torch
 
 from svbrdf_models import create_generator
 from svbrdf_models.modelfile import model_dict
+from svbrdf_render import MAP_NAMES
 
 from .errors import CheckpointError
 
@@ -111,7 +112,7 @@ def half_effect(name: str, config: dict[str, Any], weights: dict[str, torch.Tens
     half.load_state_dict({k: v.half().float() if v.is_floating_point() else v for k, v in weights.items()})
     a, b = full(photos), half(photos)
     effect = {}
-    for m in ("normal", "diffuse", "roughness", "specular"):
+    for m in MAP_NAMES:
         d = getattr(a, m) - getattr(b, m)
         effect[m] = {"rmse": float(d.square().mean().sqrt()), "max": float(d.abs().max())}
     return effect

@@ -12,7 +12,7 @@ import torch
 from torch import Tensor, nn
 from torch.utils.data import DataLoader, Dataset
 
-from svbrdf_render import SVBRDF, evaluation_scene
+from svbrdf_render import MAP_NAMES, SVBRDF, evaluation_scene
 
 from .metrics import METRIC_NAMES, display_rendering, map_rmse, preview_flash, render_rmse
 
@@ -74,7 +74,7 @@ class Validator:
         keep = 2 * GRID_SAMPLES
         return image_grid(
             rows[:keep],
-            ("input", "normal", "diffuse", "roughness", "specular", "flash"),
+            ("input", *MAP_NAMES, "flash"),
             [s[-28:] for s in labels[:keep]],
             min_tile=GRID_MIN_SIZE,
         )

@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from svbrdf_render import MAP_NAMES
+
 from ..layout import SECONDS_PER_IMAGE, STEPS_METRIC, STEPS_WALL_METRIC
 
 __all__ = [
@@ -25,7 +27,7 @@ __all__ = [
     "ModelEntry",
 ]
 
-COLUMNS = ("normal", "diffuse", "roughness", "specular", "render")
+COLUMNS = (*MAP_NAMES, "render")
 METRICS = (
     ("rmse", "RMSE", "lower is better"),
     (

@@ -17,7 +17,7 @@ from typing import Any
 from torch import Tensor
 
 from svbrdf_models.figures import image_grid
-from svbrdf_render import encode_normal
+from svbrdf_render import MAP_NAMES, encode_normal
 from svbrdf_render.mapfiles import linear_to_srgb
 
 from ..errors import DataError
@@ -25,7 +25,7 @@ from ..errors import DataError
 __all__ = ["contact_sheet", "image_grid", "map_tiles", "COLUMNS"]
 
 #: Column titles, left to right (after the label column).
-COLUMNS = ("input", "normal", "diffuse", "roughness", "specular")
+COLUMNS = ("input", *MAP_NAMES)
 
 
 def map_tiles(maps: Tensor) -> list[Tensor]:

@@ -125,7 +125,7 @@ class LossSection:
                 f"at least one of adv, render and svbrdf must be positive, got {self.adv}, "
                 f"{self.render} and {self.svbrdf}"
             )
-        unknown = set(self.maps) - {"normal", "diffuse", "roughness", "specular"}
+        unknown = set(self.maps) - set(MAP_WEIGHTS)
         if unknown:
             raise ValueError(
                 f"maps: unknown map {sorted(unknown)}; maps are normal, diffuse, roughness, specular"
