@@ -215,3 +215,37 @@ def test_a_sqlite_store_that_is_not_mlflows_is_refused_before_anything_is_writte
         assert before is None or store.read_bytes() == before, f"{name} was written into"
         assert not (tmp_path / "run" / "last.pt").exists()
     assert list((tmp_path / "folder.db").iterdir()) == []
+
+
+def test_commands_that_read_runs_refuse_a_store_that_is_not_mlflows(tmp_path):
+    """predict --run, fit --init, export --run and svbrdf-bench report only read a store, but
+    MLflow creates its tables in whatever file the URI names: the same check refuses an empty
+    file or another program's database before MLflow opens it, leaving the file as it was."""
+    import sqlite3
+
+    (tmp_path / "empty.db").write_bytes(b"")
+    with contextlib.closing(sqlite3.connect(tmp_path / "other.db")) as db:
+        db.execute("CREATE TABLE invoices (id INTEGER, total REAL)")
+        db.commit()
+    run_id = "0" * 32
+    photo = tmp_path / "photo.png"
+    write_image(photo, torch.full((3, 64, 64), 0.3))
+    commands = {
+        "predict": ["predict", str(photo), "--run", run_id, "-o", str(tmp_path / "maps")],
+        "fit --init": ["fit", "--recipe", "ours", "--size", "smoke", "-q", "--init", run_id,
+                       "--out", str(tmp_path / "run")],
+        "export": ["export", "--run", run_id, "-o", str(tmp_path / "x.pt")],
+    }  # fmt: skip
+    for name in ("empty.db", "other.db"):
+        store = tmp_path / name
+        before = store.read_bytes()
+        env = {"MLFLOW_TRACKING_URI": f"sqlite:///{store}"}
+        for what, args in commands.items():
+            line = _one_line(run_cli(*args, env=env, timeout=120))
+            assert str(store) in line and "MLflow store" in line, (what, line)
+        bench = subprocess.run([sys.executable, "-m", "svbrdf_bench", "report", run_id, "-o", str(tmp_path / "r")],
+                               env={**os.environ, **env}, capture_output=True, text=True, timeout=120)  # fmt: skip
+        assert "Traceback" not in bench.stderr and bench.returncode == 2, bench.stderr
+        assert bench.stderr.startswith("svbrdf-bench: error: ") and bench.stderr.count("\n") == 1, bench.stderr
+        assert str(store) in bench.stderr and "MLflow store" in bench.stderr, bench.stderr
+        assert store.read_bytes() == before, f"{name} was written into"

@@ -27,8 +27,8 @@ _PUBLIC: dict[str, tuple[str, ...]] = {
     ".inference": ("load_generator",),
     # MLflow: the fits' tracker and client, the run's source and datasets, links to the UI
     ".tracking": (
-        "MlflowTracker", "open_client", "git_revision", "source_tags", "log_datasets", "test_dataset",
-        "ui_page", "ui_hint",
+        "MlflowTracker", "open_client", "check_store", "tracking_uri", "git_revision", "source_tags",
+        "log_datasets", "test_dataset", "ui_page", "ui_hint",
     ),  # fmt: skip
     ".clock": ("CLOCK_TAG",),
     # data: test and photo sets, resizing, how strips group into materials

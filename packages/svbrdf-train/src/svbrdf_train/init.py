@@ -59,8 +59,9 @@ def download_run_checkpoint(run_id: str) -> dict[str, Any]:
     """The checkpoint an MLflow run logged (``MLFLOW_TRACKING_URI`` or the default store)."""
     from mlflow import MlflowClient
 
-    from .tracking import quiet_store_logs
+    from .tracking import check_store, quiet_store_logs, tracking_uri
 
+    check_store(tracking_uri())  # a file that is not an MLflow store is refused before MLflow writes to it
     with tempfile.TemporaryDirectory() as tmp, quiet_store_logs():  # a new store's notices: not for predict
         client = MlflowClient()
         try:

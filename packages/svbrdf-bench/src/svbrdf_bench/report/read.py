@@ -53,6 +53,9 @@ def build_report(parent_id: str) -> Report:
     """Everything the report shows, read back from the parent run and its children."""
     from mlflow import MlflowClient
 
+    from svbrdf_train import check_store, tracking_uri
+
+    check_store(tracking_uri())  # a file that is not an MLflow store is refused before MLflow writes to it
     client = MlflowClient()
     try:
         parent = client.get_run(parent_id)
