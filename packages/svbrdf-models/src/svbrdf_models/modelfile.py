@@ -123,7 +123,7 @@ __all__ = [
 
 #: The model shipped inside this package (``pretrained/NAME.pt``, its card ``NAME.md``): what
 #: ``load_model("pretrained")`` and ``svbrdf-models predict`` without ``--model`` use.
-PRETRAINED = "ours-mix-cpu"
+PRETRAINED = "ours-general-cpu"
 _PRETRAINED_DIR = Path(__file__).parent / "pretrained"
 
 
