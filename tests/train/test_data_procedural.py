@@ -26,7 +26,7 @@ from svbrdf_train.data.procedural import (
     materials,
     photo_scene,
 )
-from svbrdf_train.data.procedural_families import family_fields
+from svbrdf_train.data.families import family_fields
 from svbrdf_train.data.procedural_maps import _normals
 from svbrdf_train.errors import DataError
 
