@@ -76,9 +76,9 @@ def data():
 
 
 def _register() -> None:
-    from .commands import data_compare, data_folds, data_shards, data_sheet, export, fit, predict, recipes
+    from .commands import data_compare, data_folds, data_shards, data_sheet, data_strips, export, fit, predict, recipes
 
-    for module in (data_sheet, data_shards, data_compare, data_folds):
+    for module in (data_sheet, data_shards, data_strips, data_compare, data_folds):
         for command in module.COMMANDS:
             data.add_command(command)
     for module in (recipes, fit, predict, export):

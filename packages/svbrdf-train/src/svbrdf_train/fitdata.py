@@ -10,6 +10,9 @@ shards         every sample of the files but the last              the last ``va
 des18          the folder's ``trainBlended/`` (or the strips),     ``testBlended/`` when there is one,
                random crops and the 8 symmetries                   else the last ``validation`` strips;
                                                                    whole tiles resized
+materials      ``count`` samples an epoch of the strips of the     the held-out fold (``data.fold``),
+               folder or strip shard (:mod:`.data.strips`):         whole tiles resized, fixed photos
+               random windows, turns, photos on the fly            (none without a fold)
 mix            ``count`` samples an epoch, each drawn from entry   every entry's own validation set
                ``i`` of ``data.mix`` with probability w_i / sum w   (its ``validation``), put together
 =============  ==================================================  =====================================
@@ -22,6 +25,9 @@ follows from ``data.seed`` and the epoch, so a resumed fit sees the very same sa
 Des18 tiles are brought to ``train.resolution`` without changing the share of the surface a
 model sees (:mod:`svbrdf_train.data.fov`): training tiles are scaled by ``resolution / 256``
 before their random crop, validation tiles are resized whole.
+
+A ``materials`` source with a ``fold`` is also validated alone, as ``val_fold/``
+(:func:`fold_validation_set`): materials the fit never trained on, of the same kind.
 
 ``data.real_validation`` names a second validation set of real materials (a Des18 folder or
 shards), resized whole to the training resolution: :func:`real_validation_set`.
@@ -55,6 +61,7 @@ __all__ = [
     "device_batch",
     "open_materials",
     "real_validation_set",
+    "fold_validation_set",
     "set_epoch",
     "Mixture",
     "Resized",
@@ -72,6 +79,7 @@ class DataSettings(Protocol):
     seed: int
     validation: int
     capture: str
+    fold: str | None
     mix: tuple[dict, ...] | None
 
 
@@ -122,6 +130,7 @@ def section_datasets(d: DataSettings, res: int) -> tuple[Dataset, Dataset]:
             path=entry.get("path") or d.path,
             count=entry.get("count") or d.count,
             validation=d.validation if entry.get("validation") is None else entry["validation"],
+            fold=entry.get("fold"),
             mix=None,
         )
         try:
@@ -139,6 +148,8 @@ def section_datasets(d: DataSettings, res: int) -> tuple[Dataset, Dataset]:
 
 
 def _source_datasets(d: DataSettings, res: int) -> tuple[Dataset, Dataset]:
+    if d.source == "materials":
+        return _strip_datasets(d, res)
     if d.source == "procedural":
         photo = PhotoSettings.preset(d.capture)
         return (
@@ -368,6 +379,9 @@ def open_materials(path: str | Path, role: str) -> tuple[Dataset, str]:
     if not p.exists():
         raise DataError(f"{where}: no such file or folder; give a Des18 folder or .h5 shards")
     shards = [p] if p.suffix == ".h5" and p.is_file() else sorted(p.glob("*.h5")) if p.is_dir() else []
+    strips = _strip_materials(p, shards, role)
+    if strips is not None:
+        return strips
     if shards:
         from .data.shards import ShardDataset
 
@@ -397,3 +411,72 @@ def real_validation_set(path: str | None, resolution: int) -> tuple[Dataset, str
         return None
     data, what = open_materials(path, "data.real_validation")
     return Resized(data, resolution), f"{what} (resized whole to {resolution} px)"
+
+
+def _bank(path):
+    """The materials of a strip folder or shard, decoded once per process and path."""
+    from .data.strip_bank import MaterialBank
+
+    p = Path(path).expanduser().resolve()
+    stamp = p.stat().st_mtime_ns if p.exists() else 0
+    hit = _BANKS.get(p)
+    if hit is None or hit[0] != stamp:
+        hit = _BANKS[p] = (stamp, MaterialBank.open(p))
+    return hit[1]
+
+
+_BANKS: dict = {}
+
+
+def _strip_datasets(d: DataSettings, res: int) -> tuple[Dataset, Dataset]:
+    """``(train, held-out fold)`` of a ``materials`` source (:mod:`.data.strips`)."""
+    from .data.strips import MaterialStrips, fold_split
+
+    if not d.path:
+        raise DataError("data.source materials needs a path: give --data FOLDER (strips) or a strip shard")
+    paths = data_paths(d.path)
+    if len(paths) != 1:
+        raise DataError(f"data.source materials reads one folder or strip shard; got {len(paths)} paths")
+    bank = _bank(paths[0])
+    train, held = fold_split(bank.names, d.fold, str(paths[0]))
+    photo = PhotoSettings.preset(d.capture)
+    train_set = MaterialStrips(bank.select(train), d.count, res, seed=d.seed, photo=photo)
+    if not held:
+        return train_set, Subset(train_set, [])
+    val = bank.select(held)
+    return train_set, MaterialStrips(val, len(val), res, seed=d.seed + 1, photo=photo, augment=False)
+
+
+def fold_validation_set(d: DataSettings, res: int) -> tuple[Dataset, str] | None:
+    """``(dataset, description)`` of the held-out fold of the ``materials`` source (or mix
+    entry) that has a ``fold``, logged as ``val_fold/``; None when none has."""
+    entries = list(d.mix or ()) if d.source == "mix" else [{"source": d.source, "fold": d.fold}]
+    for entry in entries:
+        if entry.get("source") == "materials" and entry.get("fold"):
+            part = dataclasses.replace(d, source="materials", path=entry.get("path") or d.path, fold=entry["fold"], mix=None)
+            _, held = _strip_datasets(part, res)
+            names = ", ".join(s.removeprefix("strip:") for s in held.bank.names[:4])
+            return held, f"{len(held)} held-out materials (fold {entry['fold']}: {names}, ...)"
+    return None
+
+
+def _strip_materials(p: Path, shards: list[Path], role: str) -> tuple[Dataset, str] | None:
+    """Map-only strips (a strip folder or one strip shard) as materials with ground truth: each
+    whole tile under a fixed phone photo (:class:`.data.strips.MaterialStrips`); else None."""
+    from .data.strip_bank import is_strip_folder
+    from .data.strips import MaterialStrips
+
+    if len(shards) == 1 and shards[0] == p:
+        import h5py
+
+        with h5py.File(p, "r") as f:
+            if f.attrs.get("format") != "svbrdf-strips":
+                return None
+    elif not is_strip_folder(p):
+        return None
+    try:
+        bank = _bank(p)
+    except DataError as e:
+        raise DataError(f"{role} {e}") from None
+    data = MaterialStrips(bank, len(bank), bank.tile, seed=1, photo=PhotoSettings.preset("phone"), augment=False)
+    return data, f"{len(bank)} material strips of {p} (photographed under the phone capture)"

@@ -164,12 +164,13 @@ def _setup(
     recipe: Recipe, options: FitOptions, dist: distributed.Dist, state: dict | None
 ) -> tuple[Run, str | None]:
     """The run of a fit: data, the step (weights from ``--init`` or the checkpoint), hooks' state."""
-    from .fitdata import real_validation_set
+    from .fitdata import fold_validation_set, real_validation_set
     from .tracking import made_with
 
     t, out = recipe.train, Path(options.out)
     train_set, val_set = recipe.data.setup(t.resolution)
     real = real_validation_set(recipe.data.real_validation, t.resolution)
+    fold = fold_validation_set(recipe.data, t.resolution)
     order = BatchOrder(train_set, recipe, dist.rank, dist.world, dist.device)
     gan = GanStep(recipe, dist, order.epoch_samples)
     watch = Stopwatch(TrainClock(t.clock, dist.device))
@@ -206,7 +207,7 @@ def _setup(
     progress = Progress(
         order.total_steps, start=gan.step, budget_s=budget, enabled=options.progress, messages=dist.main
     )
-    validator = Validator(val_set, real[0] if real else None, t.batch, dist.device)
+    validator = Validator(val_set, real[0] if real else None, t.batch, dist.device, fold[0] if fold else None)
     run = Run(
         recipe, dist, gan, order, validator, out, watch, progress,
         run_id=run_id, init=init, start_step=gan.step, saved_at=gan.step, made_with=made_with(dist.device),

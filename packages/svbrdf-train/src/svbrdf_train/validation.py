@@ -1,7 +1,8 @@
 """Validation during a fit: RMSE of each map and of renderings, and a grid of samples.
 
-``val/rmse/<map>`` on the held-out set and ``val_real/rmse/<map>`` on the real validation set
-(``data.real_validation``) when there is one; ``<map>`` is each of :data:`METRIC_NAMES`
+``val/rmse/<map>`` on the held-out set, ``val_real/rmse/<map>`` on the real validation set
+(``data.real_validation``) when there is one, and ``val_fold/rmse/<map>`` on the materials a
+``materials`` source holds out (``data.fold``) when it does; ``<map>`` is each of :data:`METRIC_NAMES`
 (the four maps and a rendering under the evaluation lights). The grid shows
 :data:`GRID_SAMPLES` held-out samples: input, true and predicted maps and a flash rendering.
 """
@@ -25,10 +26,13 @@ GRID_MIN_SIZE = 96
 
 
 class Validator:
-    """Validates a generator on ``held_out`` and, if given, ``real`` (module doc)."""
+    """Validates a generator on ``held_out`` and, if given, ``real`` and ``fold`` (module doc)."""
 
-    def __init__(self, held_out: Dataset, real: Dataset | None, batch: int, device: torch.device):
+    def __init__(
+        self, held_out: Dataset, real: Dataset | None, batch: int, device: torch.device, fold: Dataset | None = None
+    ):
         self.held_out, self.real, self.batch, self.device = held_out, real, batch, device
+        self.fold = fold
         self.eval_scene = evaluation_scene(device=device)
         self.flash = preview_flash(device)
 
@@ -38,8 +42,9 @@ class Validator:
         g.eval()
         try:
             metrics, grid = self._validate_set(g, self.held_out, "val", grid=True)
-            if self.real is not None:
-                metrics.update(self._validate_set(g, self.real, "val_real", grid=False)[0])
+            for prefix, data in (("val_real", self.real), ("val_fold", self.fold)):
+                if data is not None:
+                    metrics.update(self._validate_set(g, data, prefix, grid=False)[0])
         finally:
             g.train()
         return metrics, grid

@@ -26,6 +26,7 @@ Examples:
   svbrdf-train fit --out runs/ours-cpu --resume        # continue after Ctrl-C or a crash
   svbrdf-train fit --recipe ours-finetune --size cpu --init runs/ours-cpu --data des18/  # fine-tune
   svbrdf-train fit --recipe ours-mix --size cpu --data des18/   # procedural and real, half and half
+  svbrdf-train fit --recipe ours-materials --size cpu --init pretrained --data real-train/  # real maps
   torchrun --nproc_per_node=2 -m svbrdf_train fit --recipe ours --size cpu   # data parallel
 
 \b
@@ -147,9 +148,10 @@ def system_metrics_option():
 )
 @click.option(
     "--init",
-    metavar="CHECKPOINT|RUN_ID",
-    help="Start from trained weights (a checkpoint, a fit's --out folder or an MLflow run id) in a "
-    "new fit and run: the generator's, and the discriminator's if it is the same. To fine-tune.",
+    metavar="CHECKPOINT|MODEL|RUN_ID",
+    help="Start from trained weights (a checkpoint, a fit's --out folder, a model file such as "
+    "pretrained or pretrained:NAME, or an MLflow run id) in a new fit and run: the generator's, "
+    "and the discriminator's if it is the same. To fine-tune.",
 )
 @click.option("--no-track", is_flag=True, help="Do not log to MLflow (local files only).")
 @system_metrics_option()
@@ -284,7 +286,11 @@ def _summary(result) -> list[str]:
     lines = [f"{result.status.lower()}: {result.message}"]
     if result.samples_per_s is not None:
         lines.append(f"  throughput: {result.samples_per_s:.1f} samples/s after warm-up")
-    for prefix, title in (("val/", "validation RMSE"), ("val_real/", "real validation RMSE")):
+    for prefix, title in (
+        ("val/", "validation RMSE"),
+        ("val_real/", "real validation RMSE"),
+        ("val_fold/", "held-out fold RMSE"),
+    ):
         shown = {k: v for k, v in result.metrics.items() if k.startswith(prefix + "rmse/")}
         if shown:
             lines.append(

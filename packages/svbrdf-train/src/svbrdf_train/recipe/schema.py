@@ -209,17 +209,19 @@ class OptimSection:
 #: ``CAPTURE_PRESETS``).
 CAPTURES = ("des18", "phone")
 #: Keys of one ``data.mix`` entry, and the sources an entry may name.
-MIX_KEYS = ("source", "weight", "path", "count", "validation")
-MIX_SOURCES = ("procedural", "shards", "des18")
+MIX_KEYS = ("source", "weight", "path", "count", "validation", "fold")
+MIX_SOURCES = ("procedural", "shards", "des18", "materials")
 
 
 @dataclass(frozen=True)
 class DataSection:
     source: str = param(
         "procedural",
-        "procedural (generated), shards (HDF5 files), des18 (a folder of strips) or mix (the "
-        "sources of data.mix, drawn at random with their weights)",
-        choices=("procedural", "shards", "des18", "mix"),
+        "procedural (generated), shards (HDF5 files), des18 (a folder of strips), materials (a "
+        "folder of map-only strips normal | diffuse | roughness | specular, or a strip shard: "
+        "random windows, turns and mirrors, photographed on the fly under data.capture) or mix "
+        "(the sources of data.mix, drawn at random with their weights)",
+        choices=("procedural", "shards", "des18", "materials", "mix"),
     )
     path: str | tuple[str, ...] | None = param(
         None,
@@ -255,9 +257,16 @@ class DataSection:
         "sample comes from entry i with probability weight_i / sum(weights); validation sets "
         "are each entry's own, put together",
     )
+    fold: str | None = param(
+        None,
+        "for materials: the materials held out of training and validated on (val_fold/): k/n "
+        "(fold k of n, each material's fold fixed by a hash of its name) or comma-separated "
+        "names; None: train on all of them",
+    )
     capture: str = param(
         "des18",
-        "how procedural materials are photographed (training and validation alike): des18 (a "
+        "how procedural materials and material strips are photographed (training and validation "
+        "alike): des18 (a "
         "flash at 1.8-2.75 whose irradiance follows the distance, +-0.75 EV, linear, as the "
         "Des18 inputs) or phone (the flashes fitted to real phone photos: distance 1.8-3.7 and "
         "intensity 10-21 drawn independently, white balance within 8%, half of the photos "
@@ -277,6 +286,8 @@ class DataSection:
             raise ValueError(
                 f"real_validation must name a folder or shards (or be null), got {self.real_validation!r}"
             )
+        if self.fold is not None and not str(self.fold).strip():
+            raise ValueError(f"fold must be k/n or material names (or null), got {self.fold!r}")
         if self.source == "mix":
             if not self.mix:
                 raise ValueError("source 'mix' needs data.mix: a list of {source, weight} entries")
@@ -321,6 +332,9 @@ def _check_mix_entry(i: int, entry: Mapping[str, Any]) -> None:
     )
     if path is not None and not named:
         raise ValueError(f"{where}.path must be a path or a list of paths, got {path!r}")
+    fold = entry.get("fold")
+    if fold is not None and (entry["source"] != "materials" or not isinstance(fold, str) or not fold.strip()):
+        raise ValueError(f"{where}.fold must be k/n or material names, on a materials entry only; got {fold!r}")
     if entry["source"] == "procedural" and path is not None:
         raise ValueError(f"{where}.path is {path!r} but its source is 'procedural', which reads no files")
 
