@@ -1,7 +1,8 @@
 """``fit --init``: start a new fit from the weights of another (fine-tuning).
 
-The source is a checkpoint file, the ``--out`` folder of a fit (its ``last.pt``), or an MLflow
-run id (the checkpoint that run logged). The new fit takes the generator's weights, and the
+The source is a checkpoint file, the ``--out`` folder of a fit (its ``last.pt``), a model file
+(``pretrained[:NAME]``, shipped with svbrdf-models, or a file ``export`` wrote: the generator
+alone), or an MLflow run id (the checkpoint that run logged). The new fit takes the generator's weights, and the
 discriminator's when both recipes have the same one; its optimisers, schedule, step count and
 time budget start from zero, and its MLflow run is a new one that records where the weights
 came from (tags ``svbrdf.init``, ``svbrdf.init_run``, ``svbrdf.init_step`` and
@@ -85,6 +86,9 @@ def load_init(arg: str) -> InitWeights:
     Raises:
         CheckpointError: nothing of the kind there, or a checkpoint without a generator.
     """
+    model = _model_file(arg)
+    if model is not None:
+        return model
     path = Path(arg).expanduser()
     run_id = None
     if path.is_dir() and (path / CHECKPOINT_NAME).is_file():
@@ -98,6 +102,7 @@ def load_init(arg: str) -> InitWeights:
     else:
         raise CheckpointError(
             f"--init {arg}: not a checkpoint file, a fit's folder holding {CHECKPOINT_NAME}, "
+            "a model file (pretrained[:NAME] or a .pt svbrdf-train export wrote), "
             "nor an MLflow run id (32 hex digits)"
         )
     if state.get("generator") is None or not state.get("recipe"):
@@ -111,6 +116,36 @@ def load_init(arg: str) -> InitWeights:
         run_id=run_id or state.get("run_id"),
         step=int(state.get("step", 0)),
         train_seconds=float(state.get("train_seconds", 0.0)),
+    )
+
+
+def _model_file(arg: str) -> InitWeights | None:
+    """The generator of a model file (``pretrained[:NAME]`` or a file ``export`` wrote), checked
+    as ``load_model`` checks it, with the recipe, steps and training time it records; None when
+    ``arg`` names no model file. A model file holds no discriminator: a new one is trained."""
+    import torch
+
+    from svbrdf_models.modelcheck import is_model_file, read_model_file
+    from svbrdf_models.modelfile import PRETRAINED, pretrained_path
+
+    text = str(arg)
+    if text == "pretrained" or text.startswith("pretrained:"):
+        path = pretrained_path(text.partition(":")[2] or PRETRAINED)
+    else:
+        path = Path(text).expanduser()
+        if not (path.is_file() and is_model_file(path)):
+            return None
+    read_model_file(path, "cpu", text)  # header, sidecar, size and weights checked
+    state = torch.load(path, map_location="cpu", weights_only=True)
+    provenance = state.get("provenance") or {}
+    return InitWeights(
+        source=text,
+        generator={k: v.float() for k, v in state["weights"].items()},
+        discriminator=None,
+        recipe=recipe_from_dict(state["recipe"], where=f"--init {text}"),
+        run_id=provenance.get("run_id"),
+        step=int(provenance.get("steps", 0)),
+        train_seconds=float(provenance.get("train_seconds", 0.0)),
     )
 
 
