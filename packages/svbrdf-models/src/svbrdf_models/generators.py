@@ -96,6 +96,12 @@ class GeneratorConfig:
         "with input_norm median and the global track, feed log2 of the scale the photo was "
         "normalised by to the global track, so the network may learn to use the exposure",
     )
+    normal_scale: float = param(
+        1.0,
+        "factor of the predicted relief: the normal's x and y are scaled before normalising, so "
+        "below 1 flattens the normals toward +z (set after training from held-out materials, "
+        "benchmarks/normal_scale.py); 1: the network's own",
+    )
     init_std: float = param(
         0.02,
         "std of the normal init of the U-Net's conv and FC weights (pix2pix); attention modules keep "
@@ -138,6 +144,8 @@ class GeneratorConfig:
                 "input_level feeds the normalisation's scale to the global track: it needs "
                 "input_norm: median and global_track: true"
             )
+        if not 0.0 <= self.normal_scale <= 1.0:
+            raise ValueError(f"normal_scale must be in [0, 1] (0: flat normals), got {self.normal_scale}")
         if not 0.0 <= self.init_std < math.inf:
             raise ValueError(f"init_std must be a finite number >= 0 (0: torch's init), got {self.init_std}")
 
@@ -352,19 +360,20 @@ class UNetGenerator(nn.Module):
             if k < self.config.depth - 1:
                 y = torch.cat([y, skips[k]], dim=1)
             y = self.up[k](y)
-        return maps_from_output(torch.tanh(y))
+        return maps_from_output(torch.tanh(y), self.config.normal_scale)
 
 
-def maps_from_output(t: Tensor) -> SVBRDF:
+def maps_from_output(t: Tensor, normal_scale: float = 1.0) -> SVBRDF:
     """The 9-channel tanh output ``(B, 9, H, W)`` in [-1, 1] -> SVBRDF.
 
-    Normal: (x, y, 1) normalised, so unit length with z > 0 and never degenerate.
+    Normal: (x, y, 1) normalised, so unit length with z > 0 and never degenerate; x and y are
+    first scaled by ``normal_scale`` (1: as the network gives them).
     Albedos and roughness: (t + 1) / 2, within [0, 1].
     The maps are float32 whatever the network ran in: under autocast some ops of this head
     (rsqrt on CUDA) run in float32 and others not, and the maps must share one dtype.
     """
     t = t.float()
-    nxy = t[:, 0:2]
+    nxy = t[:, 0:2] if normal_scale == 1.0 else t[:, 0:2] * normal_scale
     n = torch.cat([nxy, torch.ones_like(t[:, :1])], dim=1)
     n = n * torch.rsqrt(1.0 + (nxy * nxy).sum(dim=1, keepdim=True))
     rest = (t[:, 2:] + 1.0) * 0.5
