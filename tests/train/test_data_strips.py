@@ -221,3 +221,28 @@ def test_a_fit_on_strips_validates_the_held_out_fold(strips, tmp_path):
     assert result.status == "FINISHED"
     assert {f"val_fold/rmse/{m}" for m in ("normal", "diffuse", "render")} <= set(result.metrics)
     assert all(np.isfinite(v) for v in result.metrics.values())
+
+
+def test_init_takes_the_shipped_model_file():
+    """``fit --init pretrained``: the shipped generator, its steps and time, no discriminator;
+    it matches ours-materials at the cpu size, the recipe meant to go on from it."""
+    from svbrdf_models import load_model
+    from svbrdf_train.init import check_generator, load_init
+    from svbrdf_train.recipe import load_recipe
+
+    init = load_init("pretrained")
+    shipped = load_model("pretrained")
+    assert init.discriminator is None and init.step == shipped.steps > 0
+    state = shipped.generator.state_dict()
+    assert set(init.generator) == set(state) and all(torch.equal(init.generator[k], state[k]) for k in state)
+    check_generator(init, load_recipe("ours-materials", "cpu"))  # raises on another network
+
+
+def test_compare_sets_a_training_mix_with_strips_against_real(strips):
+    result = CliRunner().invoke(
+        cli, ["data", "compare", str(strips), "-n", "4", "-r", "32", "--strips", str(strips), "--strip-share", "0.5"]
+    )
+    assert result.exit_code == 0, result.output
+    assert "50% of them strips" in result.output and "| specular level |" in result.output
+    alone = CliRunner().invoke(cli, ["data", "compare", str(strips), "-n", "4", "--strip-share", "0.5"])
+    assert alone.exit_code == 2 and "give --strips DIR with it" in alone.stderr, alone.output

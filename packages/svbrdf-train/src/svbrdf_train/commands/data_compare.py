@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 import torch
 
-from .options import SEED, explicit
+from .options import SEED, FiniteFloatRange, explicit
 
 __all__ = ["COMMANDS", "compare"]
 
@@ -17,6 +17,12 @@ _EPILOG = """\b
 Examples:
   svbrdf-train data compare DATA/des18-dev
   svbrdf-train data compare DATA/des18-dev -n 256 -r 128 -o compare.png --json compare.json
+  svbrdf-train data compare DATA/unseen-dev -n 256 --strips DATA/real-train --strip-share 0.5
+
+\b
+REAL_FOLDER may also hold map-only strips (normal | diffuse | roughness | specular, like
+DATA/real-train): each whole tile is photographed under a fixed phone flash. --strips makes
+a share of the training side real strips, cut and photographed as a fit cuts them.
 
 \b
 REAL_FOLDER holds Des18 strips (input | normal | diffuse | roughness | specular), read as
@@ -56,6 +62,33 @@ def _read_real(folder: Path, resolution: int, limit: int | None) -> dict:
     count = len(data) if limit is None else min(limit, len(data))
     with click.progressbar(range(count), label="reading real", file=sys.stderr, width=30) as bar:
         return default_collate([data[i] for i in bar])
+
+
+def _strip_samples(path: Path, count: int, resolution: int, seed: int) -> tuple[dict, list[str]]:
+    """``count`` training samples of a strip folder or shard, drawn as a fit draws them."""
+    from torch.utils.data import default_collate
+
+    from ..data.capture import PhotoSettings
+    from ..data.strip_bank import MaterialBank
+    from ..data.strips import MaterialStrips
+
+    bank = MaterialBank.open(path)
+    data = MaterialStrips(bank, count, resolution, seed=seed, photo=PhotoSettings.preset("phone"))
+    batch = default_collate(data.__getitems__(list(range(count))))
+    return batch, ["strip"] * count
+
+
+def _training(count, resolution, seed, strips, share) -> tuple[dict, list[str]]:
+    """The training side: procedural samples, with a ``share`` of them strips when given."""
+    n_strips = round(count * share) if strips is not None else 0
+    parts = []
+    if count - n_strips:
+        parts.append(_procedural(count - n_strips, resolution, seed))
+    if n_strips:
+        parts.append(_strip_samples(strips, n_strips, resolution, seed))
+    batch = {key: torch.cat([p[0][key] for p in parts]) for key in ("input", "maps")}
+    batch["name"] = [n for p in parts for n in p[0]["name"]]
+    return batch, [f for p in parts for f in p[1]]
 
 
 def _procedural(count: int, resolution: int, seed: int) -> tuple[dict, list[str]]:
@@ -149,8 +182,22 @@ def _sheet(proc: dict, families: list[str], real: dict, rows: int):
     type=click.Path(dir_okay=False, path_type=Path),
     help="Also write the statistics (summaries, distances, per-material values) as JSON.",
 )
+@click.option(
+    "--strips",
+    type=click.Path(exists=True, path_type=Path),
+    default=None,
+    help="Make --strip-share of the training side real map-only strips (a folder or strip shard), "
+    "drawn as a fit draws them: the training data of a mix such as ours-materials.",
+)
+@click.option(
+    "--strip-share",
+    type=FiniteFloatRange(0, 1),
+    default=0.5,
+    show_default=True,
+    help="Share of --strips samples on the training side.",
+)
 @click.pass_context
-def compare(ctx, real_folder, count, resolution, seed, real_count, sheet_path, rows, json_path):
+def compare(ctx, real_folder, count, resolution, seed, real_count, sheet_path, rows, json_path, strips, strip_share):
     """Set N procedural samples against the real materials of REAL_FOLDER: one row per
     statistic with each set's summary and the distance between them (see below)."""
     if sheet_path is None and explicit(ctx, "rows"):
@@ -158,11 +205,14 @@ def compare(ctx, real_folder, count, resolution, seed, real_count, sheet_path, r
     from ..data.procedural import GENERATOR_VERSION
     from ..data.stats import compare as compare_sets
 
+    if strips is None and explicit(ctx, "strip_share"):
+        raise click.UsageError(f"--strip-share {strip_share} is the share of --strips: give --strips DIR with it")
     real = _read_real(real_folder, resolution, real_count)
-    proc, families = _procedural(count, resolution, seed)
+    proc, families = _training(count, resolution, seed, strips, strip_share)
     results = compare_sets(proc, real)
+    mixed = f", {strip_share:.0%} of them strips of {strips}" if strips is not None else ""
     click.echo(
-        f"procedural: {count} samples of seed {seed} (generator {GENERATOR_VERSION}); "
+        f"procedural: {count} samples of seed {seed} (generator {GENERATOR_VERSION}){mixed}; "
         f"real: {len(real['name'])} materials of {real_folder}; both {resolution}x{resolution}"
     )
     click.echo(table(results))
