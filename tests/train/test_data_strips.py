@@ -246,3 +246,19 @@ def test_compare_sets_a_training_mix_with_strips_against_real(strips):
     assert "50% of them strips" in result.output and "| specular level |" in result.output
     alone = CliRunner().invoke(cli, ["data", "compare", str(strips), "-n", "4", "--strip-share", "0.5"])
     assert alone.exit_code == 2 and "give --strips DIR with it" in alone.stderr, alone.output
+
+
+@pytest.mark.parametrize(
+    ("fold", "needles"),
+    [("1/100", ["fold '1/100'", "names no material"]), ("oak", ["'oak' is no known material", "strips"])],
+)
+def test_fit_refuses_a_fold_that_names_no_material(strips, tmp_path, fold, needles):
+    mix = f"[{{source: materials, weight: 1, fold: '{fold}'}}]"
+    args = ["fit", "-q", "--no-track", "--recipe", "ours-materials", "--size", "smoke", "--data", str(strips)]
+    _refused([*args, "--out", str(tmp_path / "out"), "--set", f"data.mix={mix}"], *needles)
+
+
+def test_fit_refuses_a_folder_without_strips(tmp_path):
+    (tmp_path / "empty").mkdir()
+    args = ["fit", "-q", "--no-track", "--recipe", "ours-materials", "--size", "smoke"]
+    _refused([*args, "--data", str(tmp_path / "empty"), "--out", str(tmp_path / "out")], "empty", "no material strips")
