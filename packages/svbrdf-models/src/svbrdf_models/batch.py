@@ -178,11 +178,16 @@ def load_scene(path):
 
 
 def folder_name(path: Path, used: set[str]) -> str:
-    """The photo's stem, numbered (``NAME-2``, ...) when an earlier photo of the batch took it."""
-    name, k = path.stem, 1
+    """The photo's stem as the name of one folder inside ``-o``, numbered (``NAME-2``, ...) when
+    an earlier photo of the batch took it. Leading dots and spaces go (``...png`` would name
+    ``..``, the folder above ``-o``; ``..png`` would name ``.``, ``-o`` itself; ``.x.png`` a
+    hidden folder), and a stem left empty becomes ``photo``: a folder made from a photo's name
+    never leaves ``-o``."""
+    stem = path.stem.lstrip(". ").rstrip(" ") or "photo"
+    name, k = stem, 1
     while name in used:
         k += 1
-        name = f"{path.stem}-{k}"
+        name = f"{stem}-{k}"
     return name
 
 

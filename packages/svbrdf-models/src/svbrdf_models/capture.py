@@ -33,7 +33,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from svbrdf_render import MAP_NAMES, MIN_REFINE_SIDE, SVBRDF, Refinement, Scene, linear_to_srgb
-from svbrdf_render.files import write_text
+from svbrdf_render.files import locked, write_text
 
 from .errors import DataError
 from .figures import HEAT_MAX, error_heatmap, image_grid
@@ -401,7 +401,38 @@ def _rerender_figure(photo: Tensor, renderings: list[Tensor], rmse: list[float],
 
 
 def write_summary(path, entries: list[dict], **extra) -> dict:
-    """``summary.json``: the entries, the median RMSE over the photos captured, and ``extra``."""
+    """``summary.json``: the entries, the median RMSE over the photos captured, and ``extra``.
+
+    An earlier ``summary.json`` in the folder (another run into the same ``-o``, or a run
+    stopped by Ctrl-C) keeps its entries of other photos: entries are merged by material folder
+    (by photo for failed ones), this run's replacing the earlier run's of the same photo. The
+    read and the write are one step under a lock of the folder, so two runs lose no entry."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with locked(path.parent):
+        return _write_summary(path, _merged(_earlier_entries(path), entries), extra)
+
+
+def _entry_key(entry: dict) -> str:
+    return f"folder:{entry['name']}" if entry.get("name") else f"photo:{entry.get('photo')}"
+
+
+def _earlier_entries(path: Path) -> list[dict]:
+    """The entries of an earlier summary.json at ``path`` (none when missing or unreadable)."""
+    try:
+        earlier = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return []
+    entries = earlier.get("entries") if isinstance(earlier, dict) else None
+    return [e for e in entries if isinstance(e, dict)] if isinstance(entries, list) else []
+
+
+def _merged(earlier: list[dict], entries: list[dict]) -> list[dict]:
+    new = {_entry_key(e) for e in entries}
+    return [e for e in earlier if _entry_key(e) not in new] + list(entries)
+
+
+def _write_summary(path: Path, entries: list[dict], extra: dict) -> dict:
     import statistics
 
     values = [e["rmse"] for e in entries if e.get("status") == "ok" and e.get("rmse") is not None]

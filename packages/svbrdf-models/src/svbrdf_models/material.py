@@ -44,7 +44,7 @@ import torch
 from torch import Tensor
 
 from svbrdf_render import SVBRDF, encode_normal, linear_to_srgb, write_image
-from svbrdf_render.files import atomic_output, temporary_path, write_failure, write_text
+from svbrdf_render.files import atomic_output, locked, temporary_path, write_failure, write_text
 
 from .errors import DataError
 
@@ -115,10 +115,11 @@ def _read_json(path: Path) -> dict | None:
     return data if isinstance(data, dict) else None
 
 
-def check_material_folder(folder, photo: Path, flag: str = "-o") -> None:
+def check_material_folder(folder, photo: Path, flag: str = "-o", *, sha256: str | None = None) -> None:
     """Refuse (:class:`DataError`, exit 2) a folder that holds another material than ``photo``'s:
-    a ``material.json`` naming another photo (by SHA-256), an unreadable one, or maps with no
-    ``material.json``. A missing or empty folder, or one of the same photo, passes."""
+    a ``material.json`` naming another photo (by SHA-256, ``sha256`` when known), an unreadable
+    one, or maps with no ``material.json``. A missing or empty folder, or one of the same photo,
+    passes."""
     folder = Path(folder)
     if not folder.is_dir():
         return
@@ -131,7 +132,7 @@ def check_material_folder(folder, photo: Path, flag: str = "-o") -> None:
                 "another output folder or remove it"
             )
         theirs = (data.get("photo") or {}).get("sha256")
-        if theirs != photo_sha256(photo):
+        if theirs != (sha256 or photo_sha256(photo)):
             named = (data.get("photo") or {}).get("file") or "another photo"
             raise DataError(
                 f"{flag} {folder}: holds the material of {named}, not of {photo}; choose another "
@@ -291,10 +292,15 @@ def write_material(folder, svbrdf: SVBRDF, content: MaterialContent, options) ->
     stage.mkdir()
     try:
         record = _write_all(stage, svbrdf, content, options)
-        try:
-            _move_in(stage, folder)
-        except OSError as e:
-            raise write_failure(folder, e) from None
+        photo = record["photo"]
+        # The check and the move are one step: another capture into the same folder (a second
+        # command on a photo of the same name) waits here, then finds this material.
+        with locked(folder.parent):
+            check_material_folder(folder, Path(photo["file"]), sha256=photo["sha256"])
+            try:
+                _move_in(stage, folder)
+            except OSError as e:
+                raise write_failure(folder, e) from None
     finally:
         shutil.rmtree(stage, ignore_errors=True)
     return record

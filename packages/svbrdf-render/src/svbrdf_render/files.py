@@ -36,6 +36,7 @@ __all__ = [
     "check_output_folder",
     "INTERRUPTED",
     "sigterm_as_interrupt",
+    "locked",
 ]
 
 #: The exit status of a command stopped by Ctrl-C or SIGTERM (128 + SIGINT).
@@ -283,3 +284,33 @@ def sigterm_as_interrupt() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+@contextlib.contextmanager
+def locked(path: str | os.PathLike) -> Iterator[None]:
+    """Hold an exclusive lock on ``path`` for the block; waits for another holder to leave.
+
+    ``path`` is a folder (locked as it is: nothing is written in it) or a file (created if
+    missing and left in place, so that every process locks the same file).
+
+    The lock is the operating system's (``flock`` on POSIX; ``filelock``, which torch installs,
+    elsewhere): a process that dies, even by SIGKILL, drops it. Used where a check and the
+    write it guards must be one step across processes: two captures into one folder.
+    """
+    path = Path(path)
+    if not path.is_dir():
+        path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows
+        from filelock import FileLock
+
+        with FileLock(str(path / ".lock" if path.is_dir() else path)):
+            yield
+        return
+    fd = os.open(path, os.O_RDONLY) if path.is_dir() else os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # closing the descriptor drops the lock

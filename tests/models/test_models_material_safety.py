@@ -1,0 +1,128 @@
+"""Nothing lost by ``svbrdf-models predict``: a folder made from a photo's name never leaves
+``-o``, two captures of photos of the same name into one ``-o`` cannot both win, and
+``summary.json`` keeps the entries of earlier runs (issue 36, "Data lost")."""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+from pathlib import Path
+
+import pytest
+import torch
+
+from svbrdf_models.batch import folder_name
+from svbrdf_models.capture import write_summary
+from svbrdf_models.cli import main
+from svbrdf_render import render, write_image
+from svbrdf_render.examples import example_material
+from svbrdf_render.files import locked
+from svbrdf_render.mapfiles import linear_to_srgb
+
+FAST = ["--refine", "0", "--relit", "none"]
+
+
+def _photo_file(path: Path, name: str = "tiles", size: int = 64) -> Path:
+    from svbrdf_render import Scene
+
+    photo = render(example_material(name, size), Scene.flash(intensity=12.0)).clamp(0, 1)[0]
+    return write_image(path, linear_to_srgb(photo))
+
+
+@pytest.mark.parametrize(
+    ("name", "folder"), [("...png", "photo"), ("..png", "photo"), (".hidden.png", "hidden"), ("a.b.png", "a.b")]
+)
+def test_a_folder_named_after_a_photo_stays_inside_out(name, folder):
+    assert folder_name(Path(name), set()) == folder
+    assert folder_name(Path(name), {folder}) == f"{folder}-2"
+
+
+def test_a_photo_named_dots_does_not_replace_the_folder_above_out(tmp_path):
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "index.html").write_text("my page\n")
+    photo = _photo_file(site / "...png")
+    assert main(["predict", str(photo), "-o", str(site / "out"), *FAST]) == 0
+    assert (site / "index.html").read_text() == "my page\n"
+    assert (site / "out" / "photo" / "material.json").is_file()
+    assert sorted(p.name for p in (site / "out").iterdir()) == ["photo", "summary.json"]
+
+
+def _capture(args):
+    photo, out = args
+    return main(["predict", photo, "-o", out, *FAST])
+
+
+def test_two_captures_of_same_named_photos_into_one_folder_lose_nothing(tmp_path):
+    """Two photos ``a/tiles.png`` and ``b/tiles.png`` (different materials) captured at once into
+    one ``-o``: one wins the folder, the other is refused (exit 2); never both 0 with one lost."""
+    a = _photo_file((tmp_path / "a").mkdir() or tmp_path / "a" / "tiles.png", "tiles")
+    b = _photo_file((tmp_path / "b").mkdir() or tmp_path / "b" / "tiles.png", "leather")
+    for trial in range(3):
+        out = tmp_path / f"out{trial}"
+        with multiprocessing.get_context("fork").Pool(2) as pool:
+            codes = pool.map(_capture, [(str(a), str(out)), (str(b), str(out))])
+        assert sorted(codes) == [0, 2], codes
+        record = json.loads((out / "tiles" / "material.json").read_text())
+        winner = a if codes[0] == 0 else b
+        assert record["photo"]["file"] == winner.name
+        from svbrdf_models.material import photo_sha256
+
+        assert record["photo"]["sha256"] == photo_sha256(winner)
+
+
+def test_summary_keeps_earlier_photos_and_replaces_a_photos_own_entry(tmp_path):
+    out = tmp_path / "maps"
+    write_summary(out / "summary.json", [{"name": "a", "photo": "a.png", "status": "ok", "rmse": 0.1}], model="m1")
+    write_summary(out / "summary.json", [{"name": "b", "photo": "b.png", "status": "ok", "rmse": 0.3}], model="m1")
+    second = write_summary(
+        out / "summary.json",
+        [{"name": "a", "photo": "a.png", "status": "ok", "rmse": 0.2}, {"photo": "c.png", "status": "failed"}],
+        model="m2",
+    )
+    on_disk = json.loads((out / "summary.json").read_text())
+    assert on_disk == second
+    assert [(e.get("name"), e.get("rmse")) for e in on_disk["entries"]] == [("b", 0.3), ("a", 0.2), (None, None)]
+    assert (on_disk["photos"], on_disk["captured"], on_disk["failed"]) == (3, 2, 1)
+    assert on_disk["median_rmse"] == pytest.approx(0.25) and on_disk["model"] == "m2"
+
+
+def test_a_rerun_after_an_interrupt_keeps_the_photos_done_before(tmp_path):
+    one, two = _photo_file(tmp_path / "one.png"), _photo_file(tmp_path / "two.png", "leather")
+    out = tmp_path / "maps"
+    assert main(["predict", str(one), "-o", str(out), *FAST]) == 0
+    assert main(["predict", str(two), "-o", str(out), *FAST]) == 0
+    names = [e["name"] for e in json.loads((out / "summary.json").read_text())["entries"]]
+    assert names == ["one", "two"]
+
+
+def test_the_lock_is_exclusive_across_processes(tmp_path):
+    """While one process holds the folder's lock, another waits for it."""
+    import time
+
+    ctx = multiprocessing.get_context("fork")
+    ready, release = ctx.Event(), ctx.Event()
+
+    def hold():
+        with locked(tmp_path):
+            ready.set()
+            release.wait(10)
+
+    p = ctx.Process(target=hold)
+    p.start()
+    assert ready.wait(10)
+    waited = ctx.Event()
+
+    def take():
+        with locked(tmp_path):
+            waited.set()
+
+    q = ctx.Process(target=take)
+    q.start()
+    time.sleep(0.3)
+    assert not waited.is_set()  # still held by the first
+    release.set()
+    q.join(10)
+    p.join(10)
+    assert waited.is_set()
+    assert list(tmp_path.iterdir()) == []  # a folder's lock writes nothing in it
