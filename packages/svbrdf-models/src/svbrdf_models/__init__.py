@@ -72,6 +72,7 @@ _LAZY = {
     "square_photo": "modelfile",
     "PRETRAINED": "modelfile",
     "MultiGANDiscriminator": "discriminators",
+    "load_photo": "photos",
 }
 
 

@@ -25,6 +25,11 @@ from svbrdf_render import SVBRDF
 __all__ = ["TrainedModel", "square_photo"]
 
 
+#: Largest value a photo may hold (linear values are in [0, 1]; a little over 1 is rounding or
+#: a highlight a resize overshot), and how far below 0 noise may take it.
+_MAX_VALUE, _VALUE_SLACK = 1.05, 0.05
+
+
 @dataclass
 class TrainedModel:
     """A trained generator (eval mode, float32) and what its file says about it.
@@ -67,6 +72,14 @@ class TrainedModel:
         backend: str | None = None,
     ) -> SVBRDF:
         """Maps of linear photos: ``(3, H, W)`` (one material) or ``(N, 3, H, W)``.
+
+        The photo contract: a float tensor of *linear* values in ``[0, 1]`` (radiance as the
+        sensor saw it, not sRGB-encoded), RGB channels first, any size of at least a few
+        pixels; the largest centred square is used. :func:`svbrdf_models.load_photo` turns a
+        JPEG or PNG file into exactly that (``load_photo(path)[0]``; ``linear=True`` for files
+        that hold linear values). Integer codes, values outside ``[0, 1]`` (a photo still in
+        0-255, or negative values), NaN and empty tensors are refused with one line
+        (:class:`~svbrdf_models.errors.DataError`), never guessed at.
 
         ``refine=0``: the largest centred square is resized to :attr:`resolution` (antialiased,
         on linear values) when it is not that size already; the maps are at :attr:`resolution`.
@@ -123,7 +136,18 @@ class TrainedModel:
                 "linear values; convert 8-bit sRGB with svbrdf_render.srgb_to_linear(photo / 255), or "
                 "read the file with svbrdf_models.capture.load_photo"
             )
+        if batch.numel() == 0:
+            raise DataError(f"{self.source}: the photo is empty ({tuple(photo.shape)}); give a photo with pixels")
         bad = int((~torch.isfinite(batch)).sum())
+        if not bad:
+            low, high = float(batch.min()), float(batch.max())
+            if high > _MAX_VALUE or low < -_VALUE_SLACK:
+                raise DataError(
+                    f"{self.source}: the photo's values run from {low:.3g} to {high:.3g}, not linear "
+                    "values in [0, 1]"
+                    + ("; a photo in 0-255 needs svbrdf_render.srgb_to_linear(photo / 255)" if high > _MAX_VALUE else "")
+                    + "; or read the file with svbrdf_models.load_photo"
+                )
         if bad:
             raise DataError(
                 f"{self.source}: the photo holds {bad} NaN or infinite values of {batch.numel()}; "

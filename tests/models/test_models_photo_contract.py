@@ -1,0 +1,44 @@
+"""``TrainedModel.predict``'s photo contract: linear floats in [0, 1], read by the public
+``svbrdf_models.load_photo``; a photo still in 0-255, negative or empty is refused in one line
+(issue 36: a 0-255 float photo used to give diffuse 0.44-0.98 without a word)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+import svbrdf_models as sm
+from svbrdf_models.errors import DataError
+from svbrdf_render import Scene, render, write_image
+from svbrdf_render.examples import example_material
+from svbrdf_render.mapfiles import linear_to_srgb
+
+
+@pytest.fixture(scope="module")
+def model():
+    return sm.load_model("pretrained")
+
+
+@pytest.mark.parametrize(
+    ("photo", "needle"),
+    [
+        (torch.rand(3, 64, 64) * 255, "needs svbrdf_render.srgb_to_linear(photo / 255)"),
+        (torch.rand(3, 64, 64) - 0.5, "not linear values in [0, 1]"),
+        (torch.zeros(3, 0, 64), "empty"),
+    ],
+)
+def test_photos_outside_the_contract_are_refused(model, photo, needle):
+    with pytest.raises(DataError) as e:
+        model.predict(photo)
+    assert needle in str(e.value) and "\n" not in str(e.value)
+
+
+def test_load_photo_is_public_and_gives_what_predict_takes(model, tmp_path):
+    linear = render(example_material("tiles", 80), Scene.flash(intensity=12.0)).clamp(0, 1)[0]
+    path = write_image(tmp_path / "shot.png", linear_to_srgb(linear))
+    photo, notes = sm.load_photo(path)
+    assert photo.dtype == torch.float32 and photo.shape == (3, 80, 80)
+    assert float(photo.min()) >= 0 and float(photo.max()) <= 1
+    assert torch.allclose(photo, linear, atol=0.01)  # decoded back to linear
+    maps = model.predict(photo)
+    assert maps.size == (model.resolution, model.resolution)
