@@ -9,8 +9,10 @@ sRGB, as DATA/real-dev's README says) and every model:
 - **highlight imprint** of each map: the point under the flash is the brightest point of the
   blurred photo; the map's luminance is averaged over 12 rings around it (out to half the
   photo's width), and the imprint is the spread (standard deviation) of those ring means over
-  the spread of the map itself. A map that follows the material, not the flash, has ring means
-  that barely move: near 0. A disc or ring of the flash stamped into the map: near 1.
+  the spread of the map itself (at least ``SPREAD_FLOOR``, 0.02: a nearly constant map, such as
+  a dielectric's specular at 0.04, would otherwise turn invisible ring steps into a large
+  ratio). A map that follows the material, not the flash, has ring means that barely move:
+  near 0. A disc or ring of the flash stamped into the map: near 1.
 - **metallic**: the mean and the 95th percentile of the metallic map the glTF export would
   write (:func:`svbrdf_render.to_metal_rough`); a dielectric (paper, tiles, wood, fabric)
   should sit near 0.
@@ -36,6 +38,7 @@ import torch.nn.functional as F
 
 RINGS = 12
 SIZE = 128
+SPREAD_FLOOR = 0.02
 MAPS = ("normal", "diffuse", "roughness", "specular", "metallic")
 
 
@@ -60,8 +63,7 @@ def imprint(image: torch.Tensor, centre: tuple[float, float]) -> float:
     r = ((rows - centre[0]) ** 2 + (cols - centre[1]) ** 2).sqrt()
     edges = torch.linspace(0, w / 2, RINGS + 1)
     means = [y[(r >= a) & (r < b)].mean() for a, b in zip(edges[:-1], edges[1:], strict=True) if bool(((r >= a) & (r < b)).any())]
-    spread = float(y.std())
-    return float(torch.stack(means).std()) / spread if spread > 1e-6 else 0.0
+    return float(torch.stack(means).std()) / max(float(y.std()), SPREAD_FLOOR)
 
 
 def _maps(model, photo: torch.Tensor) -> dict[str, torch.Tensor]:
