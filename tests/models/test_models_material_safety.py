@@ -126,3 +126,16 @@ def test_the_lock_is_exclusive_across_processes(tmp_path):
     p.join(10)
     assert waited.is_set()
     assert list(tmp_path.iterdir()) == []  # a folder's lock writes nothing in it
+
+
+@pytest.mark.parametrize("stem", ["café", "фото", "2024 shot"])
+def test_photo_names_outside_ascii_make_a_material(tmp_path, stem):
+    """A photo named in any script is captured (the MaterialX name is made ASCII), where it used
+    to fail after the computing was done ("not a MaterialX name")."""
+    from svbrdf_render.materialfiles import _MTLX_NAME
+
+    photo = _photo_file(tmp_path / f"{stem}.png")
+    assert main(["predict", str(photo), "-o", str(tmp_path / "out"), *FAST]) == 0
+    text = (tmp_path / "out" / stem / "material.mtlx").read_text()
+    name = text.split('<surfacematerial name="', 1)[1].split('"', 1)[0]
+    assert _MTLX_NAME.match(name), name

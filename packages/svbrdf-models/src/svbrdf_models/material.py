@@ -37,6 +37,7 @@ import hashlib
 import json
 import os
 import shutil
+import unicodedata
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -274,8 +275,13 @@ def write_gif(path: Path, frames: Tensor, ms: int = 80) -> Path:
 
 
 def _mtlx_name(name: str) -> str:
-    """A MaterialX element name (letters, digits, underscores, not starting with a digit)."""
-    cleaned = "".join(c if c.isalnum() else "_" for c in name) or "material"
+    """A MaterialX element name (ASCII letters, digits, underscores, not starting with a digit):
+    accents dropped (``café`` -> ``cafe``), every other character an underscore, and
+    ``material`` for a name with no ASCII letter or digit left (``фото``)."""
+    folded = unicodedata.normalize("NFKD", name).encode("ascii", "ignore").decode("ascii")
+    cleaned = "".join(c if c.isalnum() else "_" for c in folded)
+    if not any(c.isalnum() for c in cleaned):
+        cleaned = "material"
     return cleaned if not cleaned[0].isdigit() else f"m_{cleaned}"
 
 
