@@ -35,12 +35,12 @@ def _normals_of(h: torch.Tensor) -> torch.Tensor:
     return safe_normalize(torch.stack([-dx, drow, torch.ones_like(h)]), dim=0)
 
 
-def write_strip(path, size=64, seed=0, *, diffuse=None, specular=0.04, normal=None):
+def write_strip(path, size=64, seed=0, *, diffuse=None, specular=0.04, normal=None, roughness=None):
     """One strip PNG: normal | diffuse | roughness | specular."""
     g = torch.Generator().manual_seed(seed)
     n = _normals_of(_height(size, seed)) if normal is None else normal
     d = 0.1 + 0.6 * torch.rand(3, size, size, generator=g) if diffuse is None else diffuse.expand(3, size, size)
-    r = (0.2 + 0.6 * torch.rand(1, size, size, generator=g)).expand(3, -1, -1)
+    r = (0.2 + 0.6 * torch.rand(1, size, size, generator=g) if roughness is None else roughness).expand(3, size, size)
     s = torch.full((3, size, size), specular)
     write_image(path, torch.cat([encode_normal(n), d, r, s], dim=2), bits=8)
     return path
@@ -287,3 +287,41 @@ def test_a_fit_on_strips_stopped_and_resumed_ends_bitwise_as_one_that_never_stop
     for part in ("generator", "discriminator"):
         for name, tensor in a[part].items():
             assert torch.equal(tensor, b[part][name]), (part, name)
+
+
+# -- the batched path of data.generate: device ------------------------------------------------
+
+
+def test_the_batched_path_gives_the_cpu_paths_whole_tiles_under_every_turn(strips):
+    """Windows of the resolution's size are read at pixel centres: the CPU path's values (to
+    float16's rounding), under each of the 8 turns and mirrors, normals turned alike."""
+    from svbrdf_train.data.strip_batch import strip_batch
+
+    data = MaterialStrips(MaterialBank.open(strips), 40, 64, photo=PhotoSettings())
+    indices = list(range(40))
+    assert len({data.placement(i).dihedral for i in indices}) == 8
+    cpu = torch.stack([data[i]["maps"] for i in indices])
+    batched = strip_batch(data, indices, "cpu")
+    assert batched["maps"].shape == cpu.shape and batched["name"] == [data[i]["name"] for i in indices]
+    assert float((batched["maps"] - cpu).abs().max()) < 2e-3
+
+
+def test_the_batched_path_resamples_windows_as_the_cpu_path_does_on_average(tmp_path):
+    """Resized windows: bilinear reads of a mip level, averaged 2x2, against the exact area
+    filter: the same means, a small difference per pixel on smooth maps."""
+    from svbrdf_train.data.strip_batch import strip_batch
+
+    folder = tmp_path / "smooth"
+    folder.mkdir()
+    for i in range(3):
+        smooth = 0.2 + 0.6 * torch.sigmoid(3 * _height(64, seed=10 + i))
+        write_strip(folder / f"m{i}.png", seed=i, diffuse=smooth.expand(3, -1, -1), roughness=smooth.flip(0)[None])
+    data = MaterialStrips(MaterialBank.open(folder), 30, 32, photo=PhotoSettings())
+    indices = [i for i in range(30) if data.placement(i).side != 32]
+    cpu = torch.stack([data[i]["maps"] for i in indices])
+    batched = strip_batch(data, indices, "cpu")["maps"]
+    for a, b in ((0, 3), (3, 6), (6, 7), (7, 10)):
+        assert float((batched[:, a:b] - cpu[:, a:b]).square().mean().sqrt()) < 0.02, (a, b)
+        assert abs(float(batched[:, a:b].mean() - cpu[:, a:b].mean())) < 2e-3, (a, b)
+    batched_photos = strip_batch(data, indices, "cpu")["input"]
+    assert batched_photos.shape == (len(indices), 3, 32, 32) and float(batched_photos.max()) <= 1

@@ -276,6 +276,12 @@ def _device_batch(data: Dataset, indices: list[int], device: torch.device) -> di
         return _device_batch(data.dataset, [data.indices[i] for i in indices], device)
     if isinstance(data, ProceduralMaterials):
         return data.batch(indices, device=device)
+    from .data.strips import MaterialStrips
+
+    if isinstance(data, MaterialStrips) and device.type != "cpu":  # the CPU keeps its exact path
+        from .data.strip_batch import strip_batch
+
+        return strip_batch(data, indices, device)
     if isinstance(data, Mixture):
         return _mixture_batch(data, indices, device)
     # What a DataLoader's fetcher does, then its default collate; then to the device.
