@@ -42,7 +42,7 @@ def test_reproduces_the_des18_inputs(shared_data, capsys):
     with capsys.disabled():
         print(f"\nDes18 re-rendering RMSE over {len(files)} samples: median {median:.4f}, "
               f"max {float(fit.rmse.max()):.4f}")
-    # DESIGN.md: a simple fit reaches about 0.04; a renderer convention error (gamma,
+    # The Des18 photos: a simple fit reaches about 0.04; a renderer convention error (gamma,
     # normal flip, wrong Fresnel) takes it well above 0.06.
     assert median < 0.05
     flipped = SVBRDF(maps.normal * torch.tensor([1.0, -1.0, 1.0]).view(1, 3, 1, 1),

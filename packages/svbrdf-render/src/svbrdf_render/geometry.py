@@ -1,4 +1,4 @@
-"""Vector helpers that stay finite forward and backward (DESIGN.md, "Numerical rules")."""
+"""Vector helpers that stay finite forward and backward (docs/svbrdf-render.md, "Numerical choices")."""
 
 from __future__ import annotations
 

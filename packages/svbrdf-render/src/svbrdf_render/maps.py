@@ -1,6 +1,6 @@
 """The SVBRDF map container and its geometric transforms.
 
-Conventions (DESIGN.md, "Map conventions"):
+Conventions (docs/svbrdf-render.md, "The renderer in one screen"):
 
 ==========  ========  ==========================================================
 map         shape     values

@@ -36,7 +36,8 @@ from .yamlio import safe_load
 
 __all__ = ["Camera", "PointLight", "Flash", "Light", "Scene", "DES18_DISTANCE"]
 
-#: Camera/flash distance that reproduces the Des18 inputs (DESIGN.md).
+#: Camera/flash distance that reproduces the Des18 inputs: flashes fitted to the Des18 photos
+#: by least squares sit near it (docs/svbrdf-render.md).
 DES18_DISTANCE = 2.2
 
 

@@ -1,4 +1,4 @@
-"""The generator and discriminator losses of the paper (DESIGN.md, "The paper in one screen").
+"""The generator and discriminator losses of the paper (docs/svbrdf-train.md, "Recipes and losses").
 
 ::
 

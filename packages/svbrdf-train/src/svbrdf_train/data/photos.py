@@ -2,7 +2,7 @@
 
 A photo file holds either sRGB-encoded values (what phones and cameras save) or linear
 radiance (the Des18 inputs, and photos prepared for them). The two cannot be told apart from
-the pixels, so the reader is told which (DESIGN.md, "Map conventions"); a folder mixing both
+the pixels, so the reader is told which (docs/capture.md); a folder mixing both
 is read as two datasets, or one with a ``pattern`` each.
 """
 
