@@ -13,6 +13,9 @@ sRGB, as DATA/real-dev's README says) and every model:
   a dielectric's specular at 0.04, would otherwise turn invisible ring steps into a large
   ratio). A map that follows the material, not the flash, has ring means that barely move:
   near 0. A disc or ring of the flash stamped into the map: near 1.
+With ``--refine STEPS`` the maps are the photo tool's (network, then refinement against the
+photo at ``--size`` pixels), so the figures say what a user of ``predict`` gets.
+
 - **metallic**: the mean and the 95th percentile of the metallic map the glTF export would
   write (:func:`svbrdf_render.to_metal_rough`); a dielectric (paper, tiles, wood, fabric)
   should sit near 0.
@@ -66,11 +69,11 @@ def imprint(image: torch.Tensor, centre: tuple[float, float]) -> float:
     return float(torch.stack(means).std()) / max(float(y.std()), SPREAD_FLOOR)
 
 
-def _maps(model, photo: torch.Tensor) -> dict[str, torch.Tensor]:
+def _maps(model, photo: torch.Tensor, refine: int = 0) -> dict[str, torch.Tensor]:
     from svbrdf_render import encode_normal, to_metal_rough
 
     with torch.no_grad():
-        m = model.predict(photo)
+        m = model.predict(photo, refine=refine)
     mr = to_metal_rough(m)
     return {
         "normal": encode_normal(m.normal[0]),
@@ -81,11 +84,11 @@ def _maps(model, photo: torch.Tensor) -> dict[str, torch.Tensor]:
     }
 
 
-def _load(path: Path) -> torch.Tensor:
+def _load(path: Path, size: int) -> torch.Tensor:
     from svbrdf_models.photos import load_photo
 
     photo, _ = load_photo(path, linear=path.name.startswith("deschaintre"))
-    return F.interpolate(photo[None], size=(SIZE, SIZE), mode="area")[0]
+    return F.interpolate(photo[None], size=(size, size), mode="area")[0]
 
 
 def _sheet(rows: list[list[torch.Tensor]], names: list[str], out: Path) -> None:
@@ -110,6 +113,8 @@ def main(argv=None) -> None:
     ap.add_argument("folder", type=Path, help="folder of flash photos (DATA/real-dev)")
     ap.add_argument("--models", default="pretrained", help="comma-separated model files or pretrained[:NAME]")
     ap.add_argument("-o", "--out", type=Path, help="contact sheet (.png)")
+    ap.add_argument("--refine", type=int, default=0, help="refinement steps after the network (default 0)")
+    ap.add_argument("--size", type=int, default=SIZE, help=f"side of the photo's square in pixels (default {SIZE})")
     args = ap.parse_args(argv)
     from svbrdf_train.predict import Predictor
 
@@ -122,11 +127,13 @@ def main(argv=None) -> None:
     print("| photo | model | " + " | ".join(f"imprint {m}" for m in MAPS) + " | metallic mean / p95 |")
     print("| --- | --- |" + " ---: |" * (len(MAPS) + 1))
     for path in photos:
-        photo = _load(path)
-        centre = flash_point(photo)
-        row = [photo]
+        photo = _load(path, args.size)
+        shown = F.interpolate(photo[None], size=(SIZE, SIZE), mode="area")[0]
+        centre = flash_point(shown)
+        row = [shown]
         for source, model in zip(sources, models, strict=True):
-            maps = _maps(model, photo)
+            maps = _maps(model, photo, args.refine)
+            maps = {k: F.interpolate(v[None], size=(SIZE, SIZE), mode="area")[0] for k, v in maps.items()}
             imp = {m: imprint(maps[m], centre) for m in MAPS}
             metal = maps["metallic"].flatten()
             figs = {**{f"imprint {m}": v for m, v in imp.items()}, "metallic mean": float(metal.mean()),
