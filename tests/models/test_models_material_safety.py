@@ -139,3 +139,10 @@ def test_photo_names_outside_ascii_make_a_material(tmp_path, stem):
     text = (tmp_path / "out" / stem / "material.mtlx").read_text()
     name = text.split('<surfacematerial name="', 1)[1].split('"', 1)[0]
     assert _MTLX_NAME.match(name), name
+
+
+def test_predict_says_how_many_threads_it_takes_and_refuses_zero(tmp_path, capsys):
+    photo = _photo_file(tmp_path / "shot.png")
+    assert main(["predict", str(photo), "-o", str(tmp_path / "out"), *FAST, "--threads", "1"]) == 0
+    assert "1 torch thread (--threads)" in capsys.readouterr().err
+    assert main(["predict", str(photo), "-o", str(tmp_path / "out"), "--threads", "0"]) == 2

@@ -30,6 +30,7 @@ __all__ = [
     "ProgressBar",
     "capture_batch",
     "check_material_folders",
+    "set_threads",
     "folder_name",
     "help_text",
     "load_scene",
@@ -136,6 +137,10 @@ class ProgressBar:
     fit's progress uses too.
     """
 
+    #: Said at the end of every progress line when the machine is busy (set by ``predict``
+    #: from :func:`svbrdf_render.machine.choose_threads`): why the refinement is slower.
+    busy_note = ""
+
     def __init__(self, name: str, stream=None, enabled: bool | None = None, width: int = 20):
         from .progress import StatusLine
 
@@ -155,12 +160,26 @@ class ProgressBar:
         digits = len(str(total))
         seconds = time.perf_counter() - self.start
         self.line.show(
-            f"{self.name}: refining {step:>{digits}}/{total} [{bar}] {seconds:.1f} s loss {loss:.4f}",
+            f"{self.name}: refining {step:>{digits}}/{total} [{bar}] {seconds:.1f} s loss {loss:.4f}"
+            + self.busy_note,
             force=True,
         )
 
     def close(self) -> None:
         self.line.close()
+
+
+def set_threads(requested: int | None):
+    """Choose and set the torch threads (:func:`svbrdf_render.machine.choose_threads`: one per
+    free core unless ``requested``); say so on stderr, and at the end of every progress line
+    when the machine is busy. Returns the :class:`~svbrdf_render.machine.ThreadChoice`."""
+    from svbrdf_render.machine import choose_threads
+
+    choice = choose_threads(requested)
+    print(choice.describe(), file=sys.stderr)
+    plural = "s" if choice.threads > 1 else ""
+    ProgressBar.busy_note = f" (busy machine: {choice.threads} thread{plural})" if choice.busy else ""
+    return choice
 
 
 def load_scene(path):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import torch
 from torch import nn
 
 from svbrdf_models import config_to_dict, resolve_config
@@ -58,6 +59,14 @@ def open_tracker(run: Run, experiment: str, run_name: str | None, parent_run: st
     )
 
 
+def _threads(device) -> str:
+    """`` (2 torch threads)`` on a CPU, where they set the speed; nothing elsewhere."""
+    if str(device) != "cpu":
+        return ""
+    n = torch.get_num_threads()
+    return f" ({n} torch thread{'s' if n != 1 else ''})"
+
+
 def plan(run: Run, real_validation: str | None) -> str:
     """The lines a fit prints when it starts: what, how long, on what, where it writes."""
     t, gan, start = run.recipe.train, run.gan, run.start_step
@@ -69,7 +78,7 @@ def plan(run: Run, real_validation: str | None) -> str:
     d = gan.discriminator
     lines = [
         f"{what}: {budget}, batch {t.batch} x {run.dist.world} process(es) at {t.resolution} px "
-        f"on {run.dist.device}; G {count_params(gan.generator) / 1e6:.2f}M params"
+        f"on {run.dist.device}{_threads(run.dist.device)}; G {count_params(gan.generator) / 1e6:.2f}M params"
         + (f", D {count_params(d) / 1e6:.2f}M" if d is not None else ", no D")
     ]
     if real_validation:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from svbrdf_render import DEFAULT_REFINE_STEPS
 from svbrdf_render.cli import float_range, int_range
+from svbrdf_render.machine import THREADS_HELP
 
 from .._registry import Registry
 
@@ -134,6 +135,12 @@ def _add_output_options(p) -> None:
     )
     p.add_argument("--relit", choices=RELIT_FORMATS, default="gif", help="relit preview (default: gif)")
     p.add_argument("--device", default="cpu", help="cpu, cuda, cuda:K or auto (default: cpu)")
+    p.add_argument(
+        "--threads",
+        type=int_range(1),
+        metavar="N",
+        help=THREADS_HELP,
+    )
 
 
 def _normal_convention(text: str) -> str:
@@ -161,7 +168,7 @@ def run(args, registry: Registry, out) -> int:
     """``predict``: the options checked, the model loaded and announced, the photos captured."""
     from svbrdf_render.files import check_output_folder
 
-    from ..batch import capture_batch, check_material_folders, pick_device
+    from ..batch import capture_batch, check_material_folders, pick_device, set_threads
 
     options = _capture_options(args)
     device = pick_device(args.device)  # a GPU that is not there is named as such
@@ -171,6 +178,7 @@ def run(args, registry: Registry, out) -> int:
         from ..tiles import check_tiled_memory
 
         check_tiled_memory(args.map_size, f"--tiles --map-size {args.map_size}")
+    set_threads(args.threads)
     model = _load_predict_model(args.model, device, args.map_size if args.tiles else None)
     summary = {"model": model.source, "step": model.steps, "resolution": model.resolution,
                "refine": args.refine, "refine_seconds": args.refine_seconds}  # fmt: skip

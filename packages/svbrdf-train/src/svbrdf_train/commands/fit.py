@@ -10,6 +10,8 @@ from pathlib import Path
 
 import click
 
+from svbrdf_render.machine import THREADS_HELP, choose_threads
+
 from ..recipe import SIZES
 from .options import FiniteFloatRange, experiment_option, explicit
 
@@ -141,6 +143,7 @@ def system_metrics_option():
     "--force", is_flag=True, help="Start afresh even though --out holds a checkpoint (it is replaced)."
 )
 @click.option("--device", default="auto", show_default=True, help="auto, cpu, cuda or cuda:K.")
+@click.option("--threads", type=click.IntRange(min=1), default=None, help=THREADS_HELP)
 @experiment_option("svbrdf")
 @click.option("--run-name", help="MLflow run name [default: RECIPE-SIZE].")
 @click.option(
@@ -169,6 +172,7 @@ def fit(
     resume,
     force,
     device,
+    threads,
     experiment,
     run_name,
     parent_run,
@@ -178,9 +182,8 @@ def fit(
 ):
     """Train a generator (and its discriminator) from a recipe.
 
-    Shows step, losses, samples/s and ETA; logs every loss term, validation RMSE per map,
-    sample grids and checkpoints to one MLflow run. Ctrl-C saves a checkpoint first;
-    --resume continues from it.
+    Shows step, losses, samples/s and ETA; logs every loss term, validation RMSE per map, sample
+    grids and checkpoints to one MLflow run. Ctrl-C saves a checkpoint first; --resume goes on.
     """
     from ..errors import RecipeError
     from ..trainer import FitOptions
@@ -196,6 +199,7 @@ def fit(
             "recipe at the size it was started with"
         )
     _check_init_run(init)
+    choose_threads(threads)  # the plan the fit prints says how many
     overrides, read = _overrides(recipe_name, size, data, sets, max_minutes, max_steps)
     recipe, out = _recipe_and_out(recipe_name, size, overrides, out, resume, read)
     options = FitOptions(

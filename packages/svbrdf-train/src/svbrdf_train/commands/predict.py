@@ -12,6 +12,8 @@ from pathlib import Path
 
 import click
 
+from svbrdf_render.machine import THREADS_HELP
+
 #: Largest --map-size: photos are refused over 50 megapixels (about 7071 px on a side).
 MAX_MAP_SIZE = 8192
 
@@ -150,13 +152,14 @@ def _parse_crop(ctx, param, value):
     help="The renderer's backend for refinement (auto: compiled from 512x512 up).",
 )
 @click.option("--device", default="cpu", show_default=True, help="cpu, cuda or cuda:K.")
-def predict(photos, model_source, checkpoint, run_id, out, device, **flags):
+@click.option("--threads", type=click.IntRange(min=1), default=None, help=THREADS_HELP)
+def predict(photos, model_source, checkpoint, run_id, out, device, threads, **flags):
     """Capture normal, diffuse, roughness and specular maps from flash photos.
 
     The maps are judged by re-rendering them under a flash fitted to the photo: the RMSE
     against the photo is printed per photo and as the median of the batch.
     """
-    from svbrdf_models.batch import capture_batch, check_material_folders, pick_device
+    from svbrdf_models.batch import capture_batch, check_material_folders, pick_device, set_threads
     from svbrdf_render.files import check_output_folder
 
     from ..errors import CheckpointError
@@ -167,6 +170,7 @@ def predict(photos, model_source, checkpoint, run_id, out, device, **flags):
     device = pick_device(device)  # a GPU that is not there is named as such, not blamed on the checkpoint
     check_output_folder(out, "-o")  # before the model is loaded and the first photo is done
     check_material_folders(photos, out)
+    set_threads(threads)
     model = _load_model(model_source, checkpoint, run_id, device, options.map_size if options.tiles else None)
     summary = {"model": model.source, "step": model.step, "resolution": model.resolution,
                "refine": options.refine, "refine_seconds": options.refine_seconds}  # fmt: skip

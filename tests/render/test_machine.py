@@ -1,0 +1,43 @@
+"""How many torch threads a command takes: one per free core, unless told (issue 36: two
+threads on a busy 2-core machine refined a photo 2-10x slower than one)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from svbrdf_render import machine
+
+
+@pytest.fixture(autouse=True)
+def _restore_threads(monkeypatch):
+    before = torch.get_num_threads()
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    monkeypatch.setattr(machine, "usable_cores", lambda: 4)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.mark.parametrize(("load", "threads", "busy"), [(0.0, 4, False), (1.2, 3, True), (2.6, 1, True), (9.0, 1, True)])
+def test_one_thread_per_free_core(monkeypatch, load, threads, busy):
+    monkeypatch.setattr(machine, "_load", lambda: load)
+    choice = machine.choose_threads()
+    assert (choice.threads, choice.busy) == (threads, busy)
+    assert torch.get_num_threads() == threads
+    assert ("busy" in choice.describe()) == busy and f"load {load:.1f}" in choice.describe()
+
+
+def test_what_the_user_asks_is_taken(monkeypatch):
+    monkeypatch.setattr(machine, "_load", lambda: 9.0)
+    assert machine.choose_threads(3).threads == 3 and not machine.choose_threads(3).busy
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")
+    choice = machine.choose_threads()
+    assert (choice.threads, choice.source) == (2, "OMP_NUM_THREADS")
+    assert machine.choose_threads(1, apply=False).threads == 1 and torch.get_num_threads() == 2
+    with pytest.raises(ValueError, match="at least 1"):
+        machine.choose_threads(0)
+
+
+def test_no_load_average_means_every_core(monkeypatch):
+    monkeypatch.setattr(machine, "_load", lambda: None)
+    assert machine.choose_threads().threads == 4
