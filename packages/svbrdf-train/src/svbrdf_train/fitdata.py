@@ -475,9 +475,12 @@ def _strip_materials(p: Path, shards: list[Path], role: str) -> tuple[Dataset, s
     if len(shards) == 1 and shards[0] == p:
         import h5py
 
-        with h5py.File(p, "r") as f:
-            if f.attrs.get("format") != "svbrdf-strips":
-                return None
+        try:
+            with h5py.File(p, "r") as f:
+                if f.attrs.get("format") != "svbrdf-strips":
+                    return None
+        except OSError:  # damaged or not HDF5: the shard reader says so, naming the file
+            return None
     elif not is_strip_folder(p):
         return None
     try:
