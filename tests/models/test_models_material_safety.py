@@ -146,3 +146,40 @@ def test_predict_says_how_many_threads_it_takes_and_refuses_zero(tmp_path, capsy
     assert main(["predict", str(photo), "-o", str(tmp_path / "out"), *FAST, "--threads", "1"]) == 0
     assert "1 torch thread (--threads)" in capsys.readouterr().err
     assert main(["predict", str(photo), "-o", str(tmp_path / "out"), "--threads", "0"]) == 2
+
+
+# -- bounded map size for refinement (issue 36: a 12 MP photo was refined at full size) ------
+
+
+def test_refined_maps_are_bounded_by_default_and_full_on_request(tmp_path, monkeypatch):
+    from svbrdf_models import refining
+
+    monkeypatch.setattr(refining, "DEFAULT_MAP_SIZE", 64)
+    photo = _photo_file(tmp_path / "big.png", size=96)
+    args = ["--refine", "1", "--relit", "none", "--backend", "eager"]
+    assert main(["predict", str(photo), "-o", str(tmp_path / "a"), *args]) == 0
+    entry = json.loads((tmp_path / "a" / "summary.json").read_text())["entries"][0]
+    assert entry["maps"] == 64 and any("--map-size full" in n for n in entry["notes"])
+    assert main(["predict", str(photo), "-o", str(tmp_path / "b"), *args, "--map-size", "full"]) == 0
+    assert json.loads((tmp_path / "b" / "summary.json").read_text())["entries"][0]["maps"] == 96
+
+
+def test_a_refinement_the_memory_cannot_hold_is_refused_before_it_starts(tmp_path, monkeypatch, capsys):
+    from svbrdf_models import tiles
+
+    monkeypatch.setattr(tiles, "available_memory", lambda: 2**20)
+    photo = _photo_file(tmp_path / "shot.png")
+    assert main(["predict", str(photo), "-o", str(tmp_path / "out"), "--refine", "5", "--relit", "none"]) == 2
+    err = capsys.readouterr().err
+    assert f"{photo}: refining 64 px maps needs about" in err and "--map-size" in err
+    assert not (tmp_path / "out" / "shot").exists()
+
+
+def test_a_long_refinement_is_announced_before_it_starts(tmp_path, monkeypatch, capsys):
+    from svbrdf_models import refining
+
+    monkeypatch.setattr(refining, "REFINE_SECONDS_PER_PIXEL_STEP", 1.0)
+    photo = _photo_file(tmp_path / "shot.png")
+    assert main(["predict", str(photo), "-o", str(tmp_path / "out"), "--refine", "1", "--relit", "none"]) == 0
+    err = capsys.readouterr().err
+    assert "shot.png: refining 64 px maps for 1 steps: about 4096 s" in err

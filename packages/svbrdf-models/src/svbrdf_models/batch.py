@@ -51,9 +51,11 @@ the model's resolution overlapping by half, blended with raised-cosine weights; 
 sees the flash off its centre, which the model may not have been trained for: check the
 re-rendering.""",
     """Refinement (--refine STEPS, default {refine}; 0: the network's maps only): the network's
-maps are refined against the photo at the square's own resolution (or --map-size) through
-the differentiable renderer, for at most STEPS steps (and --refine-seconds S), under the
-flash svbrdf_render.refine_maps finds from the network's maps (or --scene FILE, a scene
+maps are refined against the photo at the square's own resolution up to {map_size} px
+(--map-size N, or full for all of it: a refinement holds about 1.4 KB a pixel, and what this
+machine's memory cannot hold is refused before the work starts) through the differentiable
+renderer, for at most STEPS steps (and --refine-seconds S), under the flash
+svbrdf_render.refine_maps finds from the network's maps (or --scene FILE, a scene
 YAML as `svbrdf-render scene` writes: one camera, one view). The maps written are the refined
 ones. A progress bar is drawn on stderr when it is a terminal (nothing when it is not).
 Squares or --map-size under {min_refine} px are refused. --backend auto (default) refines
@@ -103,7 +105,10 @@ def help_text(refine: int, *, click: bool = False) -> str:
 
     from .capture import MAX_PIXELS, MIN_SIDE
 
-    limits = {"min_refine": MIN_REFINE_SIDE, "min_side": MIN_SIDE, "megapixels": MAX_PIXELS // 1_000_000}
+    from .refining import DEFAULT_MAP_SIZE
+
+    limits = {"min_refine": MIN_REFINE_SIDE, "min_side": MIN_SIDE, "megapixels": MAX_PIXELS // 1_000_000,
+              "map_size": DEFAULT_MAP_SIZE}  # fmt: skip
     parts = [p.format(refine=refine, **limits) for p in HELP_SECTIONS]
     return "\n\n".join(f"\b\n{p}" if click else p for p in parts)
 
@@ -284,6 +289,7 @@ def _capture_each(predictor, photos, out: Path, options, prog: str, entries: lis
         now.clear()
         now["path"] = path
         name = folder_name(path, used)
+        _announce_cost(path, options, prog)
         bar = now["bar"] = ProgressBar(path.name)
         try:
             entry = capture_one(predictor, path, out / name, options, progress=bar)
@@ -307,6 +313,26 @@ def _capture_each(predictor, photos, out: Path, options, prog: str, entries: lis
         print(str(out / name), flush=True)
     now.clear()
     return None
+
+
+def _announce_cost(path: Path, options, prog: str) -> None:
+    """Before a long refinement: about how long and how much memory it takes (from the file's
+    header; said when over 10 s or 1 GB)."""
+    from .photos import square_side
+    from .refining import refine_cost, refine_map_size
+
+    side = square_side(path, options.crop) if options.refine and not options.tiles else None
+    if side is None:
+        return
+    size = refine_map_size(side, options.map_size)
+    seconds, memory = refine_cost(size, options.refine)
+    if seconds >= 10 or memory >= 2**30:
+        print(
+            f"{prog}: {path.name}: refining {size} px maps for {options.refine} steps: about "
+            f"{seconds:.0f} s on 2 cores and {memory / 2**30:.1f} GB",
+            file=sys.stderr,
+            flush=True,
+        )
 
 
 def _table(entries: list[dict], summary: dict) -> str:

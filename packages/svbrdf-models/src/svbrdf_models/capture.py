@@ -39,7 +39,18 @@ from .errors import DataError
 from .figures import HEAT_MAX, error_heatmap, image_grid
 from .material import to_directx
 from .photos import MAX_PIXELS, MIN_SIDE, PhotoError, load_photo, orient, square
-from .refining import BACKEND, check_refine, pick_backend, refine_prediction, rerender, rerender_rmse
+from .refining import (
+    BACKEND,
+    FULL,
+    check_refine,
+    check_refine_memory,
+    pick_backend,
+    refine_cost,
+    refine_map_size,
+    refine_prediction,
+    rerender,
+    rerender_rmse,
+)
 from .relight import (  # noqa: F401 - RELIT_*, _relight_raw: re-exported, where they were
     FLASH_FIT,
     RELIT_FRAMES,
@@ -126,7 +137,9 @@ class CaptureOptions:
         linear: the file holds linear values (default: sRGB-encoded, as cameras save).
         crop: ``(x, y, size)`` in pixels of the oriented photo, or None for the centred square.
         tiles: predict at high resolution from overlapping tiles of the model's resolution.
-        map_size: with ``tiles`` or ``refine``, the side of the maps (default: the square's own).
+        map_size: with ``tiles`` or ``refine``, the side of the maps, or ``"full"``: the
+            square's own (default: the square's own with tiles; with refinement the square's
+            own up to :data:`~svbrdf_models.refining.DEFAULT_MAP_SIZE`, 1024 px).
         bits: 8 or 16, the maps' and input.png's PNG depth.
         normal_convention: ``"opengl"`` or ``"directx"`` (green channel flipped); ``"gl"`` and
             ``"dx"`` are read as those.
@@ -145,7 +158,7 @@ class CaptureOptions:
     linear: bool = False
     crop: tuple[int, int, int] | None = None
     tiles: bool = False
-    map_size: int | None = None
+    map_size: int | str | None = None
     bits: int = 8
     normal_convention: str = "opengl"
     relit: str = "gif"
@@ -180,7 +193,9 @@ class CaptureOptions:
         check_refine(self.refine, self.refine_seconds)
         if self.map_size is not None and not (self.tiles or self.refine):
             raise DataError("map size is for tiled or refined capture: give tiles=True (--tiles) with it")
-        if self.refine and self.map_size is not None and self.map_size < MIN_REFINE_SIDE:
+        if self.map_size is not None and self.map_size != FULL and not isinstance(self.map_size, int):
+            raise DataError(f"map size must be a number of pixels or 'full', got {self.map_size!r}")
+        if self.refine and isinstance(self.map_size, int) and self.map_size < MIN_REFINE_SIDE:
             raise DataError(
                 f"map size (--map-size) {self.map_size} is smaller than {MIN_REFINE_SIDE} px: too few "
                 "pixels to refine"
@@ -362,10 +377,15 @@ def _predict_square(predictor, photo: Tensor, options: CaptureOptions, notes: li
             soft = "the network sees it softened" if options.refine else "the maps will be soft"
             notes.append(f"the square ({side} px) is upsampled to the model's {res} px: {soft}")
         svbrdf = predictor.predict(_resample(photo, res))
-        size = (options.map_size or side) if options.refine else res
+        size = refine_map_size(side, options.map_size) if options.refine else res
         _check_refine_size(size, options, path)
+        if options.refine and options.map_size is None and size < side:
+            notes.append(
+                f"refined at {size} px, the default bound, of the {side} px square (--map-size full "
+                f"refines all of it: about {refine_cost(side, options.refine)[1] / 2**30:.1f} GB)"
+            )
         return _resample(photo, size), svbrdf, 0
-    size = options.map_size or side
+    size = side if options.map_size in (None, FULL) else options.map_size
     if size < res:
         notes.append(f"the square ({size} px) is smaller than a tile ({res} px): predicted as one tile")
         size = res
@@ -384,6 +404,8 @@ def _check_refine_size(size: int, options: CaptureOptions, path) -> None:
             f"the maps would be {size} px, smaller than {MIN_REFINE_SIDE}: too few pixels to refine",
             "give a larger photo or --map-size, or --refine 0",
         )
+    if options.refine:
+        check_refine_memory(size, options.refine, str(path))
 
 
 def _rerender_figure(photo: Tensor, renderings: list[Tensor], rmse: list[float], names: list[str]) -> Tensor:

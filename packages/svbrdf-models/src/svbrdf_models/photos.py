@@ -40,6 +40,7 @@ __all__ = [
     "load_photo",
     "orient",
     "square",
+    "square_side",
 ]
 
 #: The EXIF tag saying how to turn the stored pixels to show the photo upright (1-8).
@@ -157,6 +158,19 @@ def _inspect(path: Path, notes: list[str]) -> int:
     if orientation_note:
         notes.append(orientation_note)
     return orientation
+
+
+def square_side(path, crop: tuple[int, int, int] | None = None) -> int | None:
+    """The side of the square a capture of ``path`` takes (the crop's, or the shorter side of
+    the photo), read from the file's header without decoding it; None when it cannot be read
+    (the capture itself then says why)."""
+    if crop is not None:
+        return int(crop[2])
+    try:
+        with _open_image(Path(path)) as im:
+            return min(im.size)
+    except PhotoError:
+        return None
 
 
 def _open_image(path: Path):

@@ -31,6 +31,11 @@ __all__ = [
     "BACKENDS",
     "COMPILE_PIXELS",
     "pick_backend",
+    "DEFAULT_MAP_SIZE",
+    "FULL",
+    "check_refine_memory",
+    "refine_cost",
+    "refine_map_size",
     "check_refine", "check_scene", "refine_prediction", "rerender", "rerender_rmse"]
 
 #: The renderer backend the photo tools refine with. ``"auto"``: ``compiled`` for photos of at
@@ -42,6 +47,55 @@ BACKEND = "auto"
 COMPILE_PIXELS = 512 * 512
 #: What ``--backend`` takes.
 BACKENDS = ("auto", "eager", "compiled")
+
+
+#: The side refined maps are made at when the photo's square is larger (``--map-size`` sets
+#: another, ``--map-size full`` the square's own). A refinement holds about
+#: :data:`REFINE_BYTES_PER_PIXEL` a pixel and its time grows with the pixels: at 1024 px about
+#: 1.5 GB and 25 s for the default 100 steps on 2 CPU cores, where a 12-megapixel phone photo's
+#: 3000 px square would need 13 GB and minutes. 1024 px is more detail than the network's
+#: 128 px gives and what texture tools commonly take.
+DEFAULT_MAP_SIZE = 1024
+#: ``--map-size full``: refine at the photo's square's own side.
+FULL = "full"
+#: Peak memory of a refinement per pixel of its maps (measured on the CPU, eager renderer:
+#: 1.2-1.4 KB from 512 to 1024 px, plus the model and the photo), and its time per pixel and
+#: step on 2 idle CPU cores (256 px 1.5 s, 1024 px 19-27 s for 100 steps:
+#: ``benchmarks/refine_speed.py``). Estimates, to warn and refuse, not to promise.
+REFINE_BYTES_PER_PIXEL = 1400
+REFINE_SECONDS_PER_PIXEL_STEP = 2.6e-7
+
+
+def refine_map_size(side: int, map_size: int | str | None) -> int:
+    """The side refined maps are made at for a square of ``side`` px: ``map_size`` when given,
+    the square's own for :data:`FULL`, else ``side`` bounded by :data:`DEFAULT_MAP_SIZE`."""
+    if map_size == FULL:
+        return int(side)
+    if map_size is not None:
+        return int(map_size)
+    return min(int(side), DEFAULT_MAP_SIZE)
+
+
+def refine_cost(size: int, steps: int) -> tuple[float, int]:
+    """``(seconds, bytes)``: about what refining ``size`` px maps for ``steps`` steps takes."""
+    pixels = int(size) * int(size)
+    return pixels * steps * REFINE_SECONDS_PER_PIXEL_STEP, pixels * REFINE_BYTES_PER_PIXEL
+
+
+def check_refine_memory(size: int, steps: int, where: str) -> None:
+    """Refuse (:class:`DataError`, one line naming ``where``) refining ``size`` px maps when
+    this machine's free memory cannot hold it."""
+    from .tiles import available_memory
+
+    need = refine_cost(size, steps)[1]
+    free = available_memory()
+    if free is not None and need > free:
+        raise DataError(
+            f"{where}: refining {size} px maps needs about {need / 2**30:.1f} GB, and this machine has "
+            f"{free / 2**30:.1f} GB free; give a smaller --map-size (the default, {DEFAULT_MAP_SIZE}, "
+            "needs about "
+            f"{refine_cost(DEFAULT_MAP_SIZE, steps)[1] / 2**30:.1f} GB) or --refine 0"
+        )
 
 
 def pick_backend(backend: str, height: int, width: int) -> str:

@@ -10,6 +10,8 @@ from svbrdf_render import DEFAULT_REFINE_STEPS
 from svbrdf_render.cli import float_range, int_range
 from svbrdf_render.machine import THREADS_HELP
 
+from ..refining import DEFAULT_MAP_SIZE, FULL
+
 from .._registry import Registry
 
 __all__ = ["MAX_MAP_SIZE", "add_parser", "run"]
@@ -105,9 +107,11 @@ def _add_output_options(p) -> None:
     p.add_argument("--tiles", action="store_true", help="predict at high resolution from overlapping tiles")
     p.add_argument(
         "--map-size",
-        type=int_range(1, MAX_MAP_SIZE),
-        metavar="N",
-        help="with --tiles or --refine: side of the maps (default: the square's own side)",
+        type=_map_size,
+        metavar="N|full",
+        help="with --tiles or --refine: side of the maps, or full for the square's own (default: "
+        f"the square's own with --tiles; refined maps at most {DEFAULT_MAP_SIZE} px, which "
+        "bounds memory and time: a refinement holds about 1.4 KB a pixel)",
     )
     p.add_argument(
         "--normal",
@@ -143,6 +147,12 @@ def _add_output_options(p) -> None:
     )
 
 
+def _map_size(text: str) -> int | str:
+    if text.strip().lower() == FULL:
+        return FULL
+    return int_range(1, MAX_MAP_SIZE)(text)
+
+
 def _normal_convention(text: str) -> str:
     from ..capture import NORMAL_ALIASES, NORMAL_CONVENTIONS
 
@@ -174,12 +184,12 @@ def run(args, registry: Registry, out) -> int:
     device = pick_device(args.device)  # a GPU that is not there is named as such
     check_output_folder(args.out, "-o")  # before the model is loaded and the first photo is done
     check_material_folders(args.photos, args.out)
-    if args.tiles and args.map_size is not None:  # refused before the model loads
+    if args.tiles and isinstance(args.map_size, int):  # refused before the model loads
         from ..tiles import check_tiled_memory
 
         check_tiled_memory(args.map_size, f"--tiles --map-size {args.map_size}")
-    set_threads(args.threads)
-    model = _load_predict_model(args.model, device, args.map_size if args.tiles else None)
+    model = _load_predict_model(args.model, device, args.map_size if args.tiles and args.map_size != FULL else None)
+    set_threads(args.threads)  # after every refusal, so that a refusal stays one line
     summary = {"model": model.source, "step": model.steps, "resolution": model.resolution,
                "refine": args.refine, "refine_seconds": args.refine_seconds}  # fmt: skip
     return capture_batch(model, args.photos, args.out, options, prog="svbrdf-models", summary=summary)

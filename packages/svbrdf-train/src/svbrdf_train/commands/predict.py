@@ -12,6 +12,7 @@ from pathlib import Path
 
 import click
 
+from svbrdf_models.refining import DEFAULT_MAP_SIZE, FULL
 from svbrdf_render.machine import THREADS_HELP
 
 #: Largest --map-size: photos are refused over 50 megapixels (about 7071 px on a side).
@@ -56,6 +57,17 @@ def _parse_crop(ctx, param, value):
     return x, y, size
 
 
+
+class _MapSize(click.ParamType):
+    """``--map-size``: a number of pixels in [1, MAX_MAP_SIZE], or ``full``."""
+
+    name = "N|full"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, str) and value.strip().lower() == FULL:
+            return FULL
+        return click.IntRange(1, MAX_MAP_SIZE).convert(value, param, ctx)
+
 @click.command("predict", epilog=_epilog())
 @click.argument("photos", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option(
@@ -91,10 +103,11 @@ def _parse_crop(ctx, param, value):
 @click.option("--tiles", is_flag=True, help="Predict at high resolution from overlapping tiles.")
 @click.option(
     "--map-size",
-    type=click.IntRange(1, MAX_MAP_SIZE),
-    metavar="N",
-    help=f"With --tiles: side of the maps in pixels, at most {MAX_MAP_SIZE} (default: the square's "
-    "own side).",
+    type=_MapSize(),
+    metavar="N|full",
+    help=f"With --tiles or --refine: side of the maps in pixels, at most {MAX_MAP_SIZE}, or full for "
+    f"the square's own (default: the square's own with --tiles; refined maps at most "
+    f"{DEFAULT_MAP_SIZE} px, which bounds memory and time).",
 )
 @click.option(
     "--normal",
@@ -170,8 +183,9 @@ def predict(photos, model_source, checkpoint, run_id, out, device, threads, **fl
     device = pick_device(device)  # a GPU that is not there is named as such, not blamed on the checkpoint
     check_output_folder(out, "-o")  # before the model is loaded and the first photo is done
     check_material_folders(photos, out)
-    set_threads(threads)
-    model = _load_model(model_source, checkpoint, run_id, device, options.map_size if options.tiles else None)
+    tile_size = options.map_size if options.tiles and options.map_size != FULL else None
+    model = _load_model(model_source, checkpoint, run_id, device, tile_size)
+    set_threads(threads)  # after every refusal, so that a refusal stays one line
     summary = {"model": model.source, "step": model.step, "resolution": model.resolution,
                "refine": options.refine, "refine_seconds": options.refine_seconds}  # fmt: skip
     status = capture_batch(model, photos, out, options, prog="svbrdf-train", summary=summary)
