@@ -183,3 +183,15 @@ def test_a_long_refinement_is_announced_before_it_starts(tmp_path, monkeypatch, 
     assert main(["predict", str(photo), "-o", str(tmp_path / "out"), "--refine", "1", "--relit", "none"]) == 0
     err = capsys.readouterr().err
     assert "shot.png: refining 64 px maps for 1 steps: about 4096 s" in err
+
+
+def test_the_viewer_lights_the_material_with_the_flash_material_json_records(tmp_path):
+    import re
+
+    photo = _photo_file(tmp_path / "shot.png")
+    assert main(["predict", str(photo), "-o", str(tmp_path / "out"), *FAST]) == 0
+    folder = tmp_path / "out" / "shot"
+    flash = json.loads((folder / "material.json").read_text())["flash"]["intensity"]
+    page = (folder / "index.html").read_text()
+    data = json.loads(re.search(r'<script type="application/json" id="svbrdf-data">(.*?)</script>', page, re.S).group(1))
+    assert data["intensity"] == pytest.approx(flash) and flash != pytest.approx(3.14159 * 2.2**2, rel=0.01)

@@ -239,7 +239,9 @@ def _write_all(stage: Path, svbrdf: SVBRDF, content: MaterialContent, options) -
                extras={"svbrdf": "material.json"})  # fmt: skip
     write_materialx(stage / "material.mtlx", basecolor="basecolor.png", metallic="metallic.png",
                     roughness="roughness.png", normal=gl_normal, name=_mtlx_name(name))  # fmt: skip
-    write_viewer(stage / "index.html", svbrdf.detach().to("cpu", torch.float32), title=name)
+    flash = (content.record.get("flash") or {}).get("intensity")
+    write_viewer(stage / "index.html", svbrdf.detach().to("cpu", torch.float32), title=name,
+                 intensity=flash if isinstance(flash, (int, float)) and flash > 0 else None)  # fmt: skip
     record = {
         "format": MATERIAL_FORMAT,
         "version": MATERIAL_VERSION,

@@ -74,19 +74,28 @@ SRGB_MAPS = ("diffuse", "specular")
 _TEMPLATE = "viewer.html"
 
 
-def viewer_scene(light=None) -> Scene:
+def viewer_scene(light=None, intensity: float | None = None) -> Scene:
     """The scene the page shows: the Des18 camera at ``(0, 0, 2.2)``, one white point light.
 
     Args:
         light: ``(x, y, z)`` light position, ``z > 0``; ``None`` puts it at the camera (a flash).
+        intensity: the light's intensity (default :data:`VIEWER_INTENSITY`).
 
-    The light's intensity is :data:`VIEWER_INTENSITY`; effects are the default Des18 set.
+    Effects are the default Des18 set.
     ``linear_to_srgb(render(maps, viewer_scene(light)).clamp(0, 1))`` is what the page draws
     for ``#light=x,y,z`` at the maps' own size.
     """
     pos = _light_position(light)
     camera = Camera(torch.tensor([0.0, 0.0, DES18_DISTANCE]))
-    return Scene(camera, (PointLight(torch.tensor(pos), VIEWER_INTENSITY),), DES18_EFFECTS)
+    power = VIEWER_INTENSITY if intensity is None else _intensity(intensity)
+    return Scene(camera, (PointLight(torch.tensor(pos), power),), DES18_EFFECTS)
+
+
+def _intensity(value) -> float:
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0
+    if not ok:
+        raise SVBRDFError(f"write_viewer: intensity must be a finite number > 0, got {value!r}")
+    return float(value)
 
 
 def _light_position(light) -> list[float]:
@@ -129,6 +138,7 @@ def write_viewer(
     title: str = "svbrdf material",
     light=None,
     max_size: int = 1024,
+    intensity: float | None = None,
 ) -> Path:
     """Write a self-contained HTML viewer of one material; returns ``path``.
 
@@ -140,6 +150,9 @@ def write_viewer(
         max_size: maps larger than this (longer side, pixels) are resized to it first
             (bilinear with antialiasing, normals renormalised); the page grows by about
             4 bytes per texel of the four maps.
+        intensity: the light's intensity (default :data:`VIEWER_INTENSITY`, which shows a
+            white Lambertian patch at 1.0; the photo tool gives the flash it found, so the
+            page shows the material as the photo's flash lit it).
 
     Open the page with ``#light=x,y,z&size=N&tile=0|1`` for a fixed view (see the module's
     docstring). Raises :class:`MapError` for anything but one material,
@@ -171,7 +184,7 @@ def write_viewer(
         "size": VIEWER_SIZE,
         "camera": [0.0, 0.0, DES18_DISTANCE],
         "light": start,
-        "intensity": VIEWER_INTENSITY,
+        "intensity": VIEWER_INTENSITY if intensity is None else _intensity(intensity),
         "alpha_min": EFFECTS["specular"].defaults["alpha_min"],
         "min_distance": EFFECTS["falloff"].defaults["min_distance"],
         "maps": _embedded_maps(maps),
