@@ -42,3 +42,22 @@ def test_load_photo_is_public_and_gives_what_predict_takes(model, tmp_path):
     assert torch.allclose(photo, linear, atol=0.01)  # decoded back to linear
     maps = model.predict(photo)
     assert maps.size == (model.resolution, model.resolution)
+
+
+def test_the_api_takes_a_numpy_integer_budget_and_refuses_what_memory_cannot_hold(model, monkeypatch):
+    import numpy as np
+
+    from svbrdf_models import tiles
+
+    photo = torch.rand(3, 32, 32) * 0.5
+    maps = model.predict(photo, refine=np.int64(1), backend="eager")
+    assert maps.size == (32, 32)
+    monkeypatch.setattr(tiles, "available_memory", lambda: 2**20)
+    with pytest.raises(DataError, match="needs about .* GB.*resize the photo smaller"):
+        model.predict(photo, refine=1)
+
+
+@pytest.mark.parametrize("refine", [0, 1])
+def test_a_one_pixel_photo_is_refused(model, refine):
+    with pytest.raises(DataError, match="too few pixels"):
+        model.predict(torch.rand(3, 1, 1) * 0.5, refine=refine)

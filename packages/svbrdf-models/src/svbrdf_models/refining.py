@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from collections.abc import Callable
 
 import torch
@@ -82,19 +83,21 @@ def refine_cost(size: int, steps: int) -> tuple[float, int]:
     return pixels * steps * REFINE_SECONDS_PER_PIXEL_STEP, pixels * REFINE_BYTES_PER_PIXEL
 
 
-def check_refine_memory(size: int, steps: int, where: str) -> None:
-    """Refuse (:class:`DataError`, one line naming ``where``) refining ``size`` px maps when
-    this machine's free memory cannot hold it."""
+def check_refine_memory(size: int, steps: int, where: str, *, count: int = 1, remedy: str | None = None) -> None:
+    """Refuse (:class:`DataError`, one line naming ``where``) refining ``count`` maps of ``size``
+    px at once when this machine's free memory cannot hold it; ``remedy`` says what to do (the
+    command line's by default)."""
     from .tiles import available_memory
 
-    need = refine_cost(size, steps)[1]
+    need = refine_cost(size, steps)[1] * count
     free = available_memory()
     if free is not None and need > free:
+        default = refine_cost(DEFAULT_MAP_SIZE, steps)[1] / 2**30
+        what = f"{count} x {size} px maps" if count > 1 else f"{size} px maps"
         raise DataError(
-            f"{where}: refining {size} px maps needs about {need / 2**30:.1f} GB, and this machine has "
-            f"{free / 2**30:.1f} GB free; give a smaller --map-size (the default, {DEFAULT_MAP_SIZE}, "
-            "needs about "
-            f"{refine_cost(DEFAULT_MAP_SIZE, steps)[1] / 2**30:.1f} GB) or --refine 0"
+            f"{where}: refining {what} needs about {need / 2**30:.1f} GB, and this machine has "
+            f"{free / 2**30:.1f} GB free; "
+            + (remedy or f"give a smaller --map-size (the default, {DEFAULT_MAP_SIZE}, needs about {default:.1f} GB) or --refine 0")
         )
 
 
@@ -110,7 +113,7 @@ def pick_backend(backend: str, height: int, width: int) -> str:
 def check_refine(refine, seconds=None) -> int:
     """``refine`` as a number of steps: an integer >= 0 (not a bool); ``seconds`` None or a
     finite number >= 0. A :class:`DataError` (one line) otherwise."""
-    if isinstance(refine, bool) or not isinstance(refine, int) or refine < 0:
+    if isinstance(refine, bool) or not isinstance(refine, numbers.Integral) or refine < 0:
         raise DataError(
             f"refine must be a whole number of refinement steps >= 0 (0: the network's maps "
             f"only), got {refine!r}"

@@ -28,6 +28,8 @@ __all__ = ["TrainedModel", "square_photo"]
 #: Largest value a photo may hold (linear values are in [0, 1]; a little over 1 is rounding or
 #: a highlight a resize overshot), and how far below 0 noise may take it.
 _MAX_VALUE, _VALUE_SLACK = 1.05, 0.05
+#: The shortest photo side predict takes (the smallest size any network here trains at).
+_MIN_PHOTO_SIDE = 8
 
 
 @dataclass
@@ -90,14 +92,23 @@ class TrainedModel:
         ``scene`` (default: the flash found from the network's maps), with the renderer's
         ``backend`` (default :data:`svbrdf_models.refining.BACKEND`); ``callback(step, total,
         loss)`` follows it. The maps are at the square's size (the photo's shorter side), which
-        must be at least :data:`svbrdf_render.MIN_REFINE_SIDE`.
+        must be at least :data:`svbrdf_render.MIN_REFINE_SIDE`; a refinement this machine's
+        free memory cannot hold (about 1.4 KB a pixel) is refused before it starts.
+
+        ``refine`` is 0 by default here: the network alone, what a caller in a loop wants.
+        ``svbrdf-models predict`` refines by default
+        (:data:`svbrdf_render.DEFAULT_REFINE_STEPS` steps, at most 1024 px): give
+        ``refine=100`` for the command line's maps.
         """
         batch = self._check_photo(photo)
-        from .refining import BACKEND, check_refine, refine_prediction
+        from .refining import BACKEND, check_refine, check_refine_memory, refine_prediction
 
         steps = check_refine(refine, seconds)
         if steps == 0:
             return self._network(batch)
+        side = min(batch.shape[-2:])
+        remedy = "resize the photo smaller first, or refine=0"
+        check_refine_memory(side, steps, str(self.source), count=batch.shape[0], remedy=remedy)
         squares = torch.stack([square_photo(p.float(), None) for p in batch])
         result = refine_prediction(
             squares,
@@ -138,6 +149,11 @@ class TrainedModel:
             )
         if batch.numel() == 0:
             raise DataError(f"{self.source}: the photo is empty ({tuple(photo.shape)}); give a photo with pixels")
+        if min(batch.shape[-2:]) < _MIN_PHOTO_SIDE:
+            raise DataError(
+                f"{self.source}: the photo is {batch.shape[-1]}x{batch.shape[-2]} px, under {_MIN_PHOTO_SIDE} px on its "
+                "short side: too few pixels to read a material from (the command line takes 64 px and more)"
+            )
         bad = int((~torch.isfinite(batch)).sum())
         if not bad:
             low, high = float(batch.min()), float(batch.max())

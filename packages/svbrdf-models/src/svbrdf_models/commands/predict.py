@@ -64,7 +64,8 @@ def add_parser(sub) -> None:
         type=int_range(0),
         default=DEFAULT_REFINE_STEPS,
         metavar="STEPS",
-        help=f"refinement steps per photo, 0 for the network's maps only (default: {DEFAULT_REFINE_STEPS})",
+        help=f"refinement steps per photo, 0 for the network's maps only (default: {DEFAULT_REFINE_STEPS}; "
+        "Python's TrainedModel.predict refines only when asked, refine=0 by default)",
     )
     p.add_argument(
         "--refine-seconds",
