@@ -51,6 +51,7 @@ def add_parser(sub) -> None:
         epilog=EPILOG_PREDICT.format(refine=DEFAULT_REFINE_STEPS) + help_text(DEFAULT_REFINE_STEPS),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    more = p.add_argument_group("more options (the ones above are what most captures need)")
     p.add_argument("photos", nargs="+", type=Path, metavar="PHOTO")
     p.add_argument("-o", "--out", type=Path, required=True, help="output folder")
     p.add_argument(
@@ -67,33 +68,34 @@ def add_parser(sub) -> None:
         help=f"refinement steps per photo, 0 for the network's maps only (default: {DEFAULT_REFINE_STEPS}; "
         "Python's TrainedModel.predict refines only when asked, refine=0 by default)",
     )
-    p.add_argument(
+    more.add_argument(
         "--refine-seconds",
         type=float_range(0, above=True),
         metavar="S",
         help="stop refining a photo after S seconds (default: no time bound)",
     )
-    p.add_argument(
+    more.add_argument(
         "--scene",
         type=Path,
         metavar="FILE",
         help="the capture's scene (YAML) to refine under (default: a flash found per photo)",
     )
-    p.add_argument(
+    more.add_argument(
         "--backend",
         choices=["auto", "eager", "compiled"],
         default="auto",
         help="the renderer's backend for refinement (default: auto, compiled from 512x512 up, where "
         "it is faster than its compile time costs)",
     )
-    _add_output_options(p)
+    _add_output_options(p, more)
 
 
-def _add_output_options(p) -> None:
-    """``predict``'s options for the square read and the maps and figures written."""
+def _add_output_options(p, more) -> None:
+    """``predict``'s options for the square read and the maps and figures written: ``--crop``
+    and ``--map-size`` on ``p`` (what most captures need), the rest in the group ``more``."""
     from ..capture import ALBEDO_ENCODINGS, RELIT_FORMATS
 
-    p.add_argument(
+    more.add_argument(
         "--linear",
         action="store_true",
         help="research use, Des18's convention: the photos hold linear values (default: sRGB) and "
@@ -105,7 +107,7 @@ def _add_output_options(p) -> None:
         type=_crop,
         help="the square to capture, in pixels of the photo as displayed (default: centred)",
     )
-    p.add_argument("--tiles", action="store_true", help="predict at high resolution from overlapping tiles")
+    more.add_argument("--tiles", action="store_true", help="predict at high resolution from overlapping tiles")
     p.add_argument(
         "--map-size",
         type=_map_size,
@@ -114,7 +116,7 @@ def _add_output_options(p) -> None:
         f"the square's own with --tiles; refined maps at most {DEFAULT_MAP_SIZE} px, which "
         "bounds memory and time: a refinement holds about 1.4 KB a pixel)",
     )
-    p.add_argument(
+    more.add_argument(
         "--normal",
         "--normal-convention",
         dest="normal_convention",
@@ -124,23 +126,23 @@ def _add_output_options(p) -> None:
         help="normal.png's convention: directx (dx) stores the normal's y (green) flipped, as "
         "Unreal and 3ds Max expect (default: opengl, as Blender, Substance, glTF expect)",
     )
-    p.add_argument("--bits", type=int, choices=[8, 16], default=8, help="PNG bit depth (default: 8)")
-    p.add_argument(
+    more.add_argument("--bits", type=int, choices=[8, 16], default=8, help="PNG bit depth (default: 8)")
+    more.add_argument(
         "--albedo-encoding",
         choices=ALBEDO_ENCODINGS,
         help="how diffuse.png and specular.png store values (default: srgb, as texture tools expect; "
         "linear with --linear). basecolor.png is sRGB whatever this says",
     )
-    p.add_argument("--exr", action="store_true", help="also write the maps as OpenEXR (linear half floats)")
-    p.add_argument(
+    more.add_argument("--exr", action="store_true", help="also write the maps as OpenEXR (linear half floats)")
+    more.add_argument(
         "--tileable",
         action="store_true",
         help="make the maps' opposite edges match, for materials that repeat (a band at the edges "
         "is blended; material.json gives the seam error before and after)",
     )
-    p.add_argument("--relit", choices=RELIT_FORMATS, default="gif", help="relit preview (default: gif)")
-    p.add_argument("--device", default="cpu", help="cpu, cuda, cuda:K or auto (default: cpu)")
-    p.add_argument(
+    more.add_argument("--relit", choices=RELIT_FORMATS, default="gif", help="relit preview (default: gif)")
+    more.add_argument("--device", default="cpu", help="cpu, cuda, cuda:K or auto (default: cpu)")
+    more.add_argument(
         "--threads",
         type=int_range(1),
         metavar="N",
