@@ -17,6 +17,7 @@ from . import __version__
 from .effects import DES18_EFFECTS, EFFECTS
 from .errors import SVBRDFError, exit_status
 from .files import EXIT_STATUS
+from .machine import THREADS_HELP, choose_threads
 from .maps import SVBRDF
 from .scene import DES18_DISTANCE, Camera, PointLight, Scene
 
@@ -238,6 +239,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--backend", choices=("eager", "compiled"), default="eager",
                    help="compiled = torch.compile (faster for repeated renders, slow first call)")
     _add_scene_flags(p, None)
+    p.add_argument("--threads", type=int_range(1), metavar="N", help=THREADS_HELP)
 
     p = sub.add_parser("preview", help="a grid of renderings under moving light",
                        description="Relight a material from several light positions and "
@@ -253,6 +255,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", type=int_range(1, MAX_SIZE),
                    help=f"resample the maps to SIZE x SIZE first; the grid is at most {MAX_SIZE} px a side")
     _add_scene_flags(p, 2.2)
+    p.add_argument("--threads", type=int_range(1), metavar="N", help=THREADS_HELP)
 
     p = sub.add_parser("scene", help="write the default scene as YAML (a template to edit)")
     p.add_argument("-o", "--output", help="file to write (default: print)")
@@ -342,6 +345,8 @@ def main(argv: list[str] | None = None) -> int:
         return int(e.code or 0)
     commands = {"render": _cmd_render, "preview": _cmd_preview, "scene": _cmd_scene, "effects": _cmd_effects}
     try:
+        if args.command in ("render", "preview"):
+            choose_threads(args.threads)
         commands[args.command](args)
     except (CliError, SVBRDFError, ImportError) as e:
         print(f"svbrdf-render: error: {e}", file=sys.stderr)

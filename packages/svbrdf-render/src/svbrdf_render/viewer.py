@@ -131,6 +131,22 @@ def _embedded_maps(svbrdf: SVBRDF) -> dict[str, str]:
     return {name: _png_data_uri(stored[name]) for name in MAP_NAMES}
 
 
+def _page_data(maps: SVBRDF, light, intensity: float) -> dict:
+    """What the page's script reads: the size, camera, light, BRDF constants and the maps."""
+    h, w = maps.size
+    return {
+        "width": w,
+        "height": h,
+        "size": VIEWER_SIZE,
+        "camera": [0.0, 0.0, DES18_DISTANCE],
+        "light": light,
+        "intensity": intensity,
+        "alpha_min": EFFECTS["specular"].defaults["alpha_min"],
+        "min_distance": EFFECTS["falloff"].defaults["min_distance"],
+        "maps": _embedded_maps(maps),
+    }
+
+
 def write_viewer(
     path,
     svbrdf: SVBRDF,
@@ -177,18 +193,7 @@ def write_viewer(
     if max(h, w) > max_size:
         scale = max_size / max(h, w)
         maps = maps.resize(max(1, round(h * scale)), max(1, round(w * scale)))
-        h, w = maps.size
-    data = {
-        "width": w,
-        "height": h,
-        "size": VIEWER_SIZE,
-        "camera": [0.0, 0.0, DES18_DISTANCE],
-        "light": start,
-        "intensity": VIEWER_INTENSITY if intensity is None else _intensity(intensity),
-        "alpha_min": EFFECTS["specular"].defaults["alpha_min"],
-        "min_distance": EFFECTS["falloff"].defaults["min_distance"],
-        "maps": _embedded_maps(maps),
-    }
+    data = _page_data(maps, start, VIEWER_INTENSITY if intensity is None else _intensity(intensity))
     # "</" would end the <script> block early; "<\/" is the same string to JSON.
     blob = json.dumps(data).replace("</", "<\\/")
     template = resources.files("svbrdf_render").joinpath(_TEMPLATE).read_text(encoding="utf-8")

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 import torch
 
-from .options import SEED, FiniteFloatRange, explicit
+from .options import SEED, FiniteFloatRange, explicit, threads_option
 
 __all__ = ["COMMANDS", "compare"]
 
@@ -196,6 +196,7 @@ def _sheet(proc: dict, families: list[str], real: dict, rows: int):
     show_default=True,
     help="Share of --strips samples on the training side.",
 )
+@threads_option()
 @click.pass_context
 def compare(ctx, real_folder, count, resolution, seed, real_count, sheet_path, rows, json_path, strips, strip_share):
     """Set N procedural samples against the real materials of REAL_FOLDER: one row per

@@ -16,7 +16,7 @@ from pathlib import Path
 import click
 
 from ..errors import DataError
-from .options import SEED, FiniteFloatRange, explicit
+from .options import SEED, FiniteFloatRange, explicit, threads_option
 
 #: Largest side of a shard's samples: one 4096 px sample already takes about 1 GB in memory.
 MAX_SHARD_RESOLUTION = 4096
@@ -152,6 +152,7 @@ def _summary(out: Path, count: int, resolution: int, bits: int, seconds: float) 
     "real phone photos, white balance, JPEG); recorded with the photo settings.",
 )
 @click.option("--force", is_flag=True, help="Replace --out if it exists.")
+@threads_option()
 @_interruptible
 def make(count, resolution, out, seed, bits, batch, families, mix, capture, force):
     """Make a shard of procedural materials with their simulated flash photos.
@@ -213,6 +214,7 @@ def make(count, resolution, out, seed, bits, batch, families, mix, capture, forc
     "--bits", type=click.Choice(["8", "16"]), default="8", show_default=True, help="Bits per stored value."
 )
 @click.option("--force", is_flag=True, help="Replace --out if it exists.")
+@threads_option()
 @click.pass_context
 @_interruptible
 def import_(ctx, folder, out, split, crop, full, bits, force):

@@ -9,7 +9,7 @@ import click
 import torch
 
 from .data_shards import _interruptible
-from .options import SEED, FiniteFloatRange
+from .options import SEED, FiniteFloatRange, threads_option
 
 __all__ = ["COMMANDS", "sheet"]
 
@@ -85,6 +85,7 @@ def _families(ctx, param, value):
     type=click.Path(dir_okay=False, path_type=Path),
     help="PNG file to write (written atomically).",
 )
+@threads_option()
 @_interruptible
 def sheet(count, resolution, seed, start, families, mix, out):
     """Write a contact sheet (PNG) of procedural samples: photo and four maps per row."""

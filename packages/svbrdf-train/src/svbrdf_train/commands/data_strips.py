@@ -9,6 +9,8 @@ from pathlib import Path
 
 import click
 
+from .options import threads_option
+
 from .data_shards import _check_target, _writing
 
 __all__ = ["COMMANDS", "strips"]
@@ -57,6 +59,7 @@ def _folds(bank, n: int) -> None:
 )
 @click.option("--folds", type=click.IntRange(2, 100), default=None, help="List the materials of N folds.")
 @click.option("--force", is_flag=True, help="Replace --out if it exists.")
+@threads_option()
 def strips(folder, out, tile, folds, force):
     """Check a folder of map-only material strips; write them to a strip shard (--out) or list
     their folds (--folds)."""

@@ -10,10 +10,8 @@ from pathlib import Path
 
 import click
 
-from svbrdf_render.machine import THREADS_HELP, choose_threads
-
 from ..recipe import SIZES
-from .options import FiniteFloatRange, experiment_option, explicit
+from .options import FiniteFloatRange, experiment_option, explicit, threads_option
 
 #: What ``--init`` takes for an MLflow run id (anything else is a checkpoint or a fit's folder).
 _RUN_ID = re.compile(r"[0-9a-f]{32}")
@@ -143,7 +141,7 @@ def system_metrics_option():
     "--force", is_flag=True, help="Start afresh even though --out holds a checkpoint (it is replaced)."
 )
 @click.option("--device", default="auto", show_default=True, help="auto, cpu, cuda or cuda:K.")
-@click.option("--threads", type=click.IntRange(min=1), default=None, help=THREADS_HELP)
+@threads_option()
 @experiment_option("svbrdf")
 @click.option("--run-name", help="MLflow run name [default: RECIPE-SIZE].")
 @click.option(
@@ -172,7 +170,6 @@ def fit(
     resume,
     force,
     device,
-    threads,
     experiment,
     run_name,
     parent_run,
@@ -199,7 +196,6 @@ def fit(
             "recipe at the size it was started with"
         )
     _check_init_run(init)
-    choose_threads(threads)  # the plan the fit prints says how many
     overrides, read = _overrides(recipe_name, size, data, sets, max_minutes, max_steps)
     recipe, out = _recipe_and_out(recipe_name, size, overrides, out, resume, read)
     options = FitOptions(

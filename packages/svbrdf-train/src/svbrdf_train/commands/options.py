@@ -13,7 +13,7 @@ import click
 
 from ..recipe import MAX_SEED
 
-__all__ = ["FiniteFloatRange", "SEED", "explicit", "experiment_option"]
+__all__ = ["FiniteFloatRange", "SEED", "explicit", "experiment_option", "threads_option"]
 
 
 class FiniteFloatRange(click.FloatRange):
@@ -49,3 +49,18 @@ def explicit(ctx: click.Context, name: str) -> bool:
     """Whether option ``name`` was given on the command line (not left at its default)."""
     source = ctx.get_parameter_source(name)
     return source is not None and source.name not in ("DEFAULT", "DEFAULT_MAP")
+
+
+def threads_option():
+    """``--threads N``: torch threads on the CPU, set as soon as the option is read (default:
+    one per free core, :func:`svbrdf_render.machine.choose_threads`); the command never sees it."""
+    from svbrdf_render.machine import THREADS_HELP
+
+    def apply(ctx, param, value):
+        from svbrdf_render.machine import choose_threads
+
+        choose_threads(value)
+
+    return click.option(
+        "--threads", type=click.IntRange(min=1), default=None, expose_value=False, callback=apply, help=THREADS_HELP
+    )
