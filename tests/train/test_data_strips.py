@@ -325,3 +325,29 @@ def test_the_batched_path_resamples_windows_as_the_cpu_path_does_on_average(tmp_
         assert abs(float(batched[:, a:b].mean() - cpu[:, a:b].mean())) < 2e-3, (a, b)
     batched_photos = strip_batch(data, indices, "cpu")["input"]
     assert batched_photos.shape == (len(indices), 3, 32, 32) and float(batched_photos.max()) <= 1
+
+
+@pytest.mark.slow
+def test_the_gpu_session_script_dry_runs_on_the_cpu(strips, tmp_path):
+    """benchmarks/gpu_session.sh at the smoke size on the CPU: the option ladder measured, an
+    ablation under the best options, the training recipe trained and its model file written."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[2]
+    out = tmp_path / "out"
+    env = {**os.environ, "OUT": str(out), "DEVICE": "cpu", "SIZE": "smoke", "BUDGET": "1.6",
+           "PYTHON": sys.executable, "STRIPS": str(strips), "OMP_NUM_THREADS": "1"}  # fmt: skip
+    args = ["--steps", "1", "--rungs", "2", "--recipes", "no-attn", "--train-share", "0.3", "--train-size", "smoke"]
+    done = subprocess.run(["bash", str(repo / "benchmarks" / "gpu_session.sh"), *args], env=env, cwd=repo,
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    report = json.loads((out / "gpu_session.json").read_text())
+    measured = [r for r in report["rows"] if "samples_s" in r]
+    assert [r["option"] for r in report["rows"][:2]] == ["device batches", "+ channels_last"]
+    assert all(r["samples_s"] > 0 for r in measured) and len(measured) >= 2
+    assert report["trained"]["exit"] == 0 and (out / report["trained"]["model"]).is_file()
+    assert "| ours | device batches |" in (out / "gpu_session.md").read_text()
