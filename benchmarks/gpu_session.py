@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import subprocess
 import sys
 import time
@@ -67,11 +66,12 @@ def _measure(recipe: str, size: str, steps: int, device: str, extra: dict) -> di
 
 
 def _big_batch(size: str, factor: int) -> dict:
+    """The batch ``factor`` times the recipe's, the rates scaled by its square root
+    (``optim.batch_rule: sqrt`` against the recipe's own batch)."""
     from svbrdf_train.recipe import load_recipe
 
-    r = load_recipe("ours", size)
-    scale = math.sqrt(factor)
-    return {"train.batch": r.train.batch * factor, "optim.lr": r.optim.lr * scale, "optim.d_lr": r.optim.d_lr * scale}
+    batch = load_recipe("ours", size).train.batch
+    return {"train.batch": batch * factor, "optim.batch_rule": "sqrt", "optim.batch_reference": batch}
 
 
 class Report:

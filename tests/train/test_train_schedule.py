@@ -116,3 +116,16 @@ def test_a_fit_on_a_few_samples_keeps_learning_across_its_budget(tmp_path):
     assert abs(last - middle) < 0.02 * middle, (first, middle, last)
     warning = run.data.tags["svbrdf.warning"]
     assert "optim.decay_every_epochs=1" in warning and "of the budget of 60 steps" in warning
+
+
+@pytest.mark.parametrize(("rule", "factor"), [("none", 1.0), ("sqrt", 2.0), ("linear", 4.0)])
+def test_the_rates_follow_a_larger_batch_by_the_recipes_rule(rule, factor):
+    """optim.batch_rule: a batch 4x the reference scales lr and d_lr by 1, 2 or 4 (issue 37)."""
+    from svbrdf_train.step import GanStep
+
+    from svbrdf_train import distributed
+
+    recipe = load_recipe("ours", "smoke", {"train.batch": 8, "optim.batch_rule": rule, "optim.batch_reference": 2})
+    gan = GanStep(recipe, distributed.Dist(), 8)
+    assert gan.g_opt.param_groups[0]["lr"] == pytest.approx(recipe.optim.lr * factor)
+    assert gan.d_opt.param_groups[0]["lr"] == pytest.approx(recipe.optim.d_lr * factor)

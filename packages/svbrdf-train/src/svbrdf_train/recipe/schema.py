@@ -42,6 +42,7 @@ __all__ = [
     "MAX_SEED",
     "MIN_RESOLUTION",
     "MAX_RESOLUTION",
+    "BATCH_RULES",
     "CAPTURES",
     "MIX_KEYS",
     "MIX_SOURCES",
@@ -147,6 +148,10 @@ class LossSection:
         return GanLoss(weights=weights, map_weights=self.maps, gan=self.gan, eps=self.eps)
 
 
+#: How the rates follow the batch (``optim.batch_rule``).
+BATCH_RULES = ("none", "sqrt", "linear")
+
+
 @dataclass(frozen=True)
 class OptimSection:
     lr: float = param(2e-5, "Adam learning rate of the generator")
@@ -165,6 +170,14 @@ class OptimSection:
     )
     decay: float = param(0.5, "learning-rate factor at each decay step (paper: halved)")
     warmup_samples: int = param(0, "linear warm-up of both rates over this many samples (0: none)")
+    batch_rule: str = param(
+        "none",
+        "how lr and d_lr follow a batch other than batch_reference (batch x processes): none (as "
+        "given), sqrt (times sqrt(batch / batch_reference): Adam's usual rule for a larger batch) or "
+        "linear (times batch / batch_reference)",
+        choices=BATCH_RULES,
+    )
+    batch_reference: int = param(8, "the batch lr and d_lr are set for (the paper's 8), for batch_rule")
 
     def __post_init__(self):
         _finite(self.lr, "lr", positive=True)
@@ -182,6 +195,13 @@ class OptimSection:
             )
         _check(0 < self.decay <= 1, "decay", self.decay, "in (0, 1] (1: no decay)")
         _int_at_least(self.warmup_samples, "warmup_samples", 0)
+        _check(self.batch_rule in BATCH_RULES, "batch_rule", self.batch_rule, f"one of {', '.join(BATCH_RULES)}")
+        _int_at_least(self.batch_reference, "batch_reference", 1)
+
+    def batch_factor(self, per_step: int) -> float:
+        """The factor ``batch_rule`` puts on both rates for ``per_step`` samples a step."""
+        ratio = per_step / self.batch_reference
+        return {"none": 1.0, "sqrt": math.sqrt(ratio), "linear": ratio}[self.batch_rule]
 
     def schedule(self, per_step: int, samples_per_epoch: int) -> LrSchedule:
         """The rate factor along the fit (:class:`svbrdf_train.schedule.LrSchedule`):
@@ -194,13 +214,13 @@ class OptimSection:
         self, params: Iterable[torch.nn.Parameter], schedule: LrSchedule, *, discriminator: bool = False
     ) -> tuple[torch.optim.Adam, ScheduledRate]:
         """Adam over ``params`` with ``betas``, and the rate it follows: ``lr`` (``d_lr`` for the
-        ``discriminator``) times ``schedule``'s factor, set for each step by the returned
+        ``discriminator``) times :meth:`batch_factor` times ``schedule``'s factor, set for each step by the returned
         :class:`~svbrdf_train.schedule.ScheduledRate` (``rate.at(step)``)."""
         import torch
 
         from ..schedule import ScheduledRate
 
-        base = self.d_lr if discriminator else self.lr
+        base = (self.d_lr if discriminator else self.lr) * self.batch_factor(schedule.per_step)
         optimiser = torch.optim.Adam(params, lr=base, betas=tuple(self.betas))
         return optimiser, ScheduledRate(optimiser, base, schedule)
 
