@@ -98,14 +98,18 @@ def main(argv=None) -> None:
         for name, capture in CAPTURES.items():
             photo = capture(truth)
             pred = model.predict(photo[0], refine=args.refine, backend="eager")
-            scores[name].append(_score(pred.resize(truth.size[0]) if pred.size != truth.size else pred, truth))
+            scores[name].append(
+                _score(pred.resize(truth.size[0]) if pred.size != truth.size else pred, truth)
+            )
     means = {n: {k: statistics.mean(s[k] for s in rows) for k in MAPS} for n, rows in scores.items()}
     good = means["good"]
     print(f"{model.describe()}, refine {args.refine}; {args.folder}: {len(scores['good'])} materials")
     print("| capture | " + " | ".join(MAPS) + " |")
     print("| --- |" + " ---: |" * len(MAPS))
     for name, m in means.items():
-        cells = [f"{m[k]:.4f}" + ("" if name == "good" else f" ({100 * (m[k] / good[k] - 1):+.0f}%)") for k in MAPS]
+        cells = [
+            f"{m[k]:.4f}" + ("" if name == "good" else f" ({100 * (m[k] / good[k] - 1):+.0f}%)") for k in MAPS
+        ]
         print(f"| {name} | " + " | ".join(cells) + " |")
 
 

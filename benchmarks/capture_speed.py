@@ -85,7 +85,7 @@ def main(argv=None) -> None:
             p.start()
         time.sleep(5 if spinners else 0)  # let the load average see them
         try:
-            print(f"| photo | wall s | peak MB | threads | load (1 min) | beside it |")
+            print("| photo | wall s | peak MB | threads | load (1 min) | beside it |")
             print("| --- | ---: | ---: | --- | ---: | ---: |")
             for s, photo in photos.items():
                 seconds, peak, line = _run(photo, root / f"out-{s}", args.threads)

@@ -72,7 +72,9 @@ def main(argv=None) -> None:
     for (label, prefix, m), points in curves.items():
         late = [v for s, v in points if s >= args.from_step] or [points[-1][1]]
         shown = " ".join(f"{s}:{v:.4f}" for s, v in points)
-        print(f"{label} | {prefix}/{m} | {shown} | mean from step {args.from_step}: {statistics.mean(late):.4f}")
+        print(
+            f"{label} | {prefix}/{m} | {shown} | mean from step {args.from_step}: {statistics.mean(late):.4f}"
+        )
     if args.out:
         _plot(curves, prefixes, args.out)
 
@@ -83,7 +85,9 @@ def _plot(curves, prefixes, out: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(len(prefixes), len(METRICS), figsize=(3.2 * len(METRICS), 2.6 * len(prefixes)), squeeze=False, dpi=100)
+    fig, axes = plt.subplots(
+        len(prefixes), len(METRICS), figsize=(3.2 * len(METRICS), 2.6 * len(prefixes)), squeeze=False, dpi=100
+    )
     labels = list(dict.fromkeys(k[0] for k in curves))
     for r, prefix in enumerate(prefixes):
         for c, m in enumerate(METRICS):

@@ -58,7 +58,9 @@ def _measure(recipe: str, size: str, steps: int, device: str, extra: dict) -> di
     from svbrdf_train.recipe import load_recipe
 
     fields = {k: v for k, v in extra.items() if k != "data.generate"}
-    r = measure(recipe, size, steps, device, 0, None, generate=extra.get("data.generate", "workers"), extra=fields)
+    r = measure(
+        recipe, size, steps, device, 0, None, generate=extra.get("data.generate", "workers"), extra=fields
+    )
     per_sample = step_flops(load_recipe(recipe, size, fields), device)["step"]
     peak, _ = peak_tflops(device, fields.get("train.precision", "fp32"))
     achieved = per_sample * r["samples_s"] / 1e12
@@ -93,7 +95,10 @@ class Report:
 
     def write(self) -> None:
         (self.out / "gpu_session.json").write_text(json.dumps(self.data, indent=2) + "\n")
-        lines = ["| recipe | options | samples/s | ms/step | batch | TFLOP/s | share of peak |", "|---|---|---:|---:|---:|---:|---:|"]
+        lines = [
+            "| recipe | options | samples/s | ms/step | batch | TFLOP/s | share of peak |",
+            "|---|---|---:|---:|---:|---:|---:|",
+        ]
         for r in self.data["rows"]:
             if "samples_s" not in r:
                 lines.append(f"| {r['recipe']} | {r['option']} | not measured: {r.get('why', '')} | | | | |")
@@ -110,7 +115,9 @@ def _ladder(args, report: Report, deadline: float) -> dict:
     """``ours`` under each option set; returns the fastest set."""
     extra: dict = {}
     best, best_rate = {}, 0.0
-    steps = [(name, fields) for name, fields in LADDER] + [(f"+ batch x{args.big_batch}", _big_batch(args.size, args.big_batch))]
+    steps = [(name, fields) for name, fields in LADDER] + [
+        (f"+ batch x{args.big_batch}", _big_batch(args.size, args.big_batch))
+    ]
     steps = steps[: args.rungs] if args.rungs else steps
     for name, fields in steps:
         extra = {**extra, **fields}
@@ -158,32 +165,50 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="cuda")
     ap.add_argument("--size", default="paper", choices=("paper", "cpu", "smoke"))
     ap.add_argument("--out", type=Path, required=True)
-    ap.add_argument("--budget", type=float, default=9.0, help="minutes of wall time for everything (default 9)")
+    ap.add_argument(
+        "--budget", type=float, default=9.0, help="minutes of wall time for everything (default 9)"
+    )
     ap.add_argument("--train-share", type=float, default=0.45, help="share of the budget kept for training")
     ap.add_argument("--steps", type=int, default=40, help="timed steps per option (after the warm-up)")
     ap.add_argument("--big-batch", type=int, default=4, help="factor of the last rung's batch (default 4)")
     ap.add_argument("--rungs", type=int, default=None, help="measure only the first N option sets (dry runs)")
-    ap.add_argument("--recipes", default="no-attn,no-adv,no-svbrdf,multigan,radn", help="measured under the best options")
+    ap.add_argument(
+        "--recipes", default="no-attn,no-adv,no-svbrdf,multigan,radn", help="measured under the best options"
+    )
     ap.add_argument("--train-recipe", default="ours-materials", help="trained with the best options")
-    ap.add_argument("--train-size", default="cpu", choices=("paper", "cpu", "smoke"),
-                    help="size of the trained network (default cpu: a model file small enough to ship)")
+    ap.add_argument(
+        "--train-size",
+        default="cpu",
+        choices=("paper", "cpu", "smoke"),
+        help="size of the trained network (default cpu: a model file small enough to ship)",
+    )
     ap.add_argument("--data", help="real strips for the training recipe (a strip folder or shard)")
     args = ap.parse_args(argv)
     import torch
 
     start = time.monotonic()
     deadline = start + args.budget * 60 * (1 - args.train_share)
-    name = torch.cuda.get_device_name() if args.device.startswith("cuda") and torch.cuda.is_available() else args.device
-    report = Report(args.out, {"device": name, "torch": torch.__version__, "size": args.size, "steps": args.steps})
+    name = (
+        torch.cuda.get_device_name()
+        if args.device.startswith("cuda") and torch.cuda.is_available()
+        else args.device
+    )
+    report = Report(
+        args.out, {"device": name, "torch": torch.__version__, "size": args.size, "steps": args.steps}
+    )
     best = _ladder(args, report, deadline)
     for recipe in [r for r in args.recipes.split(",") if r]:
         if time.monotonic() > deadline:
             report.add({"recipe": recipe, "option": "best of ours", "why": "budget spent"})
             continue
         try:
-            report.add({**_measure(recipe, args.size, args.steps, args.device, best), "option": "best of ours"})
+            report.add(
+                {**_measure(recipe, args.size, args.steps, args.device, best), "option": "best of ours"}
+            )
         except Exception as e:
-            report.add({"recipe": recipe, "option": "best of ours", "why": f"{type(e).__name__}: {str(e)[:200]}"})
+            report.add(
+                {"recipe": recipe, "option": "best of ours", "why": f"{type(e).__name__}: {str(e)[:200]}"}
+            )
     if args.train_recipe == "ours-materials" and not args.data:
         args.train_recipe = "ours-general"  # the same network and capture, procedural data only
     left = args.budget - (time.monotonic() - start) / 60 - 1.0  # a minute for the export and the margin

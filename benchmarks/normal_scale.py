@@ -75,7 +75,11 @@ def _materials(folder: Path, fold: str | None, resolution: int):
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("folder", type=Path, help="materials with ground truth (Des18 folder, shards or strips)")
-    ap.add_argument("--model", default="pretrained", help="model file, checkpoint or fit folder (default: the shipped model)")
+    ap.add_argument(
+        "--model",
+        default="pretrained",
+        help="model file, checkpoint or fit folder (default: the shipped model)",
+    )
     ap.add_argument("--fold", help="with strips: score only the materials of this fold (k/n or names)")
     ap.add_argument("--apply", type=Path, help="write the model file with the best scale (or --scale) here")
     ap.add_argument("--scale", type=float, help="the scale --apply writes (default: the best found)")
@@ -97,12 +101,16 @@ def main(argv=None) -> None:
         for g in dict.fromkeys(groups):
             errors.setdefault(g, []).append(row)
     per = {g: [statistics.mean(r[i] for r in rows) for i in range(len(SCALES))] for g, rows in errors.items()}
-    print(f"{model.describe()}\n{args.folder}{f' fold {args.fold}' if args.fold else ''}: {len(per)} materials")
+    print(
+        f"{model.describe()}\n{args.folder}{f' fold {args.fold}' if args.fold else ''}: {len(per)} materials"
+    )
     print("| material | flat | network | best scale | at best | network beats flat |")
     print("| --- | ---: | ---: | ---: | ---: | --- |")
     for g, e in sorted(per.items()):
         b = min(range(len(SCALES)), key=e.__getitem__)
-        print(f"| {g} | {e[0]:.4f} | {e[-1]:.4f} | {SCALES[b]:.1f} | {e[b]:.4f} | {'yes' if e[-1] < e[0] else 'no'} |")
+        print(
+            f"| {g} | {e[0]:.4f} | {e[-1]:.4f} | {SCALES[b]:.1f} | {e[b]:.4f} | {'yes' if e[-1] < e[0] else 'no'} |"
+        )
     means = [statistics.mean(e[i] for e in per.values()) for i in range(len(SCALES))]
     print("scale: " + ", ".join(f"{s:.1f} {m:.4f}" for s, m in zip(SCALES, means, strict=True)))
     best = min(range(len(SCALES)), key=means.__getitem__)
@@ -120,7 +128,11 @@ def _apply(source: str, out: Path, scale: float) -> None:
     """A copy of a model file with ``normal_scale`` in its generator config."""
     from svbrdf_models.modelfile import pretrained_path, save_model
 
-    path = pretrained_path(source.partition(":")[2] or "ours-general-cpu") if source.startswith("pretrained") else Path(source)
+    path = (
+        pretrained_path(source.partition(":")[2] or "ours-general-cpu")
+        if source.startswith("pretrained")
+        else Path(source)
+    )
     state = torch.load(path, map_location="cpu", weights_only=True)
     state["generator"]["config"]["normal_scale"] = float(scale)
     state.setdefault("provenance", {})["normal_scale"] = f"{scale:.2f}, chosen by benchmarks/normal_scale.py"

@@ -62,10 +62,16 @@ def imprint(image: torch.Tensor, centre: tuple[float, float]) -> float:
     """Spread of ring means around ``centre`` over the image's own spread (``(C, H, W)``)."""
     y = _luminance(image.float())
     h, w = y.shape
-    rows, cols = torch.meshgrid(torch.arange(h, dtype=torch.float32), torch.arange(w, dtype=torch.float32), indexing="ij")
+    rows, cols = torch.meshgrid(
+        torch.arange(h, dtype=torch.float32), torch.arange(w, dtype=torch.float32), indexing="ij"
+    )
     r = ((rows - centre[0]) ** 2 + (cols - centre[1]) ** 2).sqrt()
     edges = torch.linspace(0, w / 2, RINGS + 1)
-    means = [y[(r >= a) & (r < b)].mean() for a, b in zip(edges[:-1], edges[1:], strict=True) if bool(((r >= a) & (r < b)).any())]
+    means = [
+        y[(r >= a) & (r < b)].mean()
+        for a, b in zip(edges[:-1], edges[1:], strict=True)
+        if bool(((r >= a) & (r < b)).any())
+    ]
     return float(torch.stack(means).std()) / max(float(y.std()), SPREAD_FLOOR)
 
 
@@ -114,13 +120,17 @@ def main(argv=None) -> None:
     ap.add_argument("--models", default="pretrained", help="comma-separated model files or pretrained[:NAME]")
     ap.add_argument("-o", "--out", type=Path, help="contact sheet (.png)")
     ap.add_argument("--refine", type=int, default=0, help="refinement steps after the network (default 0)")
-    ap.add_argument("--size", type=int, default=SIZE, help=f"side of the photo's square in pixels (default {SIZE})")
+    ap.add_argument(
+        "--size", type=int, default=SIZE, help=f"side of the photo's square in pixels (default {SIZE})"
+    )
     args = ap.parse_args(argv)
     from svbrdf_train.predict import Predictor
 
     torch.set_num_threads(1)
     sources = [s.strip() for s in args.models.split(",") if s.strip()]
-    models = [Predictor.from_checkpoint(Path(s)) if Path(s).exists() else Predictor.from_model(s) for s in sources]
+    models = [
+        Predictor.from_checkpoint(Path(s)) if Path(s).exists() else Predictor.from_model(s) for s in sources
+    ]
     photos = sorted(p for p in args.folder.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
     figures: dict[str, dict[str, list[float]]] = {s: {} for s in sources}
     rows = []

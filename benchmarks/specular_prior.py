@@ -104,7 +104,9 @@ def _plot(hists: dict[str, np.ndarray], out: Path) -> None:
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("real_train", type=Path, help="folder of map-only strips (DATA/real-train)")
     ap.add_argument("unseen", type=Path, help="Des18-style folder with ground truth (DATA/unseen-dev)")
     ap.add_argument("--count", type=int, default=256, help="procedural materials (default 256)")
@@ -122,7 +124,9 @@ def main(argv=None) -> None:
         "real-train (70)": real,
         "unseen-dev (9)": unseen,
     }
-    print("| data | pixels in 0.03-0.055 | pixels > 0.2 | p10 / p50 / p90 | W1 to real-train | W1 to unseen-dev |")
+    print(
+        "| data | pixels in 0.03-0.055 | pixels > 0.2 | p10 / p50 / p90 | W1 to real-train | W1 to unseen-dev |"
+    )
     print("| --- | ---: | ---: | ---: | ---: | ---: |")
     for name, h in hists.items():
         print(_row(name, h, real, unseen))

@@ -9,7 +9,6 @@ import multiprocessing
 from pathlib import Path
 
 import pytest
-import torch
 
 from svbrdf_models.batch import folder_name
 from svbrdf_models.capture import write_summary
@@ -30,7 +29,8 @@ def _photo_file(path: Path, name: str = "tiles", size: int = 64) -> Path:
 
 
 @pytest.mark.parametrize(
-    ("name", "folder"), [("...png", "photo"), ("..png", "photo"), (".hidden.png", "hidden"), ("a.b.png", "a.b")]
+    ("name", "folder"),
+    [("...png", "photo"), ("..png", "photo"), (".hidden.png", "hidden"), ("a.b.png", "a.b")],
 )
 def test_a_folder_named_after_a_photo_stays_inside_out(name, folder):
     assert folder_name(Path(name), set()) == folder
@@ -73,16 +73,27 @@ def test_two_captures_of_same_named_photos_into_one_folder_lose_nothing(tmp_path
 
 def test_summary_keeps_earlier_photos_and_replaces_a_photos_own_entry(tmp_path):
     out = tmp_path / "maps"
-    write_summary(out / "summary.json", [{"name": "a", "photo": "a.png", "status": "ok", "rmse": 0.1}], model="m1")
-    write_summary(out / "summary.json", [{"name": "b", "photo": "b.png", "status": "ok", "rmse": 0.3}], model="m1")
+    write_summary(
+        out / "summary.json", [{"name": "a", "photo": "a.png", "status": "ok", "rmse": 0.1}], model="m1"
+    )
+    write_summary(
+        out / "summary.json", [{"name": "b", "photo": "b.png", "status": "ok", "rmse": 0.3}], model="m1"
+    )
     second = write_summary(
         out / "summary.json",
-        [{"name": "a", "photo": "a.png", "status": "ok", "rmse": 0.2}, {"photo": "c.png", "status": "failed"}],
+        [
+            {"name": "a", "photo": "a.png", "status": "ok", "rmse": 0.2},
+            {"photo": "c.png", "status": "failed"},
+        ],
         model="m2",
     )
     on_disk = json.loads((out / "summary.json").read_text())
     assert on_disk == second
-    assert [(e.get("name"), e.get("rmse")) for e in on_disk["entries"]] == [("b", 0.3), ("a", 0.2), (None, None)]
+    assert [(e.get("name"), e.get("rmse")) for e in on_disk["entries"]] == [
+        ("b", 0.3),
+        ("a", 0.2),
+        (None, None),
+    ]
     assert (on_disk["photos"], on_disk["captured"], on_disk["failed"]) == (3, 2, 1)
     assert on_disk["median_rmse"] == pytest.approx(0.25) and on_disk["model"] == "m2"
 
@@ -193,5 +204,7 @@ def test_the_viewer_lights_the_material_with_the_flash_material_json_records(tmp
     folder = tmp_path / "out" / "shot"
     flash = json.loads((folder / "material.json").read_text())["flash"]["intensity"]
     page = (folder / "index.html").read_text()
-    data = json.loads(re.search(r'<script type="application/json" id="svbrdf-data">(.*?)</script>', page, re.S).group(1))
+    data = json.loads(
+        re.search(r'<script type="application/json" id="svbrdf-data">(.*?)</script>', page, re.S).group(1)
+    )
     assert data["intensity"] == pytest.approx(flash) and flash != pytest.approx(3.14159 * 2.2**2, rel=0.01)

@@ -18,7 +18,9 @@ def _restore_threads(monkeypatch):
     torch.set_num_threads(before)
 
 
-@pytest.mark.parametrize(("load", "threads", "busy"), [(0.0, 4, False), (1.2, 3, True), (2.6, 1, True), (9.0, 1, True)])
+@pytest.mark.parametrize(
+    ("load", "threads", "busy"), [(0.0, 4, False), (1.2, 3, True), (2.6, 1, True), (9.0, 1, True)]
+)
 def test_one_thread_per_free_core(monkeypatch, load, threads, busy):
     monkeypatch.setattr(machine, "_load", lambda: load)
     choice = machine.choose_threads()

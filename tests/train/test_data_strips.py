@@ -39,8 +39,14 @@ def write_strip(path, size=64, seed=0, *, diffuse=None, specular=0.04, normal=No
     """One strip PNG: normal | diffuse | roughness | specular."""
     g = torch.Generator().manual_seed(seed)
     n = _normals_of(_height(size, seed)) if normal is None else normal
-    d = 0.1 + 0.6 * torch.rand(3, size, size, generator=g) if diffuse is None else diffuse.expand(3, size, size)
-    r = (0.2 + 0.6 * torch.rand(1, size, size, generator=g) if roughness is None else roughness).expand(3, size, size)
+    d = (
+        0.1 + 0.6 * torch.rand(3, size, size, generator=g)
+        if diffuse is None
+        else diffuse.expand(3, size, size)
+    )
+    r = (0.2 + 0.6 * torch.rand(1, size, size, generator=g) if roughness is None else roughness).expand(
+        3, size, size
+    )
     s = torch.full((3, size, size), specular)
     write_image(path, torch.cat([encode_normal(n), d, r, s], dim=2), bits=8)
     return path
@@ -157,7 +163,12 @@ def _nonempty(names, k, n):
 
 @pytest.mark.parametrize(
     ("spec", "needle"),
-    [("oak", "'oak' is no known material"), ("b", "could be"), ("0/5", "1 <= k <= n"), ("9/100", "names no material")],
+    [
+        ("oak", "'oak' is no known material"),
+        ("b", "could be"),
+        ("0/5", "1 <= k <= n"),
+        ("9/100", "names no material"),
+    ],
 )
 def test_a_fold_that_names_no_material_is_refused(strips, spec, needle):
     names = MaterialBank.open(strips).names
@@ -169,7 +180,9 @@ def test_a_strip_shard_holds_the_strips_decoded(strips, tmp_path):
     bank = MaterialBank.open(strips)
     path = write_strip_shard(bank, tmp_path / "s.h5")
     back = read_strip_shard(path)
-    assert back.names == bank.names and all(np.array_equal(a, b) for a, b in zip(back.maps, bank.maps, strict=True))
+    assert back.names == bank.names and all(
+        np.array_equal(a, b) for a, b in zip(back.maps, bank.maps, strict=True)
+    )
     small = read_strip_shard(write_strip_shard(resize_bank(bank, 32), tmp_path / "s32.h5"))
     assert small.tile == 32
     # The shard feeds the same samples as the folder it was made from.
@@ -214,7 +227,10 @@ def test_a_fit_on_strips_validates_the_held_out_fold(strips, tmp_path):
         "smoke",
         overrides={
             "data.path": str(strips),
-            "data.mix": [{"source": "procedural", "weight": 1}, {"source": "materials", "weight": 1, "fold": "fabric"}],
+            "data.mix": [
+                {"source": "procedural", "weight": 1},
+                {"source": "materials", "weight": 1, "fold": "fabric"},
+            ],
         },
     )
     result = fit(recipe, FitOptions(out=tmp_path / "out", track=False, progress=False))
@@ -240,7 +256,20 @@ def test_init_takes_the_shipped_model_file():
 
 def test_compare_sets_a_training_mix_with_strips_against_real(strips):
     result = CliRunner().invoke(
-        cli, ["data", "compare", str(strips), "-n", "4", "-r", "32", "--strips", str(strips), "--strip-share", "0.5"]
+        cli,
+        [
+            "data",
+            "compare",
+            str(strips),
+            "-n",
+            "4",
+            "-r",
+            "32",
+            "--strips",
+            str(strips),
+            "--strip-share",
+            "0.5",
+        ],
     )
     assert result.exit_code == 0, result.output
     assert "50% of them strips" in result.output and "| specular level |" in result.output
@@ -261,7 +290,11 @@ def test_fit_refuses_a_fold_that_names_no_material(strips, tmp_path, fold, needl
 def test_fit_refuses_a_folder_without_strips(tmp_path):
     (tmp_path / "empty").mkdir()
     args = ["fit", "-q", "--no-track", "--recipe", "ours-materials", "--size", "smoke"]
-    _refused([*args, "--data", str(tmp_path / "empty"), "--out", str(tmp_path / "out")], "empty", "no material strips")
+    _refused(
+        [*args, "--data", str(tmp_path / "empty"), "--out", str(tmp_path / "out")],
+        "empty",
+        "no material strips",
+    )
 
 
 @pytest.mark.slow
@@ -280,7 +313,9 @@ def test_a_fit_on_strips_stopped_and_resumed_ends_bitwise_as_one_that_never_stop
     assert whole.returncode == 0, whole.stderr
     cut = run_cli(*base, "--max-steps", "6", "--out", "cut", cwd=tmp_path)
     assert cut.returncode == 0, cut.stderr
-    resumed = run_cli("fit", "--out", "cut", "--resume", "--max-steps", "12", "-q", "--no-track", cwd=tmp_path)
+    resumed = run_cli(
+        "fit", "--out", "cut", "--resume", "--max-steps", "12", "-q", "--no-track", cwd=tmp_path
+    )
     assert resumed.returncode == 0, resumed.stderr
     a, b = load_checkpoint(tmp_path / "whole" / "last.pt"), load_checkpoint(tmp_path / "cut" / "last.pt")
     assert a["step"] == b["step"] == 12
@@ -315,7 +350,9 @@ def test_the_batched_path_resamples_windows_as_the_cpu_path_does_on_average(tmp_
     folder.mkdir()
     for i in range(3):
         smooth = 0.2 + 0.6 * torch.sigmoid(3 * _height(64, seed=10 + i))
-        write_strip(folder / f"m{i}.png", seed=i, diffuse=smooth.expand(3, -1, -1), roughness=smooth.flip(0)[None])
+        write_strip(
+            folder / f"m{i}.png", seed=i, diffuse=smooth.expand(3, -1, -1), roughness=smooth.flip(0)[None]
+        )
     data = MaterialStrips(MaterialBank.open(folder), 30, 32, photo=PhotoSettings())
     indices = [i for i in range(30) if data.placement(i).side != 32]
     cpu = torch.stack([data[i]["maps"] for i in indices])
@@ -341,7 +378,18 @@ def test_the_gpu_session_script_dry_runs_on_the_cpu(strips, tmp_path):
     out = tmp_path / "out"
     env = {**os.environ, "OUT": str(out), "DEVICE": "cpu", "SIZE": "smoke", "BUDGET": "1.6",
            "PYTHON": sys.executable, "STRIPS": str(strips), "OMP_NUM_THREADS": "1"}  # fmt: skip
-    args = ["--steps", "1", "--rungs", "2", "--recipes", "no-attn", "--train-share", "0.3", "--train-size", "smoke"]
+    args = [
+        "--steps",
+        "1",
+        "--rungs",
+        "2",
+        "--recipes",
+        "no-attn",
+        "--train-share",
+        "0.3",
+        "--train-size",
+        "smoke",
+    ]
     done = subprocess.run(["bash", str(repo / "benchmarks" / "gpu_session.sh"), *args], env=env, cwd=repo,
                           capture_output=True, text=True, timeout=600)  # fmt: skip
     assert done.returncode == 0, done.stderr[-2000:]

@@ -104,7 +104,6 @@ def help_text(refine: int, *, click: bool = False) -> str:
     from svbrdf_render import MIN_REFINE_SIDE
 
     from .capture import MAX_PIXELS, MIN_SIDE
-
     from .refining import DEFAULT_MAP_SIZE
 
     limits = {"min_refine": MIN_REFINE_SIDE, "min_side": MIN_SIDE, "megapixels": MAX_PIXELS // 1_000_000,

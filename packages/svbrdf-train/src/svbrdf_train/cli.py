@@ -76,7 +76,17 @@ def data():
 
 
 def _register() -> None:
-    from .commands import data_compare, data_folds, data_shards, data_sheet, data_strips, export, fit, predict, recipes
+    from .commands import (
+        data_compare,
+        data_folds,
+        data_shards,
+        data_sheet,
+        data_strips,
+        export,
+        fit,
+        predict,
+        recipes,
+    )
 
     for module in (data_sheet, data_shards, data_strips, data_compare, data_folds):
         for command in module.COMMANDS:

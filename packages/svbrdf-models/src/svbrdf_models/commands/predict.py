@@ -10,9 +10,8 @@ from svbrdf_render import DEFAULT_REFINE_STEPS
 from svbrdf_render.cli import float_range, int_range
 from svbrdf_render.machine import THREADS_HELP
 
-from ..refining import DEFAULT_MAP_SIZE, FULL
-
 from .._registry import Registry
+from ..refining import DEFAULT_MAP_SIZE, FULL
 
 __all__ = ["MAX_MAP_SIZE", "add_parser", "run"]
 

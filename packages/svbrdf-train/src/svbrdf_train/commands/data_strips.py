@@ -9,9 +9,8 @@ from pathlib import Path
 
 import click
 
-from .options import threads_option
-
 from .data_shards import _check_target, _writing
+from .options import threads_option
 
 __all__ = ["COMMANDS", "strips"]
 
@@ -77,10 +76,15 @@ def strips(folder, out, tile, folds, force):
     if out is None:
         return
     bank = resize_bank(bank, tile)
-    with _writing(out), click.progressbar(length=len(bank), label="writing", file=sys.stderr, width=30) as bar:
+    with (
+        _writing(out),
+        click.progressbar(length=len(bank), label="writing", file=sys.stderr, width=30) as bar,
+    ):
         write_strip_shard(bank, out, overwrite=force, progress=bar.update)
     size = out.stat().st_size / 2**20
-    click.echo(f"wrote {out}: {len(bank)} materials at {bank.tile} px, {size:.1f} MiB, {time.perf_counter() - start:.1f} s")
+    click.echo(
+        f"wrote {out}: {len(bank)} materials at {bank.tile} px, {size:.1f} MiB, {time.perf_counter() - start:.1f} s"
+    )
 
 
 COMMANDS = [strips]

@@ -24,6 +24,7 @@ is half the tile), a quarter of the memory of 512 px.
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -96,7 +97,9 @@ def read_strip(path) -> np.ndarray:
 
 def _pngs(folder: Path) -> list[Path]:
     return sorted(
-        p for p in folder.iterdir() if p.suffix.lower() == ".png" and not p.name.startswith(".") and p.is_file()
+        p
+        for p in folder.iterdir()
+        if p.suffix.lower() == ".png" and not p.name.startswith(".") and p.is_file()
     )
 
 
@@ -235,7 +238,9 @@ def read_strip_shard(path) -> MaterialBank:
         with h5py.File(path, "r") as f:
             fmt = f.attrs.get("format")
             if fmt != STRIP_FORMAT:
-                raise ShardError(f"{path}: not a strip shard (format {fmt!r}); make one with `svbrdf-train data strips`")
+                raise ShardError(
+                    f"{path}: not a strip shard (format {fmt!r}); make one with `svbrdf-train data strips`"
+                )
             if not f.attrs.get("complete", False):
                 raise ShardError(f"{path}: an incomplete strip shard (its writing stopped); make it again")
             if int(f.attrs.get("format_version", 0)) > STRIP_FORMAT_VERSION:

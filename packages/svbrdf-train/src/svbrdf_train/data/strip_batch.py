@@ -81,7 +81,9 @@ def _sample(levels: list[Tensor], crops, grids: Tensor, resolution: int) -> Tens
     for level, rows in by_level.items():
         index = torch.tensor(rows, device=grids.device)
         source = levels[level][torch.tensor([crops[b].material for b in rows], device=grids.device)].float()
-        out[index] = F.grid_sample(source, grids[index], mode="bilinear", padding_mode="border", align_corners=False)
+        out[index] = F.grid_sample(
+            source, grids[index], mode="bilinear", padding_mode="border", align_corners=False
+        )
     return out
 
 
@@ -118,11 +120,17 @@ def strip_batch(data, indices: Sequence[int], device: torch.device | str) -> dic
     diffuse = stored[:, 3:6]
     drawn = torch.tensor([c.albedo for c in crops], device=device)
     brightest = diffuse.flatten(1).amax(1)
-    ceiling = torch.where(brightest > 0, ALBEDO_CEILING / brightest.clamp_min(1e-12), torch.ones_like(brightest))
+    ceiling = torch.where(
+        brightest > 0, ALBEDO_CEILING / brightest.clamp_min(1e-12), torch.ones_like(brightest)
+    )
     factor = torch.where(drawn <= 1, drawn, torch.clamp(torch.minimum(drawn, ceiling), min=1.0))
     maps = SVBRDF(normal, diffuse * factor.view(-1, 1, 1, 1), stored[:, 6:7], stored[:, 7:10], validate=False)
     packed = maps.pack()
     seed = data._photo_seed()
     scenes = [photo_scene(seed, i, data.photo) for i in indices]
     qualities = [photo_jpeg_quality(seed, i, data.photo) for i in indices]
-    return {"input": photographs(packed, scenes, qualities), "maps": packed, "name": [data._name(i) for i in indices]}
+    return {
+        "input": photographs(packed, scenes, qualities),
+        "maps": packed,
+        "name": [data._name(i) for i in indices],
+    }

@@ -38,7 +38,6 @@ from typing import Any, NamedTuple
 import numpy as np
 import torch
 import torch.nn.functional as F
-from torch import Tensor
 from torch.utils.data import Dataset
 
 from svbrdf_render import SVBRDF, decode_normal
@@ -95,7 +94,9 @@ def fold_split(names: Sequence[str], spec: str | None, where: str = "") -> tuple
     else:
         held = [_match(w.strip(), names, spec, source) for w in text.split(",") if w.strip()]
     if not held:
-        raise DataError(f"fold {spec!r}: names no material{source}; {len(names)} materials: {', '.join(names[:8])}...")
+        raise DataError(
+            f"fold {spec!r}: names no material{source}; {len(names)} materials: {', '.join(names[:8])}..."
+        )
     train = [m for m in names if m not in set(held)]
     if not train:
         raise DataError(f"fold {spec!r}: holds out every material{source}, leaving none to train on")
