@@ -9,6 +9,7 @@ import multiprocessing
 from pathlib import Path
 
 import pytest
+import torch
 
 from svbrdf_models.batch import folder_name
 from svbrdf_models.capture import write_summary
@@ -208,3 +209,59 @@ def test_the_viewer_lights_the_material_with_the_flash_material_json_records(tmp
         re.search(r'<script type="application/json" id="svbrdf-data">(.*?)</script>', page, re.S).group(1)
     )
     assert data["intensity"] == pytest.approx(flash) and flash != pytest.approx(3.14159 * 2.2**2, rel=0.01)
+
+
+# -- a region of known albedo pins the level (issue 35: --reference X,Y,W,H:ALBEDO) ------------
+
+
+def _card_photo(path: Path, exposure: float = 1.0, width: int = 96) -> Path:
+    """A flash photo (96 px tall, ``width`` wide) of a material with an 18% grey card in it."""
+    from svbrdf_render import SVBRDF, Scene
+
+    maps = example_material("tiles", 96)
+    normal, diffuse, roughness = maps.normal.clone(), maps.diffuse.clone(), maps.roughness.clone()
+    card = (slice(None), slice(None), slice(20, 44), slice(20, 44))  # a flat, matte 18% grey card
+    normal[card], diffuse[card], roughness[card] = torch.tensor([0.0, 0.0, 1.0]).view(1, 3, 1, 1), 0.18, 0.9
+    maps = SVBRDF(normal, diffuse, roughness, maps.specular, validate=False)
+    photo = render(maps, Scene.flash(intensity=12.0 * exposure)).clamp(0, 1)[0]
+    if width > 96:
+        photo = torch.cat([torch.zeros(3, 96, width - 96), photo], dim=2)
+    return write_image(path, linear_to_srgb(photo))
+
+
+def _diffuse_png_mean(folder: Path, box) -> float:
+    from svbrdf_render import read_image, srgb_to_linear
+
+    d = srgb_to_linear(read_image(folder / "diffuse.png"))  # diffuse.png is sRGB by default
+    t, l, b, r = box
+    luma = torch.tensor([0.2126, 0.7152, 0.0722]).view(3, 1, 1)
+    return float((d[:, t:b, l:r] * luma).sum(0).mean())
+
+
+@pytest.mark.parametrize("exposure", [0.5, 2.0])
+def test_a_grey_card_pins_the_diffuse_level_whatever_the_exposure(tmp_path, exposure):
+    photo = _card_photo(tmp_path / "card.png", exposure)
+    out = tmp_path / "out"
+    args = ["--refine", "0", "--relit", "none", "--reference", "24,24,16,16:0.18"]
+    assert main(["predict", str(photo), "-o", str(out), *args]) == 0
+    folder = out / "card"
+    record = json.loads((folder / "material.json").read_text())
+    assert record["reference"]["albedo"] == 0.18 and record["reference"]["region"] == [24, 24, 16, 16]
+    # the maps are at the model's 128 px: the card's 24..40 of 96 px is 32..53 there
+    assert _diffuse_png_mean(folder, (34, 34, 51, 51)) == pytest.approx(0.18, abs=0.02)
+
+
+@pytest.mark.parametrize(
+    ("spec", "needle"),
+    [("90,90,20,20:0.18", "outside the 96x96 photo"), ("10,10,20,20:0.18", "not inside the square")],
+)
+def test_a_reference_outside_the_photo_or_the_square_is_refused(tmp_path, capsys, spec, needle):
+    photo = _card_photo(tmp_path / "card.png", width=96 if "outside" in needle else 128)
+    code = main(["predict", str(photo), "-o", str(tmp_path / "o"), *FAST, "--reference", spec])
+    assert code == 2 and needle in capsys.readouterr().err
+
+
+def test_a_clipped_reference_is_refused(tmp_path, capsys):
+    photo = _card_photo(tmp_path / "card.png", exposure=40.0)
+    code = main(["predict", str(photo), "-o", str(tmp_path / "o"), *FAST, "--reference", "24,24,16,16:0.18"])
+    assert code == 2 and "clipped" in capsys.readouterr().err

@@ -39,6 +39,7 @@ from .errors import DataError
 from .figures import HEAT_MAX, error_heatmap, image_grid
 from .material import to_directx
 from .photos import MAX_PIXELS, MIN_SIDE, PhotoError, load_photo, orient, square
+from .reference import Reference
 from .refining import (
     BACKEND,
     FULL,
@@ -153,6 +154,8 @@ class CaptureOptions:
         refine_seconds: with ``refine``, stop refining a photo after this many seconds.
         scene: with ``refine``, the capture's scene (default: the flash found from the maps).
         backend: with ``refine``, the renderer's backend (``"auto"``, ``"eager"`` or ``"compiled"``).
+        reference: a region of known albedo (:class:`svbrdf_models.reference.Reference`) that
+            pins the diffuse albedo's level, before any refinement.
     """
 
     linear: bool = False
@@ -169,6 +172,7 @@ class CaptureOptions:
     refine_seconds: float | None = None
     scene: Scene | None = None
     backend: str = BACKEND
+    reference: Reference | None = None
 
     def __post_init__(self):
         convention = NORMAL_ALIASES.get(self.normal_convention, self.normal_convention)
@@ -246,6 +250,7 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None,
             "give a larger photo or --crop, or leave out --tileable",
         )
     photo, svbrdf, tiles = _predict_square(predictor, photo, options, notes, path)
+    svbrdf, reference = _pin_reference(svbrdf, photo, options, path)
     if options.refine:  # on the model's device, where the network ran
         device = getattr(predictor, "device", torch.device("cpu"))
         judged = _judge_refined(photo, svbrdf, options, progress, device)
@@ -271,10 +276,22 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None,
         "tiles": tiles,
         **judged.entry,
         "tileable": tileable,
+        "reference": reference,
     }
     record = _material_record(predictor, path, options, entry)
     write_material(out_dir, svbrdf, MaterialContent(photo, judged.figure, relit, record), options)
     return entry
+
+
+def _pin_reference(svbrdf: SVBRDF, photo: Tensor, options: CaptureOptions, path: Path) -> tuple[SVBRDF, dict | None]:
+    """The maps with the albedo level of ``options.reference`` (a card of known albedo), and
+    its record; the maps as they are without one."""
+    if options.reference is None:
+        return svbrdf, None
+    from .photos import square_box
+    from .reference import pin_albedo
+
+    return pin_albedo(svbrdf, photo, options.reference, square_box(path, options.crop), str(path))
 
 
 def _tileable(svbrdf: SVBRDF) -> tuple[SVBRDF, dict]:
@@ -307,6 +324,7 @@ def _material_record(predictor, path: Path, options: CaptureOptions, entry: dict
         "flash": entry["flash"],
         "refine": entry["refine"] or {"budget": 0},
         "tileable": entry["tileable"],
+        "reference": entry.get("reference"),
         "provenance": provenance(),
     }
 

@@ -40,6 +40,7 @@ __all__ = [
     "load_photo",
     "orient",
     "square",
+    "square_box",
     "square_side",
 ]
 
@@ -158,6 +159,22 @@ def _inspect(path: Path, notes: list[str]) -> int:
     if orientation_note:
         notes.append(orientation_note)
     return orientation
+
+
+def square_box(path, crop: tuple[int, int, int] | None = None) -> tuple[int, int, int, int, int]:
+    """``(x, y, side, width, height)``: where the square a capture of ``path`` takes lies in the
+    photo as displayed (after its EXIF orientation), and the photo's size; from the header."""
+    with _open_image(Path(path)) as im:
+        width, height = im.size
+        orientation, _ = exif_orientation(im)
+    if orientation in (5, 6, 7, 8):  # a quarter turn: the displayed photo is the other way round
+        width, height = height, width
+    if crop is not None:
+        x, y, side = (int(v) for v in crop)
+    else:
+        side = min(width, height)
+        x, y = (width - side) // 2, (height - side) // 2
+    return x, y, side, width, height
 
 
 def square_side(path, crop: tuple[int, int, int] | None = None) -> int | None:

@@ -68,6 +68,14 @@ def add_parser(sub) -> None:
         "Python's TrainedModel.predict refines only when asked, refine=0 by default)",
     )
     more.add_argument(
+        "--reference",
+        type=_reference,
+        metavar="X,Y,W,H:ALBEDO",
+        help="a region of known albedo in the photo (pixels as displayed), such as an 18%% grey card "
+        "(0.18): the diffuse albedo's level is pinned to it before refinement (one photo cannot tell "
+        "a bright material from a strong flash; docs/capture-guide.md)",
+    )
+    more.add_argument(
         "--refine-seconds",
         type=float_range(0, above=True),
         metavar="S",
@@ -149,6 +157,16 @@ def _add_output_options(p, more) -> None:
     )
 
 
+def _reference(text: str):
+    from ..errors import DataError
+    from ..reference import Reference
+
+    try:
+        return Reference.parse(text)
+    except DataError as e:
+        raise argparse.ArgumentTypeError(str(e).removeprefix(f"--reference {text!r}: ")) from None
+
+
 def _map_size(text: str) -> int | str:
     if text.strip().lower() == FULL:
         return FULL
@@ -225,6 +243,7 @@ def _capture_options(args):
         refine=args.refine,
         refine_seconds=args.refine_seconds,
         scene=None if args.scene is None else load_scene(args.scene),
+        reference=args.reference,
         backend=args.backend,
     )
 
