@@ -126,7 +126,7 @@ def test_the_logged_model_carries_signature_example_requirements_and_the_file(re
         (np.zeros((16, 16), np.float32), "got shape (16, 16)"),
         (np.zeros((1, 0, 16, 3), np.float32), "got shape (1, 0, 16, 3)"),
         (np.full((1, 16, 16, 3), 255.0, np.float32), "scale 8-bit values by 1/255"),
-        (np.full((1, 16, 16, 3), -0.5, np.float32), "values span [-0.5, -0.5]"),
+        (np.full((1, 16, 16, 3), -0.5, np.float32), "linear radiance is never below 0"),
         (np.where(np.eye(16) > 0, np.nan, 0.5)[None, ..., None].repeat(3, -1).astype(np.float32), "48 values"),
         (np.array([["a", "b", "c"]]), "expected numbers"),
     ],
@@ -152,6 +152,8 @@ def test_bad_photos_are_refused_in_one_line(loaded, photos, says):
     [
         ({"refine": -1}, _photos(1, 16, 16), "whole number of refinement steps"),
         ({"refine": 2}, _photos(1, 8, 8), "smaller than 16 px"),
+        ({"refine": 10**9}, _photos(1, 16, 16), "over this server's limit of 500 steps"),
+        ({"refine": 501}, _photos(1, 16, 16), "SVBRDF_SERVE_MAX_REFINE"),
     ],
 )
 def test_bad_refinement_is_refused_in_one_line(loaded, params, photos, says):
@@ -242,3 +244,13 @@ def test_served_model_answers_a_posted_photo_with_its_maps(server):
 def test_served_model_refuses_a_bad_photo_with_the_reason(server):
     status, body = _post(f"{server}/invocations", {"inputs": (_photos(1, 16, 16) * 255).tolist()})
     assert status == 400 and "scale 8-bit values by 1/255" in body["message"]
+
+
+def test_a_request_over_the_pixel_limit_is_refused_before_any_work(loaded, monkeypatch):
+    """Issue 36: a 4096x4096 photo drove a served model past 7.6 GB. The limit is per request,
+    checked on the shape before a value is converted; SVBRDF_SERVE_MAX_PIXELS changes it."""
+    monkeypatch.setenv("SVBRDF_SERVE_MAX_PIXELS", str(2 * 16 * 16 - 1))
+    with pytest.raises(pyfunc.PhotoInputError, match="512 pixels in one request, over this server's limit of 511"):
+        loaded.predict(_photos(2, 16, 16))
+    monkeypatch.setenv("SVBRDF_SERVE_MAX_PIXELS", "512")
+    assert loaded.predict(_photos(2, 16, 16))["normal"].shape[0] == 2

@@ -53,8 +53,10 @@ from .errors import DataError
 from .modelfile import PYFUNC_ARTIFACT, TrainedModel, load_model
 
 __all__ = [
+    "SERVE_LIMITS",
     "SVBRDFPythonModel",
     "PhotoInputError",
+    "serve_limit",
     "log_pyfunc_model",
     "signature",
     "input_example",
@@ -95,16 +97,24 @@ def check_photos(photos: Any) -> np.ndarray:
     if array.ndim != 4 or array.shape[-1] != 3 or 0 in array.shape:
         hint = "; channels go last" if array.ndim == 4 and array.shape[1] == 3 else ""
         raise PhotoInputError(f"{what}: got shape {tuple(np.shape(photos))}{hint}")
+    pixels, limit = int(np.prod(array.shape[:3])), serve_limit("MAX_PIXELS")
+    if pixels > limit:
+        raise PhotoInputError(
+            f"{what}: {pixels:,} pixels in one request, over this server's limit of {limit:,} "
+            "(SVBRDF_SERVE_MAX_PIXELS); send fewer or smaller photos"
+        )
     array = array.astype(np.float32, copy=False)
     bad = int(np.count_nonzero(~np.isfinite(array)))
     if bad:
         raise PhotoInputError(f"{what}: {bad} values are NaN or infinite; give finite pixel values")
     low, high = float(array.min()), float(array.max())
-    if low < 0 or high > 1:
+    if high > 1:
         raise PhotoInputError(
             f"{what}: values span [{low:.4g}, {high:.4g}]; scale 8-bit values by 1/255, and decode "
             "sRGB to linear first"
         )
+    if low < 0:
+        raise PhotoInputError(f"{what}: values down to {low:.4g}; linear radiance is never below 0")
     return array
 
 
@@ -116,9 +126,31 @@ def _refine_steps(params: dict[str, Any] | None) -> int:
     if isinstance(refine, np.integer):  # MLflow's parameter schema may hand numpy integers
         refine = int(refine)
     try:
-        return check_refine(refine)
+        steps = check_refine(refine)
     except DataError as e:
         raise PhotoInputError(f"params: {e}") from None
+    limit = serve_limit("MAX_REFINE")
+    if steps > limit:
+        raise PhotoInputError(
+            f"params: refine {steps} is over this server's limit of {limit} steps (SVBRDF_SERVE_MAX_REFINE); "
+            "ask for fewer"
+        )
+    return steps
+
+
+#: What one request may ask of a served model, each changed by ``SVBRDF_SERVE_<NAME>``: the
+#: pixels of all its photos (4 megapixels: a 2048x2048 photo, about 2 GB refined), and the
+#: refinement steps (500: minutes for a large photo, never a worker held for good).
+SERVE_LIMITS = {"MAX_PIXELS": 4 * 1024 * 1024, "MAX_REFINE": 500}
+
+
+def serve_limit(name: str) -> int:
+    """The limit ``name`` of :data:`SERVE_LIMITS`, or the whole number ``SVBRDF_SERVE_<NAME>``
+    sets (a value that is not one is ignored: the default holds)."""
+    import os
+
+    text = os.environ.get(f"SVBRDF_SERVE_{name}", "").strip()
+    return int(text) if text.isdigit() and int(text) > 0 else SERVE_LIMITS[name]
 
 
 class SVBRDFPythonModel(PythonModel):
