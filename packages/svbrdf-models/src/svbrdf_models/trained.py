@@ -148,10 +148,13 @@ class TrainedModel:
                 "read the file with svbrdf_models.capture.load_photo"
             )
         if batch.numel() == 0:
-            raise DataError(f"{self.source}: the photo is empty ({tuple(photo.shape)}); give a photo with pixels")
+            raise DataError(
+                f"{self.source}: the photo is empty ({tuple(photo.shape)}); give a photo with pixels"
+            )
         if min(batch.shape[-2:]) < _MIN_PHOTO_SIDE:
             raise DataError(
-                f"{self.source}: the photo is {batch.shape[-1]}x{batch.shape[-2]} px, under {_MIN_PHOTO_SIDE} px on its "
+                f"{self.source}: the photo is {batch.shape[-1]}x{batch.shape[-2]} px, under "
+                f"{_MIN_PHOTO_SIDE} px on its "
                 "short side: too few pixels to read a material from (the command line takes 64 px and more)"
             )
         bad = int((~torch.isfinite(batch)).sum())
@@ -161,7 +164,11 @@ class TrainedModel:
                 raise DataError(
                     f"{self.source}: the photo's values run from {low:.3g} to {high:.3g}, not linear "
                     "values in [0, 1]"
-                    + ("; a photo in 0-255 needs svbrdf_render.srgb_to_linear(photo / 255)" if high > _MAX_VALUE else "")
+                    + (
+                        "; a photo in 0-255 needs svbrdf_render.srgb_to_linear(photo / 255)"
+                        if high > _MAX_VALUE
+                        else ""
+                    )
                     + "; or read the file with svbrdf_models.load_photo"
                 )
         if bad:

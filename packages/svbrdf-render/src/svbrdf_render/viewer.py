@@ -92,7 +92,9 @@ def viewer_scene(light=None, intensity: float | None = None) -> Scene:
 
 
 def _intensity(value) -> float:
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0
+    ok = (
+        isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0
+    )
     if not ok:
         raise SVBRDFError(f"write_viewer: intensity must be a finite number > 0, got {value!r}")
     return float(value)

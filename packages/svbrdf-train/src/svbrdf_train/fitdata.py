@@ -459,7 +459,9 @@ def fold_validation_set(d: DataSettings, res: int) -> tuple[Dataset, str] | None
     entries = list(d.mix or ()) if d.source == "mix" else [{"source": d.source, "fold": d.fold}]
     for entry in entries:
         if entry.get("source") == "materials" and entry.get("fold"):
-            part = dataclasses.replace(d, source="materials", path=entry.get("path") or d.path, fold=entry["fold"], mix=None)
+            part = dataclasses.replace(
+                d, source="materials", path=entry.get("path") or d.path, fold=entry["fold"], mix=None
+            )
             _, held = _strip_datasets(part, res)
             names = ", ".join(s.removeprefix("strip:") for s in held.bank.names[:4])
             return held, f"{len(held)} held-out materials (fold {entry['fold']}: {names}, ...)"
@@ -487,5 +489,7 @@ def _strip_materials(p: Path, shards: list[Path], role: str) -> tuple[Dataset, s
         bank = _bank(p)
     except DataError as e:
         raise DataError(f"{role} {e}") from None
-    data = MaterialStrips(bank, len(bank), bank.tile, seed=1, photo=PhotoSettings.preset("phone"), augment=False)
+    data = MaterialStrips(
+        bank, len(bank), bank.tile, seed=1, photo=PhotoSettings.preset("phone"), augment=False
+    )
     return data, f"{len(bank)} material strips of {p} (photographed under the phone capture)"

@@ -2,7 +2,8 @@
 
 The source is a checkpoint file, the ``--out`` folder of a fit (its ``last.pt``), a model file
 (``pretrained[:NAME]``, shipped with svbrdf-models, or a file ``export`` wrote: the generator
-alone), or an MLflow run id (the checkpoint that run logged). The new fit takes the generator's weights, and the
+alone), or an MLflow run id (the checkpoint that run logged). The new fit takes the generator's
+weights, and the
 discriminator's when both recipes have the same one; its optimisers, schedule, step count and
 time budget start from zero, and its MLflow run is a new one that records where the weights
 came from (tags ``svbrdf.init``, ``svbrdf.init_run``, ``svbrdf.init_step`` and

@@ -29,7 +29,12 @@ class Validator:
     """Validates a generator on ``held_out`` and, if given, ``real`` and ``fold`` (module doc)."""
 
     def __init__(
-        self, held_out: Dataset, real: Dataset | None, batch: int, device: torch.device, fold: Dataset | None = None
+        self,
+        held_out: Dataset,
+        real: Dataset | None,
+        batch: int,
+        device: torch.device,
+        fold: Dataset | None = None,
     ):
         self.held_out, self.real, self.batch, self.device = held_out, real, batch, device
         self.fold = fold

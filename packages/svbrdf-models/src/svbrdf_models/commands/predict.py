@@ -114,7 +114,9 @@ def _add_output_options(p, more) -> None:
         type=_crop,
         help="the square to capture, in pixels of the photo as displayed (default: centred)",
     )
-    more.add_argument("--tiles", action="store_true", help="predict at high resolution from overlapping tiles")
+    more.add_argument(
+        "--tiles", action="store_true", help="predict at high resolution from overlapping tiles"
+    )
     p.add_argument(
         "--map-size",
         type=_map_size,
@@ -140,7 +142,9 @@ def _add_output_options(p, more) -> None:
         help="how diffuse.png and specular.png store values (default: srgb, as texture tools expect; "
         "linear with --linear). basecolor.png is sRGB whatever this says",
     )
-    more.add_argument("--exr", action="store_true", help="also write the maps as OpenEXR (linear half floats)")
+    more.add_argument(
+        "--exr", action="store_true", help="also write the maps as OpenEXR (linear half floats)"
+    )
     more.add_argument(
         "--tileable",
         action="store_true",
@@ -149,12 +153,7 @@ def _add_output_options(p, more) -> None:
     )
     more.add_argument("--relit", choices=RELIT_FORMATS, default="gif", help="relit preview (default: gif)")
     more.add_argument("--device", default="cpu", help="cpu, cuda, cuda:K or auto (default: cpu)")
-    more.add_argument(
-        "--threads",
-        type=int_range(1),
-        metavar="N",
-        help=THREADS_HELP,
-    )
+    more.add_argument("--threads", type=int_range(1), metavar="N", help=THREADS_HELP)
 
 
 def _reference(text: str):
@@ -208,7 +207,9 @@ def run(args, registry: Registry, out) -> int:
         from ..tiles import check_tiled_memory
 
         check_tiled_memory(args.map_size, f"--tiles --map-size {args.map_size}")
-    model = _load_predict_model(args.model, device, args.map_size if args.tiles and args.map_size != FULL else None)
+    model = _load_predict_model(
+        args.model, device, args.map_size if args.tiles and args.map_size != FULL else None
+    )
     set_threads(args.threads)  # after every refusal, so that a refusal stays one line
     summary = {"model": model.source, "step": model.steps, "resolution": model.resolution,
                "refine": args.refine, "refine_seconds": args.refine_seconds}  # fmt: skip

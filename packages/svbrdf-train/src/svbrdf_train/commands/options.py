@@ -62,5 +62,10 @@ def threads_option():
         choose_threads(value)
 
     return click.option(
-        "--threads", type=click.IntRange(min=1), default=None, expose_value=False, callback=apply, help=THREADS_HELP
+        "--threads",
+        type=click.IntRange(min=1),
+        default=None,
+        expose_value=False,
+        callback=apply,
+        help=THREADS_HELP,
     )

@@ -1,7 +1,8 @@
 """Deschaintre 2018 ("Des18") folders as a torch Dataset.
 
 A Des18 strip is one PNG of five square tiles, ``input | normal | diffuse | roughness |
-specular`` (the map conventions of docs/svbrdf-render.md, "The renderer in one screen"); :func:`svbrdf_render.read_des18` decodes it.
+specular`` (the map conventions of docs/svbrdf-render.md, "The renderer in one screen");
+:func:`svbrdf_render.read_des18` decodes it.
 Two folder layouts are accepted:
 
 - a folder of strips, like ``DATA/des18-dev`` (``0000004;MatAXMatB;varAXvarB.png``);

@@ -195,7 +195,9 @@ class OptimSection:
             )
         _check(0 < self.decay <= 1, "decay", self.decay, "in (0, 1] (1: no decay)")
         _int_at_least(self.warmup_samples, "warmup_samples", 0)
-        _check(self.batch_rule in BATCH_RULES, "batch_rule", self.batch_rule, f"one of {', '.join(BATCH_RULES)}")
+        _check(
+            self.batch_rule in BATCH_RULES, "batch_rule", self.batch_rule, f"one of {', '.join(BATCH_RULES)}"
+        )
         _int_at_least(self.batch_reference, "batch_reference", 1)
 
     def batch_factor(self, per_step: int) -> float:
@@ -214,7 +216,8 @@ class OptimSection:
         self, params: Iterable[torch.nn.Parameter], schedule: LrSchedule, *, discriminator: bool = False
     ) -> tuple[torch.optim.Adam, ScheduledRate]:
         """Adam over ``params`` with ``betas``, and the rate it follows: ``lr`` (``d_lr`` for the
-        ``discriminator``) times :meth:`batch_factor` times ``schedule``'s factor, set for each step by the returned
+        ``discriminator``) times :meth:`batch_factor` times ``schedule``'s factor, set for each
+        step by the returned
         :class:`~svbrdf_train.schedule.ScheduledRate` (``rate.at(step)``)."""
         import torch
 
@@ -354,7 +357,9 @@ def _check_mix_entry(i: int, entry: Mapping[str, Any]) -> None:
         raise ValueError(f"{where}.path must be a path or a list of paths, got {path!r}")
     fold = entry.get("fold")
     if fold is not None and (entry["source"] != "materials" or not isinstance(fold, str) or not fold.strip()):
-        raise ValueError(f"{where}.fold must be k/n or material names, on a materials entry only; got {fold!r}")
+        raise ValueError(
+            f"{where}.fold must be k/n or material names, on a materials entry only; got {fold!r}"
+        )
     if entry["source"] == "procedural" and path is not None:
         raise ValueError(f"{where}.path is {path!r} but its source is 'procedural', which reads no files")
 
