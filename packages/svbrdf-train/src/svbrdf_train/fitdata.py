@@ -471,7 +471,7 @@ def fold_validation_set(d: DataSettings, res: int) -> tuple[Dataset, str] | None
 def _strip_materials(p: Path, shards: list[Path], role: str) -> tuple[Dataset, str] | None:
     """Map-only strips (a strip folder or one strip shard) as materials with ground truth: each
     whole tile under a fixed phone photo (:class:`.data.strips.MaterialStrips`); else None."""
-    from .data.strip_bank import is_strip_folder
+    from .data.strip_bank import STRIP_FORMAT, is_strip_folder
     from .data.strips import MaterialStrips
 
     if len(shards) == 1 and shards[0] == p:
@@ -479,7 +479,7 @@ def _strip_materials(p: Path, shards: list[Path], role: str) -> tuple[Dataset, s
 
         try:
             with h5py.File(p, "r") as f:
-                if f.attrs.get("format") != "svbrdf-strips":
+                if f.attrs.get("format") != STRIP_FORMAT:
                     return None
         except OSError:  # damaged or not HDF5: the shard reader says so, naming the file
             return None
