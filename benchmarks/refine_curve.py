@@ -20,7 +20,9 @@ Usage::
     .venv/bin/python benchmarks/refine_curve.py DATA/unseen-dev --flash 15 -o refine-report
 
 ``--flash axis`` (default) finds the flash as the photo tools do (on the axis, intensity from the
-start maps); ``--flash 15`` uses the known capture of unseen-dev (``Scene.flash(intensity=15)``).
+start maps); ``--flash 15`` uses the known capture of unseen-dev (``Scene.flash(intensity=15)``);
+``--flash fitted`` the flash fitted to each strip's *true* maps (:func:`svbrdf_render.fit_flash`),
+the reference where the capture is not known (des18-dev).
 Writes ``OUT/refine_curve.md`` (tables) and ``OUT/refine_curve.png`` (accuracy against seconds).
 Timings are seconds per material on this machine (one material at a time, eager renderer unless
 ``--backend compiled``); they mean something only on an idle machine.
@@ -46,10 +48,22 @@ def score(pred, truth) -> dict[str, float]:
     return out
 
 
+def _scene(flash: str, photo, truth):
+    """The capture a refinement is given: none (found from the maps), a known on-axis flash, or
+    the flash fitted to the true maps."""
+    from svbrdf_render import Scene, fit_flash
+
+    if flash == "axis":
+        return None
+    if flash == "fitted":
+        return fit_flash(truth, photo).scene(0)
+    return Scene.flash(intensity=float(flash))
+
+
 def run_folder(folder: Path, budgets: list[int], flash: str, backend: str, model) -> dict:
     import svbrdf_models as sm
     from svbrdf_models.refining import refine_prediction
-    from svbrdf_render import Scene, read_des18, refine_maps
+    from svbrdf_render import read_des18, refine_maps
     from svbrdf_train.data.materials import material_groups, per_material
 
     mean = sm.create_generator("mean", {})
@@ -65,7 +79,7 @@ def run_folder(folder: Path, budgets: list[int], flash: str, backend: str, model
         starts = {"network": model.predict(photo[0])}
         net_seconds = time.perf_counter() - t
         starts["constant"] = mean(photo)
-        scene = None if flash == "axis" else Scene.flash(intensity=float(flash))
+        scene = _scene(flash, photo, truth)
         for start_name, start in starts.items():
             for n in budgets:
                 t = time.perf_counter()
@@ -156,7 +170,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("folders", nargs="+", type=Path, help="folders of Des18-layout strips with ground truth")
     ap.add_argument("--steps", default="0,50,150,500", help="refinement budgets (default: 0,50,150,500)")
-    ap.add_argument("--flash", default="axis", help="axis (default) or a known on-axis flash intensity")
+    ap.add_argument("--flash", default="axis", help="axis (default), a known on-axis flash intensity, or "
+                    "fitted (the flash fitted to the true maps)")
     ap.add_argument("--backend", default="eager", choices=("eager", "compiled"))
     ap.add_argument("--model", default="pretrained", help="model source (default: the shipped model)")
     ap.add_argument("--threads", type=int, default=1, help="torch threads (default 1: on a shared "
@@ -165,10 +180,10 @@ def main() -> None:
     a = ap.parse_args()
     try:
         budgets = sorted({int(x) for x in a.steps.split(",")} | {0})
-        if a.flash != "axis":
+        if a.flash not in ("axis", "fitted"):
             float(a.flash)
     except ValueError:
-        sys.exit("refine_curve: error: --steps takes integers (0,50,150) and --flash axis or a number")
+        sys.exit("refine_curve: error: --steps takes integers (0,50,150); --flash axis, fitted or a number")
     if any(n < 0 for n in budgets):
         sys.exit("refine_curve: error: --steps must be >= 0")
     import svbrdf_models as sm

@@ -448,6 +448,8 @@ def test_command_captures_the_good_photos_and_reports_the_bad(batch):
         str(p) in e["error"] for p, e in zip(paths, summary["entries"], strict=True) if e["status"] != "ok"
     )
     assert f"{summary['median_rmse']:.4f}" in result.stderr and "median re-rendering RMSE" in result.stderr
+    # The figure says what it measures where it is shown: the fit to this photo, not accuracy.
+    assert "not how right they are" in result.stderr and "not how right" in summary["rmse_means"]
 
 
 def test_command_exit_2_when_every_photo_fails(tmp_path, checkpoint):

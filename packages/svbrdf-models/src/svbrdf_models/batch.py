@@ -364,6 +364,7 @@ def _table(entries: list[dict], summary: dict) -> str:
     lines.append(
         f"median re-rendering RMSE over {summary['captured']} photo(s): "
         + ("-" if median is None else f"{median:.4f}")
+        + " (how well the maps explain these photos, not how right they are)"
     )
     return "\n".join(lines) + "\n"
 

@@ -472,6 +472,14 @@ def _merged(earlier: list[dict], entries: list[dict]) -> list[dict]:
     return [e for e in earlier if _entry_key(e) not in new] + list(entries)
 
 
+#: What the re-rendering RMSE of summary.json and of the printed table says, and what not.
+RMSE_MEANS = (
+    "how well the maps explain this one photo under the flash found for it, not how right they "
+    "are: maps that bake the photo into the diffuse score near 0 and look wrong under any other "
+    "light; a highlight stamped into the maps is measured by benchmarks/real_photos.py"
+)
+
+
 def _write_summary(path: Path, entries: list[dict], extra: dict) -> dict:
     import statistics
 
@@ -482,6 +490,7 @@ def _write_summary(path: Path, entries: list[dict], extra: dict) -> dict:
         "captured": sum(e.get("status") == "ok" for e in entries),
         "failed": sum(e.get("status") != "ok" for e in entries),
         "median_rmse": statistics.median(values) if values else None,
+        "rmse_means": RMSE_MEANS,
         "entries": entries,
     }
     write_text(path, json.dumps(summary, indent=2) + "\n")  # atomic: never a 0-byte summary

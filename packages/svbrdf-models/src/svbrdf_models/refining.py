@@ -2,7 +2,8 @@
 
 The network sees the photo at its training resolution; :func:`refine_prediction` then runs
 :func:`svbrdf_render.refine_maps` at the photo's own resolution, starting from the network's
-maps and pulled toward them (start = prior = the network's maps)::
+maps and pulled toward them (start = prior = the network's maps, without their 2-pixel
+pattern and without the flash's ring around the photo's highlight: :func:`svbrdf_render.rings.dering`)::
 
     from svbrdf_models.refining import refine_prediction, rerender, rerender_rmse
     result = refine_prediction(photo, network_maps, 100)      # a svbrdf_render.Refinement
@@ -23,6 +24,7 @@ import torch
 from torch import Tensor
 
 from svbrdf_render import MIN_REFINE_SIDE, SVBRDF, Refinement, Scene, refine_maps, refine_start, render
+from svbrdf_render.rings import dering, highlight_point
 
 from .errors import DataError
 
@@ -177,7 +179,8 @@ def refine_prediction(
         photo: ``(B, 3, H, W)`` linear photos (the squares the maps are of), ``H, W >=``
             :data:`svbrdf_render.MIN_REFINE_SIDE`.
         start: a network's maps of B materials; without their 2-pixel pattern
-            (:func:`without_checkerboard`), the start and the prior of the refinement.
+            (:func:`without_checkerboard`) and their ring around the photo's highlight
+            (:func:`svbrdf_render.rings.dering`), the start and the prior of the refinement.
         steps, seconds: the budget (see :func:`svbrdf_render.refine_maps`).
         scene: the capture (default: the flash found from ``start``).
         callback: ``callback(step, total, loss)`` after each step.
@@ -202,7 +205,8 @@ def refine_prediction(
     with torch.inference_mode(False), torch.enable_grad():
         photo = photo.detach().to(device, torch.float32).clone()
         copy = {k: t.detach().clone() for k, t in start.maps().items()}
-        start = without_checkerboard(SVBRDF(**copy, validate=False))
+        point = highlight_point(photo)
+        start = dering(without_checkerboard(SVBRDF(**copy, validate=False)), point)
         result = refine_maps(
             photo,
             start,
@@ -211,6 +215,7 @@ def refine_prediction(
             seconds=seconds,
             backend=pick_backend(backend, h, w),
             callback=callback,
+            highlight=point,
         )
     return dataclasses.replace(result, svbrdf=result.svbrdf.to("cpu"), scene=result.scene.to("cpu"))
 

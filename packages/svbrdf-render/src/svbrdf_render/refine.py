@@ -43,13 +43,13 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from .effects import DES18_EFFECTS
 from .errors import MapError, SceneError
-from .fit import fit_flash
-from .geometry import safe_normalize, surface_positions
+from .fit import FLASH_MODES, _camera_flashes, axis_flash, fit_flash
+from .geometry import safe_normalize
 from .maps import MAP_NAMES, SVBRDF, stored_value
 from .renderer import BACKENDS, log_radiance, render
-from .scene import DES18_DISTANCE, Camera, Flash, PointLight, Scene
+from .rings import RingBins, ring_penalty
+from .scene import Flash, Scene
 
 __all__ = [
     "DEFAULT_REFINE_STEPS",
@@ -70,11 +70,6 @@ DEFAULT_REFINE_STEPS = 100
 #: Photos with a shorter side below this are refused by the photo tools (the renderer itself
 #: refines any size; it is tested down to 1x1).
 MIN_REFINE_SIDE = 16
-#: Pixels at or above this are taken as clipped by the camera; below _DARK as too dark to
-#: tell anything (and kept away from log(0)).
-_SATURATED, _DARK = 0.98, 1e-3
-#: Rings of ``RefineLoss.rings``, of equal width from the point under the flash to the far corner.
-_RINGS = 8
 #: How far into (0, 1) a start value is moved before its logit is taken.
 _EDGE = 1e-4
 #: Slope bound of a start normal: ``n.z`` is raised to about 0.05 (87 degrees) at most.
@@ -97,9 +92,14 @@ class RefineSettings:
         lobe_first: share of the steps during which per-pixel normals and diffuse stay still
             and only the smooth roughness and specular, and each map's mean, move: the
             highlight is explained by the lobe before a pixel of diffuse can absorb it.
-        rings: weight of the penalty on a diffuse mean that changes with the distance to the
-            flash (``RefineLoss.rings``): a highlight baked into the diffuse, or a dark hole
-            where it was.
+        rings: weight of the penalty on maps whose means change with the distance to the
+            flash (:func:`svbrdf_render.rings.ring_penalty`: diffuse, roughness, specular and
+            the normal's radial slope): a highlight baked into the maps, or a dark hole where
+            it was.
+        dielectric: a material whose start specular has a mean luminance below this is taken
+            as a dielectric: its specular prior is the grey ``DIELECTRIC_F0`` (0.04, the
+            reflectance of most non-metals), not the start's; the photo can still move it,
+            paying the prior. ``0`` keeps the start's specular as its prior.
     """
 
     lr: float = 0.05
@@ -111,7 +111,8 @@ class RefineSettings:
     normal_lr_scale: float = 0.5
     levels: int = 1
     lobe_first: float = 0.0
-    rings: float = 1.0
+    rings: float = 3.0
+    dielectric: float = 0.1
 
     def __post_init__(self):
         if not (self.lr > 0 and math.isfinite(self.lr)):
@@ -125,6 +126,8 @@ class RefineSettings:
             raise ValueError(f"refine: prior weights must be finite and >= 0, got {self.prior}")
         if not (self.rings >= 0 and math.isfinite(self.rings)):
             raise ValueError(f"refine: rings must be a finite number >= 0, got {self.rings}")
+        if not 0 <= self.dielectric <= 1:
+            raise ValueError(f"refine: dielectric must be in [0, 1], got {self.dielectric}")
         if not 0 <= self.lobe_first < 1:
             raise ValueError(f"refine: lobe_first must be in [0, 1), got {self.lobe_first}")
         if self.coarse < 0:
@@ -262,47 +265,12 @@ def _check(photo: Tensor, start: SVBRDF, prior: SVBRDF | None) -> Tensor:
     if photo.shape[1] != 3:
         raise MapError(f"refine: expected 3 colour channels in the photo, got {photo.shape[1]}")
     if photo.shape[0] != start.batch_size:
-        raise MapError(
-            f"refine: {photo.shape[0]} photo(s) but start maps of {start.batch_size} material(s)"
-        )
+        raise MapError(f"refine: {photo.shape[0]} photo(s) but start maps of {start.batch_size} material(s)")
     if not bool(torch.isfinite(photo).all()):
         raise MapError("refine: the photo holds NaN or infinite values")
     if prior is not None and prior.batch_size != start.batch_size:
         raise MapError(f"refine: prior maps of {prior.batch_size} material(s), start of {start.batch_size}")
     return photo.float().clamp(0, 1)
-
-
-#: How :func:`refine_maps` finds the flash when no scene is given.
-FLASH_MODES = ("axis", "fit")
-
-
-def axis_flash(start: SVBRDF, photo: Tensor, distance: float = DES18_DISTANCE) -> Scene:
-    """The Des18 capture (camera and flash on the axis at ``distance``) with the intensity that
-    makes ``start`` explain ``photo`` best in the log domain: the median over the pixels of
-    ``log(photo) - log(rendering at intensity 1)``, one intensity per material.
-
-    The median ignores what the start maps get most wrong (the highlight, where a network's
-    specular lobe is often off, and clipped pixels); a least-squares intensity is dominated
-    by exactly those pixels (on des18-dev it is off by a factor 2-15 even from the true maps).
-    """
-    b = photo.shape[0]
-    unit = _view(render(start, Scene.flash(distance, 1.0).to(photo.device)))
-    keep = (photo < _SATURATED) & (photo > _DARK) & (unit > _DARK)
-    ratio = torch.log(photo.clamp_min(_DARK)) - torch.log(unit.clamp_min(_DARK))
-    k = []
-    for i in range(b):
-        r = ratio[i][keep[i]]
-        k.append(torch.exp(r.median()) if r.numel() else photo.new_tensor(1.0))
-    return _camera_flashes(photo.new_tensor([0.0, 0.0, distance]).expand(b, 3), torch.stack(k))
-
-
-def _camera_flashes(position: Tensor, intensity: Tensor) -> Scene:
-    """A light at ``position`` ``(B, 3)`` with the camera at it, of ``intensity`` ``(B,)``, one per
-    material: a scene of shape ``()`` for one material, ``(B, 1)`` for more."""
-    if position.shape[0] == 1:
-        return Scene(Camera(position[0]), (PointLight(position[0], float(intensity[0])),), DES18_EFFECTS)
-    pos = position[:, None, :]
-    return Scene(Camera(pos), (PointLight(pos, intensity[:, None]),), DES18_EFFECTS)
 
 
 def _scene_for(photo: Tensor, start: SVBRDF, scene: Scene | None, flash: str) -> Scene:
@@ -334,18 +302,21 @@ def _light_xy(scene: Scene, batch: int) -> Tensor:
     return pos.reshape(-1, 3)[:, :2].expand(batch, 2)
 
 
-def _ring_bins(scene: Scene, shape, device) -> tuple[Tensor, Tensor, Tensor]:
-    """For :meth:`RefineLoss.rings`: each pixel's ring ``(B, 1, HW)``, the pixel count of each
-    ring ``(B, 1, K)`` (at least 1) and whether a ring holds pixels ``(B, 1, K)``."""
-    b, _, h, w = shape
-    p = surface_positions(h, w, device=device)[:2].flatten(1)  # (2, HW)
-    xy = _light_xy(scene, b).to(p)
-    r = (p[None] - xy[:, :, None]).norm(dim=1)  # (B, HW)
-    top = r.amax(1, keepdim=True).clamp_min(1e-6)
-    index = (r / top * _RINGS).long().clamp(max=_RINGS - 1)[:, None]
-    ones = torch.ones(b, 1, h * w, device=device)
-    count = torch.zeros(b, 1, _RINGS, device=device).scatter_add_(2, index, ones)
-    return index, count.clamp_min(1), (count > 0).float()
+#: The specular albedo of most dielectrics (index of refraction about 1.5): the prior of a
+#: start whose specular says "not a metal" (:attr:`RefineSettings.dielectric`).
+DIELECTRIC_F0 = 0.04
+
+
+def dielectric_prior(prior: SVBRDF, below: float) -> SVBRDF:
+    """``prior`` with the specular of each material whose mean specular luminance is below
+    ``below`` set to the grey :data:`DIELECTRIC_F0`."""
+    if below <= 0:
+        return prior
+    spec = prior.specular
+    lum = (spec.mean((2, 3)) * spec.new_tensor([0.2126, 0.7152, 0.0722])).sum(1)
+    grey = (lum < below).to(spec.dtype)[:, None, None, None]
+    specular = spec * (1 - grey) + DIELECTRIC_F0 * grey
+    return SVBRDF(prior.normal, prior.diffuse, prior.roughness, specular, validate=False)
 
 
 class RefineLoss:
@@ -356,7 +327,15 @@ class RefineLoss:
     here, not at every step.
     """
 
-    def __init__(self, photo: Tensor, prior: SVBRDF, scene: Scene, settings: RefineSettings, backend: str):
+    def __init__(
+        self,
+        photo: Tensor,
+        prior: SVBRDF,
+        scene: Scene,
+        settings: RefineSettings,
+        backend: str,
+        highlight: Tensor | None = None,
+    ):
         self.scene = scene
         self.eps = settings.eps
         self.backend = backend
@@ -364,7 +343,8 @@ class RefineLoss:
         self.prior = {name: stored_value(name, t) for name, t in prior.maps().items()}
         self.weights = {name: float(settings.prior.get(name, 0.0)) for name in MAP_NAMES}
         self.ring_weight = float(settings.rings)
-        self.ring_index, self.ring_count, self.ring_present = _ring_bins(scene, photo.shape, photo.device)
+        point = _light_xy(scene, photo.shape[0]) if highlight is None else highlight
+        self.bins = RingBins(point.to(photo.device), photo.shape, photo.device)
 
     def data(self, maps: SVBRDF) -> Tensor:
         """``mean |log(clip(render) + eps) - log(photo + eps)|``."""
@@ -372,18 +352,9 @@ class RefineLoss:
         return (log_radiance(rendering, self.eps) - self.target).abs().mean()
 
     def rings(self, maps: SVBRDF) -> Tensor:
-        """How much the diffuse map's mean depends on the distance to the flash: ``mean over
-        rings and channels |ring mean - map mean|``, rings of equal width around the point
-        under the flash. A material does not know where the flash was, so its mean albedo
-        should not change with that distance; a highlight baked into the diffuse (bright near
-        the flash) and a network's dark hole where the highlight was (dark near it) both do.
-        Texture and the mean colour stay free."""
-        d = maps.diffuse.flatten(2)  # (B, 3, HW)
-        b, c, _ = d.shape
-        sums = d.new_zeros(b, c, _RINGS).scatter_add_(2, self.ring_index.expand(b, c, -1).contiguous(), d)
-        means = sums / self.ring_count
-        overall = d.mean(2, keepdim=True)
-        return ((means - overall).abs() * self.ring_present).sum(2).mean() / self.ring_present.sum(2).mean()
+        """How much the maps depend on the distance to the point under the flash
+        (:func:`svbrdf_render.rings.ring_penalty`)."""
+        return ring_penalty(maps, self.bins)
 
     def __call__(self, maps: SVBRDF) -> Tensor:
         loss = self.data(maps)
@@ -393,6 +364,19 @@ class RefineLoss:
             if self.weights[name] > 0:
                 loss = loss + self.weights[name] * (stored_value(name, t) - self.prior[name]).abs().mean()
         return loss
+
+
+def _check_point(point: Any, photo: Tensor) -> Tensor | None:
+    """``highlight`` of :func:`refine_maps` as ``(B, 2)`` on the photo's device, or an error."""
+    if point is None:
+        return None
+    b = photo.shape[0]
+    if not isinstance(point, Tensor) or point.shape not in ((2,), (1, 2), (b, 2)):
+        shape = tuple(point.shape) if isinstance(point, Tensor) else type(point).__name__
+        raise MapError(f"refine: highlight must be a tensor (2,), (1, 2) or ({b}, 2), got {shape}")
+    if not bool(torch.isfinite(point).all()):
+        raise MapError("refine: highlight holds a non-finite coordinate")
+    return point.reshape(-1, 2).to(photo.device, torch.float32).expand(b, 2)
 
 
 def _check_budget(steps: Any, seconds: Any, backend: Any) -> None:
@@ -446,6 +430,7 @@ def refine_maps(
     backend: str = "compiled",
     callback: Callable[[int, int, float], None] | None = None,
     seed: int = 0,
+    highlight: Tensor | None = None,
 ) -> Refinement:
     """Optimise maps so that their rendering under ``scene`` matches ``photo``.
 
@@ -455,7 +440,7 @@ def refine_maps(
         start: maps of B materials to start from, any size (resized to ``H x W``).
         scene: the capture: camera, flash and Des18 effects, shape ``()`` or ``(B, 1)``.
         flash: with no scene, how to find the flash from ``start``: ``"axis"`` (default: the
-            Des18 capture on the axis at distance 2.2, intensity solved by least squares) or
+            Des18 capture on the axis at distance 2.2, intensity from a median) or
             ``"fit"`` (position too, by :func:`fit_flash`).
         prior: maps the prior term pulls toward (default: ``start``), resized likewise.
         steps: at most this many Adam steps (0 returns the start, resized).
@@ -464,6 +449,9 @@ def refine_maps(
         backend: the renderer's backend, ``"compiled"`` (default) or ``"eager"``.
         callback: ``callback(step, total, loss)`` after each step (``total`` is ``steps``).
         seed: seeds torch's generator for the call (the refinement itself draws nothing).
+        highlight: ``(B, 2)`` patch coordinates of the point under the flash, the centre of
+            the ring penalty (:func:`svbrdf_render.rings.highlight_point` reads it off a
+            photo); default: under the scene's light.
 
     Returns:
         A :class:`Refinement`. A ``KeyboardInterrupt`` from the callback or the user
@@ -477,15 +465,15 @@ def refine_maps(
     photo = photo.to(start.device)
     start = refine_start(start.detach().to(torch.float32), size)
     prior = start if prior is None else refine_start(prior.detach().to(torch.float32), size)
+    prior = dielectric_prior(prior, settings.dielectric)
     scene = _scene_for(photo, start, scene, flash)
     if steps == 0 or seconds == 0:
         return Refinement(start, scene, 0, time.perf_counter() - t0, torch.zeros(0))
 
     torch.manual_seed(seed)
     params = _Parameters(start, settings.coarse, settings.levels)
-    loss_fn = RefineLoss(photo, prior, scene, settings, backend)
+    loss_fn = RefineLoss(photo, prior, scene, settings, backend, _check_point(highlight, photo))
     losses = _optimise(params, loss_fn, settings, steps, seconds, callback, t0)
     with torch.no_grad():
         out = params.svbrdf().detach()
     return Refinement(out, scene, len(losses), time.perf_counter() - t0, torch.tensor(losses))
-
