@@ -127,7 +127,7 @@ def test_without_a_scene_each_material_gets_its_own_flash():
 
 def test_deterministic():
     photo = photo_of(random_svbrdf(1, 24, seed=6))
-    runs = [refine_maps(photo, SVBRDF.constant(1, 24), steps=20, backend="eager", seed=3) for _ in range(2)]
+    runs = [refine_maps(photo, SVBRDF.constant(1, 24), steps=20, backend="eager") for _ in range(2)]
     assert torch.equal(runs[0].svbrdf.pack(), runs[1].svbrdf.pack())
     assert torch.equal(runs[0].losses, runs[1].losses)
 
@@ -172,7 +172,7 @@ def test_interrupt_propagates_and_returns_nothing():
 
 
 def _grads(photo: torch.Tensor, start: SVBRDF) -> list[torch.Tensor]:
-    params = _Parameters(start, coarse=8, levels=2)
+    params = _Parameters(start, coarse=8)
     loss = RefineLoss(photo, start, SCENE, RefineSettings(), "eager")(params.svbrdf())
     loss.backward()
     assert bool(torch.isfinite(loss))
@@ -255,7 +255,7 @@ def test_bad_photos_are_refused(photo, match):
 @pytest.mark.parametrize(
     "bad",
     [{"lr": 0.0}, {"eps": 0.0}, {"prior": {"albedo": 1.0}}, {"prior": {"normal": -1.0}}, {"coarse": -1},
-     {"rings": -1.0}, {"lobe_first": 1.0}],
+     {"rings": -1.0}, {"dielectric": -0.1}],
 )  # fmt: skip
 def test_bad_settings_are_refused(bad):
     with pytest.raises(ValueError):

@@ -28,7 +28,7 @@ stops a gradient:
 
 The optimiser is Adam on the parameters of each map; ``steps`` or ``seconds`` bound it, a
 ``callback(step, total, loss)`` reports progress. The result is deterministic: nothing in it
-is random, so the same inputs give the same maps (``seed`` seeds torch for callers' sake).
+is random, so the same inputs give the same maps.
 """
 
 from __future__ import annotations
@@ -87,11 +87,6 @@ class RefineSettings:
         coarse: side of the grid on which roughness and specular may change (their change is
             that grid upsampled bilinearly); ``0`` lets them change per pixel.
         normal_lr_scale: the normals' step relative to ``lr`` (they are the noisiest to fit).
-        levels: grids of the change of each map, halving in size from the finest (1: one grid);
-            a 1x1 grid (the material's mean) is always added.
-        lobe_first: share of the steps during which per-pixel normals and diffuse stay still
-            and only the smooth roughness and specular, and each map's mean, move: the
-            highlight is explained by the lobe before a pixel of diffuse can absorb it.
         rings: weight of the penalty on maps whose means change with the distance to the
             flash (:func:`svbrdf_render.rings.ring_penalty`: diffuse, roughness, specular and
             the normal's radial slope): a highlight baked into the maps, or a dark hole where
@@ -109,8 +104,6 @@ class RefineSettings:
     )
     coarse: int = 8
     normal_lr_scale: float = 0.5
-    levels: int = 1
-    lobe_first: float = 0.0
     rings: float = 3.0
     dielectric: float = 0.1
 
@@ -128,8 +121,6 @@ class RefineSettings:
             raise ValueError(f"refine: rings must be a finite number >= 0, got {self.rings}")
         if not 0 <= self.dielectric <= 1:
             raise ValueError(f"refine: dielectric must be in [0, 1], got {self.dielectric}")
-        if not 0 <= self.lobe_first < 1:
-            raise ValueError(f"refine: lobe_first must be in [0, 1), got {self.lobe_first}")
         if self.coarse < 0:
             raise ValueError(f"refine: coarse must be >= 0, got {self.coarse}")
 
@@ -187,13 +178,12 @@ def _view(rendering: Tensor) -> Tensor:
 class _Parameters:
     """The free tensors behind the four maps, and the maps they give.
 
-    Each map is ``activation(base + change)``: ``base`` is the start's (fixed), ``change`` a sum
-    of grids at ``levels`` sizes halving from the map's own (a Laplacian-pyramid change, so a
-    step moves large areas as readily as single pixels), upsampled bilinearly. Roughness and
-    specular change only on grids no finer than ``coarse``.
+    Each map is ``activation(base + change)``: ``base`` is the start's (fixed), ``change`` a grid
+    at the map's own size (normal, diffuse: per pixel, plus a 1x1 grid, their mean) or at most
+    ``coarse`` on a side (roughness, specular), upsampled bilinearly.
     """
 
-    def __init__(self, start: SVBRDF, coarse: int, levels: int):
+    def __init__(self, start: SVBRDF, coarse: int):
         b, h, w = start.shape
         self.size = (h, w)
         self.base = {
@@ -205,7 +195,7 @@ class _Parameters:
         limit = {"normal": None, "diffuse": None, "roughness": coarse or None, "specular": coarse or None}
         self.delta: dict[str, list[Tensor]] = {}
         for name, base in self.base.items():
-            sizes = _grid_sizes(h, w, levels, limit[name])
+            sizes = [_grid_size(h, w, limit[name])]
             if limit[name] is None and sizes[-1] != (1, 1):  # per-pixel maps: a mean change too
                 sizes.append((1, 1))
             self.delta[name] = [
@@ -214,16 +204,17 @@ class _Parameters:
             ]
 
     def groups(self, lr: float, normal_scale: float) -> list[dict]:
-        """Adam's parameter groups: ``detail`` (per-pixel normal and diffuse changes, which
-        :func:`refine_maps` holds still while the lobe settles) and ``lobe`` (the rest)."""
+        """Adam's parameter groups: per-pixel normal changes (at ``lr * normal_scale``), per-pixel
+        diffuse changes, and the rest (the grouping of an experiment that lost, kept so that
+        Adam's steps stay bit for bit those measured)."""
         detail_n = [d for d in self.delta["normal"] if d.shape[-2:] != (1, 1)]
         detail_d = [d for d in self.delta["diffuse"] if d.shape[-2:] != (1, 1)]
         lobe = [d for name in MAP_NAMES for d in self.delta[name] if d.shape[-2:] == (1, 1)]
         lobe += [d for name in ("roughness", "specular") for d in self.delta[name] if d.shape[-2:] != (1, 1)]
         return [
-            {"params": detail_n, "lr": lr * normal_scale, "base_lr": lr * normal_scale, "detail": True},
-            {"params": detail_d, "lr": lr, "base_lr": lr, "detail": True},
-            {"params": lobe, "lr": lr, "base_lr": lr, "detail": False},
+            {"params": detail_n, "lr": lr * normal_scale},
+            {"params": detail_d, "lr": lr},
+            {"params": lobe, "lr": lr},
         ]
 
     def _free(self, name: str) -> Tensor:
@@ -244,16 +235,9 @@ class _Parameters:
         )
 
 
-def _grid_sizes(h: int, w: int, levels: int, finest: int | None) -> list[tuple[int, int]]:
-    """``levels`` grid sizes halving from ``(h, w)`` (or from ``finest`` when smaller), at least 1."""
-    gh, gw = (h, w) if finest is None else (min(finest, h), min(finest, w))
-    sizes = []
-    for _ in range(max(1, levels)):
-        if sizes and sizes[-1] == (gh, gw):
-            break
-        sizes.append((gh, gw))
-        gh, gw = max(1, gh // 2), max(1, gw // 2)
-    return sizes
+def _grid_size(h: int, w: int, finest: int | None) -> tuple[int, int]:
+    """The grid of a map's change: ``(h, w)``, or at most ``finest`` on a side."""
+    return (h, w) if finest is None else (min(finest, h), min(finest, w))
 
 
 def _check(photo: Tensor, start: SVBRDF, prior: SVBRDF | None) -> Tensor:
@@ -401,10 +385,7 @@ def _optimise(
     """Adam on ``params`` for ``steps`` steps, or until ``seconds`` after ``t0``; the losses."""
     opt = torch.optim.Adam(params.groups(settings.lr, settings.normal_lr_scale))
     losses = []
-    hold = round(settings.lobe_first * steps)
     for step in range(steps):
-        for group in opt.param_groups:  # details wait until the lobe has settled
-            group["lr"] = 0.0 if group["detail"] and step < hold else group["base_lr"]
         opt.zero_grad(set_to_none=True)
         loss = loss_fn(params.svbrdf())
         loss.backward()
@@ -429,7 +410,6 @@ def refine_maps(
     settings: RefineSettings | None = None,
     backend: str = "compiled",
     callback: Callable[[int, int, float], None] | None = None,
-    seed: int = 0,
     highlight: Tensor | None = None,
 ) -> Refinement:
     """Optimise maps so that their rendering under ``scene`` matches ``photo``.
@@ -448,7 +428,6 @@ def refine_maps(
         settings: weights and step sizes (:class:`RefineSettings`).
         backend: the renderer's backend, ``"compiled"`` (default) or ``"eager"``.
         callback: ``callback(step, total, loss)`` after each step (``total`` is ``steps``).
-        seed: seeds torch's generator for the call (the refinement itself draws nothing).
         highlight: ``(B, 2)`` patch coordinates of the point under the flash, the centre of
             the ring penalty (:func:`svbrdf_render.rings.highlight_point` reads it off a
             photo); default: under the scene's light.
@@ -470,8 +449,7 @@ def refine_maps(
     if steps == 0 or seconds == 0:
         return Refinement(start, scene, 0, time.perf_counter() - t0, torch.zeros(0))
 
-    torch.manual_seed(seed)
-    params = _Parameters(start, settings.coarse, settings.levels)
+    params = _Parameters(start, settings.coarse)
     loss_fn = RefineLoss(photo, prior, scene, settings, backend, _check_point(highlight, photo))
     losses = _optimise(params, loss_fn, settings, steps, seconds, callback, t0)
     with torch.no_grad():
