@@ -12,7 +12,10 @@ sRGB, as DATA/real-dev's README says) and every model:
   the spread of the map itself (at least ``SPREAD_FLOOR``, 0.02: a nearly constant map, such as
   a dielectric's specular at 0.04, would otherwise turn invisible ring steps into a large
   ratio). A map that follows the material, not the flash, has ring means that barely move:
-  near 0. A disc or ring of the flash stamped into the map: near 1.
+  near 0. A disc or ring of the flash stamped into the map: near 1. The same figure around
+  three points half the photo away from the flash (the median of the three) is printed as
+  the **floor**: what texture and large-scale shading give with no flash there. An imprint
+  at its floor holds no more of the flash than the rest of the map.
 With ``--refine STEPS`` the maps are the photo tool's (network, then refinement against the
 photo at ``--size`` pixels), so the figures say what a user of ``predict`` gets.
 
@@ -43,6 +46,8 @@ RINGS = 12
 SIZE = 128
 SPREAD_FLOOR = 0.02
 MAPS = ("normal", "diffuse", "roughness", "specular", "metallic")
+#: Offsets (rows, columns at SIZE) of the points the floor is measured around.
+AWAY = ((SIZE // 2, 0), (0, SIZE // 2), (SIZE // 2, SIZE // 2))
 
 
 def _luminance(x: torch.Tensor) -> torch.Tensor:
@@ -145,8 +150,11 @@ def main(argv=None) -> None:
             maps = _maps(model, photo, args.refine)
             maps = {k: F.interpolate(v[None], size=(SIZE, SIZE), mode="area")[0] for k, v in maps.items()}
             imp = {m: imprint(maps[m], centre) for m in MAPS}
+            away = [((centre[0] + dy) % SIZE, (centre[1] + dx) % SIZE) for dy, dx in AWAY]
+            floor = {m: statistics.median(imprint(maps[m], c) for c in away) for m in MAPS}
             metal = maps["metallic"].flatten()
-            figs = {**{f"imprint {m}": v for m, v in imp.items()}, "metallic mean": float(metal.mean()),
+            figs = {**{f"imprint {m}": v for m, v in imp.items()}, **{f"floor {m}": v for m, v in floor.items()},
+                    "metallic mean": float(metal.mean()),
                     "metallic p95": float(metal.quantile(0.95))}  # fmt: skip
             for k, v in figs.items():
                 figures[source].setdefault(k, []).append(v)
