@@ -98,6 +98,25 @@ def test_refined_maps_are_photo_sized_and_explain_the_photo_better(model):
     assert float((refined.normal.norm(dim=1) - 1).abs().max()) < 1e-4
 
 
+@pytest.mark.parametrize("over", [(0.5, 0.3), (-0.4, -0.35)])
+def test_the_flash_is_found_over_the_highlight_of_a_phone_held_off_centre(model, over):
+    """A shiny material photographed by a phone held off-centre (camera and flash over
+    ``over``): without a given scene, the refinement's flash stands over the highlight. The
+    control: the same material photographed from the centre gets the flash at the centre."""
+    from svbrdf_models.refining import refine_prediction
+    from svbrdf_render import SVBRDF
+
+    maps = SVBRDF.constant(1, 64, diffuse=(0.2, 0.15, 0.1), roughness=0.25, specular=(0.04,) * 3)
+    position = torch.tensor([*over, 2.2])
+    shifted = render(maps, Scene(Camera(position), (PointLight(position, 12.0),))).clamp(0, 1)
+    centred = render(maps, SCENE).clamp(0, 1)
+    for photo, want in ((shifted, [*over, 2.2]), (centred, [0.0, 0.0, 2.2])):
+        start = model.predict(photo[0])
+        result = refine_prediction(photo, start, 2, backend="eager")
+        light = result.scene.point_lights[0].position.reshape(-1).tolist()
+        assert light == pytest.approx(want, abs=0.1)
+
+
 def test_refine_runs_under_no_grad_and_inference_mode(model):
     photo = _photo(32)
     with torch.no_grad():

@@ -10,6 +10,7 @@ import torch
 from svbrdf_render import SVBRDF, Scene, refine_maps, render
 from svbrdf_render.errors import MapError
 from svbrdf_render.geometry import surface_positions
+from svbrdf_render.fit import axis_flash
 from svbrdf_render.refine import DIELECTRIC_F0, RefineSettings, dielectric_prior
 from svbrdf_render.rings import RingBins, dering, highlight_point, ring_penalty
 
@@ -55,6 +56,31 @@ def test_the_highlight_is_found_where_the_flash_was():
         found = highlight_point(photo)[0]
         # The mirror direction between camera and light puts the highlight half way between.
         assert found.tolist() == pytest.approx([x / 2, y / 2], abs=0.08)
+
+
+def test_a_photo_without_a_clear_highlight_gets_the_centre():
+    """A rough, strongly textured material: its brightest blurred point is texture, not the
+    flash; the point is the centre. The same texture with a highlight stamped off-centre
+    (the control) gets the highlight's position."""
+    photo = _texture(2).expand(1, 3, SIZE, SIZE).contiguous()
+    assert highlight_point(photo)[0].tolist() == [0.0, 0.0]
+    spot = torch.exp(-(_radius() / 0.15) ** 2)[None, None]
+    lit = (photo + 2.0 * spot).clamp(0, 1)
+    assert highlight_point(lit)[0].tolist() == pytest.approx(CENTRE[0].tolist(), abs=0.08)
+
+
+def test_axis_flash_over_a_point_stands_over_it():
+    """Camera and flash over a given point; its intensity is still the one that explains the
+    photo: the true one for the true maps."""
+    maps = SVBRDF.constant(1, SIZE, diffuse=(0.3,) * 3, roughness=0.4, specular=(0.04,) * 3)
+    over = torch.tensor([[0.3, -0.2]])
+    scene = axis_flash(SVBRDF.constant(1, SIZE), torch.zeros(1, 3, SIZE, SIZE), over=over)
+    assert scene.lights[0].position.reshape(-1).tolist() == pytest.approx([0.3, -0.2, 2.2])
+    truth = Scene.from_dict({"camera": {"position": [0.3, -0.2, 2.2]},
+                             "lights": [{"type": "point", "position": [0.3, -0.2, 2.2], "intensity": 12.0}]})  # fmt: skip
+    photo = render(maps, truth).clamp(0, 1)
+    found = axis_flash(maps, photo, over=over)
+    assert float(torch.as_tensor(found.lights[0].intensity)) == pytest.approx(12.0, rel=1e-3)
 
 
 def test_dering_takes_a_disc_out_and_keeps_the_texture():

@@ -24,6 +24,7 @@ import torch
 from torch import Tensor
 
 from svbrdf_render import MIN_REFINE_SIDE, SVBRDF, Refinement, Scene, refine_maps, refine_start, render
+from svbrdf_render.fit import axis_flash
 from svbrdf_render.rings import dering, highlight_point
 
 from .errors import DataError
@@ -182,7 +183,8 @@ def refine_prediction(
             (:func:`without_checkerboard`) and their ring around the photo's highlight
             (:func:`svbrdf_render.rings.dering`), the start and the prior of the refinement.
         steps, seconds: the budget (see :func:`svbrdf_render.refine_maps`).
-        scene: the capture (default: the flash found from ``start``).
+        scene: the capture (default: :func:`svbrdf_render.fit.axis_flash` over the photo's
+            highlight, or over its centre when it shows none).
         callback: ``callback(step, total, loss)`` after each step.
         backend: the renderer's backend (:data:`BACKEND` by default).
 
@@ -207,15 +209,16 @@ def refine_prediction(
         copy = {k: t.detach().clone() for k, t in start.maps().items()}
         point = highlight_point(photo)
         start = dering(without_checkerboard(SVBRDF(**copy, validate=False)), point)
+        if scene is None:  # the flash over the highlight (the centre when there is none)
+            scene = axis_flash(refine_start(start, (h, w)), photo, over=point)
         result = refine_maps(
             photo,
             start,
-            scene=None if scene is None else scene.to(device),
+            scene=scene.to(device),
             steps=steps,
             seconds=seconds,
             backend=pick_backend(backend, h, w),
             callback=callback,
-            highlight=point,
         )
     return dataclasses.replace(result, svbrdf=result.svbrdf.to("cpu"), scene=result.scene.to("cpu"))
 

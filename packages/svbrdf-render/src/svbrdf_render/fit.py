@@ -162,17 +162,26 @@ def fit_flash(
 FLASH_MODES = ("axis", "fit")
 
 
-def axis_flash(start: SVBRDF, photo: Tensor, distance: float = DES18_DISTANCE) -> Scene:
+def axis_flash(
+    start: SVBRDF, photo: Tensor, distance: float = DES18_DISTANCE, over: Tensor | None = None
+) -> Scene:
     """The Des18 capture (camera and flash on the axis at ``distance``) with the intensity that
     makes ``start`` explain ``photo`` best in the log domain: the median over the pixels of
-    ``log(photo) - log(rendering at intensity 1)``, one intensity per material.
+    ``log(photo) - log(rendering at intensity 1)``, one intensity per material. With ``over``
+    ``(B, 2)``, camera and flash stand at ``distance`` above those points of the patch instead
+    (a phone held off-centre: :func:`svbrdf_render.rings.highlight_point` finds the point).
 
     The median ignores what the start maps get most wrong (the highlight, where a network's
     specular lobe is often off, and clipped pixels); a least-squares intensity is dominated
     by exactly those pixels (on des18-dev it is off by a factor 2-15 even from the true maps).
     """
     b = photo.shape[0]
-    unit = render(start, Scene.flash(distance, 1.0).to(photo.device))
+    position = photo.new_tensor([0.0, 0.0, distance]).expand(b, 3)
+    if over is None:
+        unit = render(start, Scene.flash(distance, 1.0).to(photo.device))
+    else:
+        position = torch.cat([over.to(photo).reshape(-1, 2).expand(b, 2), position[:, 2:]], dim=1)
+        unit = render(start, _camera_flashes(position, photo.new_ones(b)))
     unit = unit[:, 0] if unit.dim() == 5 else unit
     keep = (photo < _SATURATED) & (photo > _DARK) & (unit > _DARK)
     ratio = torch.log(photo.clamp_min(_DARK)) - torch.log(unit.clamp_min(_DARK))
@@ -180,7 +189,7 @@ def axis_flash(start: SVBRDF, photo: Tensor, distance: float = DES18_DISTANCE) -
     for i in range(b):
         r = ratio[i][keep[i]]
         k.append(torch.exp(r.median()) if r.numel() else photo.new_tensor(1.0))
-    return _camera_flashes(photo.new_tensor([0.0, 0.0, distance]).expand(b, 3), torch.stack(k))
+    return _camera_flashes(position, torch.stack(k))
 
 
 def _camera_flashes(position: Tensor, intensity: Tensor) -> Scene:

@@ -35,6 +35,10 @@ RING_MAPS = ("diffuse", "roughness", "specular")
 #: Side of the box blur of :func:`highlight_point`, as a fraction of the photo's width: wide
 #: enough that the highlight wins over bright texture.
 _BLUR = 1 / 8
+#: A photo shows a clear highlight when its blurred maximum is at least this many times its
+#: blurred median (on unseen-dev and des18-dev, a visible highlight gives 2-60; a rough or
+#: strongly textured material with none gives 1.4-1.6, with its maximum anywhere).
+MIN_PEAK = 2.0
 #: :func:`dering` changes a map by at most this factor (a ring of a map at 0 has no profile).
 _MAX_GAIN = 4.0
 
@@ -43,14 +47,17 @@ def highlight_point(photo: Tensor) -> Tensor:
     """``(B, 2)``: the patch coordinates (``x, y`` in ``[-1, 1]``, as
     :func:`~svbrdf_render.geometry.surface_positions`) of the brightest point of each photo
     ``(B, 3, H, W)`` after a box blur an eighth of its width wide: where the flash's highlight
-    is in a capture parallel to the surface."""
+    is in a capture parallel to the surface. A photo without a clear highlight (its blurred
+    maximum under :data:`MIN_PEAK` times its blurred median: the brightest point is then
+    texture, anywhere) gets the centre, ``(0, 0)``, where a capture held over it has it."""
     b, _, h, w = photo.shape
     y = photo.float().mean(1, keepdim=True)
     k = max(3, round(w * _BLUR)) | 1
     blurred = F.avg_pool2d(y, k, stride=1, padding=k // 2, count_include_pad=False).flatten(1)
-    i = blurred.argmax(1)
+    top, i = blurred.max(1)
+    clear = (top >= MIN_PEAK * blurred.median(1).values).float()[:, None]
     rows, cols = (i // w).float(), (i % w).float()
-    return torch.stack([2 * (cols + 0.5) / w - 1, 1 - 2 * (rows + 0.5) / h], dim=1)
+    return torch.stack([2 * (cols + 0.5) / w - 1, 1 - 2 * (rows + 0.5) / h], dim=1) * clear
 
 
 class RingBins:
