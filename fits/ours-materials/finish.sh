@@ -21,6 +21,11 @@ export OMP_NUM_THREADS=1 MLFLOW_TRACKING_URI="sqlite:///$OUT/bench.db"
     --test-data "$DATA/unseen-dev" -o "$OUT/unseen-dev" | tee "$OUT/unseen-dev.txt"
 .venv/bin/svbrdf-bench run --models ours --from-models "$OUT/ours-materials-cpu.pt,pretrained:ours-general-cpu" \
     --test-data "$DATA/des18-dev" -o "$OUT/des18-dev" | tee "$OUT/des18-dev.txt"
+# The default rule: beats ours-general-cpu on renderings beyond noise, no map worse beyond noise.
+.venv/bin/python benchmarks/compare_models.py "$DATA/unseen-dev" "$DATA/des18-dev" \
+    --models "$OUT/ours-materials-cpu.pt,pretrained:ours-general-cpu,pretrained:ours-mix-cpu" | tee "$OUT/compare.txt"
 .venv/bin/python benchmarks/real_photos.py "$DATA/real-dev" \
     --models "$OUT/ours-materials-cpu.pt,pretrained:ours-general-cpu" -o docs/real-photos.png | tee "$OUT/real_photos.txt"
+.venv/bin/python benchmarks/real_photos.py "$DATA/real-dev" --refine 100 --size 256 \
+    --models "$OUT/ours-materials-cpu.pt,pretrained:ours-general-cpu" | tee "$OUT/real_photos_refined.txt"
 echo "judged: $OUT"
