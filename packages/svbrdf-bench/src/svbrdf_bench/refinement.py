@@ -31,6 +31,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from svbrdf_render import BACKENDS
+from svbrdf_render.fit import FLASH_MODES
+
 from .errors import BenchError
 from .layout import (
     INPUT_RERENDER,
@@ -53,10 +56,11 @@ __all__ = [
     "REFINE_FLASH_MODES",
 ]
 
-#: The renderer backends ``--refine-backend`` takes (svbrdf_render.BACKENDS).
-REFINE_BACKENDS = ("compiled", "eager")
-#: How ``--refine-flash`` finds the flash of a photo when no intensity is given.
-REFINE_FLASH_MODES = ("axis", "fit")
+#: The renderer backends ``--refine-backend`` takes: the renderer's own list.
+REFINE_BACKENDS = BACKENDS
+#: How ``--refine-flash`` finds the flash of a photo when no intensity is given: the
+#: refinement's own list.
+REFINE_FLASH_MODES = FLASH_MODES
 _EXAMPLE = "e.g. --refine 0,50,200"
 
 

@@ -23,6 +23,7 @@ from collections.abc import Callable
 import torch
 from torch import Tensor
 
+from svbrdf_render import BACKENDS as RENDER_BACKENDS
 from svbrdf_render import MIN_REFINE_SIDE, SVBRDF, Refinement, Scene, refine_maps, refine_start, render
 from svbrdf_render.fit import axis_flash
 from svbrdf_render.rings import dering, highlight_point
@@ -50,7 +51,7 @@ BACKEND = "auto"
 #: Photos with at least this many pixels are refined with the compiled renderer under ``"auto"``.
 COMPILE_PIXELS = 512 * 512
 #: What ``--backend`` takes.
-BACKENDS = ("auto", "eager", "compiled")
+BACKENDS = ("auto", *RENDER_BACKENDS)
 
 
 #: The side refined maps are made at when the photo's square is larger (``--map-size`` sets

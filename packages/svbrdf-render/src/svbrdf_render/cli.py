@@ -19,6 +19,7 @@ from .errors import SVBRDFError, exit_status
 from .files import EXIT_STATUS
 from .machine import THREADS_HELP, choose_threads
 from .maps import SVBRDF
+from .renderer import BACKENDS
 from .scene import DES18_DISTANCE, Camera, PointLight, Scene
 
 EPILOG_RENDER = """\
@@ -236,7 +237,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", type=int_range(1, MAX_SIZE),
                    help=f"resample the maps to SIZE x SIZE first (1 to {MAX_SIZE})")
     p.add_argument("--bits", type=int, choices=(8, 16), default=8, help="PNG bit depth (default 8)")
-    p.add_argument("--backend", choices=("eager", "compiled"), default="eager",
+    p.add_argument("--backend", choices=BACKENDS, default="eager",
                    help="compiled = torch.compile (faster for repeated renders, slow first call)")
     _add_scene_flags(p, None)
     p.add_argument("--threads", type=int_range(1), metavar="N", help=THREADS_HELP)

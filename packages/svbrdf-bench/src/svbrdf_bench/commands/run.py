@@ -10,6 +10,7 @@ import click
 from svbrdf_train import experiment_option, system_metrics_option
 
 from ..presets import PRESETS
+from ..refinement import REFINE_BACKENDS
 
 EPILOG = (
     """\b
@@ -200,7 +201,7 @@ def _once(flag: str, values: tuple):
 )
 @click.option(
     "--refine-backend",
-    type=click.Choice(["compiled", "eager"]),
+    type=click.Choice(REFINE_BACKENDS),
     default="compiled",
     show_default=True,
     help="Renderer backend of the refinement (compiled: torch.compile, warmed up before timing).",
