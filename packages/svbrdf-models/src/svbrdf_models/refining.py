@@ -25,6 +25,7 @@ from torch import Tensor
 
 from svbrdf_render import BACKENDS as RENDER_BACKENDS
 from svbrdf_render import MIN_REFINE_SIDE, SVBRDF, Refinement, Scene, refine_maps, refine_start, render
+from svbrdf_render.compare import per_sample_rmse
 from svbrdf_render.fit import axis_flash
 from svbrdf_render.rings import dering, highlight_point
 
@@ -239,4 +240,4 @@ def rerender(svbrdf: SVBRDF, scene: Scene, size: tuple[int, int] | None = None) 
 def rerender_rmse(rendering: Tensor, photo: Tensor) -> Tensor:
     """``(B,)`` RMSE of clipped renderings against linear photos ``(B, 3, H, W)``."""
     photo = photo[None] if photo.dim() == 3 else photo
-    return (rendering - photo.to(rendering).clamp(0, 1)).square().flatten(1).mean(1).sqrt()
+    return per_sample_rmse(rendering, photo.to(rendering).clamp(0, 1))

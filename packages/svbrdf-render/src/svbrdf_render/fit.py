@@ -17,6 +17,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from .compare import per_sample_rmse
 from .effects import DES18_EFFECTS
 from .errors import MapError
 from .maps import SVBRDF
@@ -154,7 +155,7 @@ def fit_flash(
         unit = _unit_render(svbrdf.detach().to(torch.float32), pos, colocated, camera_distance, effects)
         k = _best_intensity(unit, photo)
         rendering = (unit * k.view(-1, 1, 1, 1)).clamp(0, 1)
-        rmse = (rendering - photo).square().flatten(1).mean(1).sqrt()
+        rmse = per_sample_rmse(rendering, photo)
     return FlashFit(pos.detach(), k, rmse, rendering, colocated, camera_distance)
 
 

@@ -103,10 +103,9 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from .compare import map_rmse, render_rmse
 from .errors import MapError
-from .mapfiles import linear_to_srgb
-from .maps import MAP_NAMES, SVBRDF, check_map_set, stored_value
-from .renderer import render
+from .maps import SVBRDF, check_map_set
 from .sampling import evaluation_scene
 from .scene import Scene
 
@@ -254,15 +253,6 @@ def from_metal_rough(mr: MetalRough) -> SVBRDF:
     return SVBRDF(mr.normal, d.to(dtype), mr.roughness, s.to(dtype), validate=False)
 
 
-def _per_sample_rmse(a: Tensor, b: Tensor) -> Tensor:
-    return (a.float() - b.float()).square().flatten(1).mean(1).sqrt()
-
-
-def _display(svbrdf: SVBRDF, scene: Scene) -> Tensor:
-    """Renderings as a screen shows them: clipped to [0, 1], sRGB-encoded."""
-    return linear_to_srgb(render(svbrdf, scene).clamp(0, 1))
-
-
 def roundtrip_error(svbrdf: SVBRDF, scene: Scene | None = None) -> dict[str, Tensor]:
     """How much des18 -> metal/rough -> des18 changes ``svbrdf``, per material.
 
@@ -283,9 +273,4 @@ def roundtrip_error(svbrdf: SVBRDF, scene: Scene | None = None) -> dict[str, Ten
     scene = scene if scene is not None else evaluation_scene(device=svbrdf.device)
     with torch.no_grad():
         back = from_metal_rough(to_metal_rough(svbrdf))
-        a, b = svbrdf.maps(), back.maps()
-        out = {}
-        for name in MAP_NAMES:
-            out[name] = _per_sample_rmse(stored_value(name, a[name]), stored_value(name, b[name]))
-        out["render"] = _per_sample_rmse(_display(back, scene), _display(svbrdf, scene))
-    return out
+        return {**map_rmse(svbrdf, back), "render": render_rmse(back, svbrdf, scene)}

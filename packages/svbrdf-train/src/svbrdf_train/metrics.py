@@ -1,4 +1,7 @@
 """Per-sample accuracy figures of predicted maps: what validation logs and the benchmark reports.
+They are defined once, in :mod:`svbrdf_render.compare` (the renderer's package, so the photo
+tool and the metal/rough round trip use the same ones); this module names them for training,
+with the preview flash of its sample grids.
 
 Every figure is an RMSE per sample, so callers can average, or bootstrap over samples:
 
@@ -13,65 +16,13 @@ from __future__ import annotations
 
 import math
 
-import torch
-from torch import Tensor
-
-from svbrdf_render import (
-    DES18_DISTANCE,
-    MAP_NAMES,
-    SVBRDF,
-    Scene,
-    evaluation_scene,
-    linear_to_srgb,
-    render,
-    stored_value,
-)
+from svbrdf_render import DES18_DISTANCE, Scene
+from svbrdf_render.compare import METRIC_NAMES, display_rendering, map_rmse, per_sample_rmse, render_rmse
 
 __all__ = ["map_rmse", "render_rmse", "display_rendering", "per_sample_rmse", "preview_flash", "METRIC_NAMES"]
-
-#: Names of :func:`map_rmse`'s figures and then :func:`render_rmse`'s.
-METRIC_NAMES = (*MAP_NAMES, "render")
-
-
-def _stored(svbrdf: SVBRDF) -> dict[str, Tensor]:
-    m = svbrdf.maps()
-    return {name: stored_value(name, m[name]) for name in MAP_NAMES}
-
-
-def per_sample_rmse(a: Tensor, b: Tensor) -> Tensor:
-    """``(B,)`` RMSE over everything but the first dimension of two equal-shaped batches."""
-    return (a.float() - b.float()).square().flatten(1).mean(1).sqrt()
-
-
-def map_rmse(pred: SVBRDF, target: SVBRDF) -> dict[str, Tensor]:
-    """``{map name: (B,) RMSE}`` between the stored encodings of two map sets."""
-    if pred.shape != target.shape:
-        raise ValueError(
-            f"map_rmse: pred is {pred.shape}, target {target.shape}; expected the same (B, H, W)"
-        )
-    p, t = _stored(pred), _stored(target)
-    return {name: per_sample_rmse(p[name], t[name]) for name in MAP_NAMES}
-
-
-def display_rendering(svbrdf: SVBRDF, scene: Scene) -> Tensor:
-    """Renderings as a screen shows them: clipped to [0, 1], sRGB-encoded."""
-    return linear_to_srgb(render(svbrdf, scene).clamp(0, 1))
 
 
 def preview_flash(device=None) -> Scene:
     """The Des18 phone flash, bright enough that an albedo of 1 at the centre shows as 1:
     what sample grids re-render maps under for people to look at."""
     return Scene.flash(intensity=math.pi * DES18_DISTANCE**2).to(device)
-
-
-def render_rmse(pred: SVBRDF, target: SVBRDF, scene: Scene | None = None) -> Tensor:
-    """``(B,)`` RMSE of display renderings under ``scene`` (default: the 6 evaluation pairs)."""
-    if pred.shape != target.shape:
-        raise ValueError(
-            f"render_rmse: pred is {pred.shape}, target {target.shape}; expected the same (B, H, W)"
-        )
-    scene = scene if scene is not None else evaluation_scene(device=pred.device)
-    with torch.no_grad():
-        a = display_rendering(pred, scene)
-        b = display_rendering(target, scene)
-    return per_sample_rmse(a, b)
