@@ -1,4 +1,4 @@
-"""Capture (``svbrdf_train.capture`` and ``svbrdf-train predict``): from real photos to maps.
+"""Capture (``svbrdf_models.capture`` through ``svbrdf-train predict``): from real photos to maps.
 
 Photos are made here: known maps rendered under a flash, or known pixel arrays, saved as PNG
 (exact) or JPEG (quality 95). The geometry (EXIF orientation, crops, tiles) is checked against
@@ -22,7 +22,7 @@ from conftest import random_svbrdf, run_cli
 from svbrdf_render import SVBRDF, Scene, read_image, render, write_image
 from svbrdf_render.examples import example_material
 from svbrdf_render.mapfiles import linear_to_srgb, srgb_to_linear
-from svbrdf_train.capture import (
+from svbrdf_models.capture import (
     MAX_PIXELS,
     MIN_SIDE,
     CaptureOptions,
@@ -545,17 +545,25 @@ def test_command_refines_with_a_checkpoint(tmp_path, checkpoint):
 
 
 def test_the_photo_tool_has_one_home():
-    """svbrdf_train.capture, its photo and figure helpers and DataError are svbrdf-models' own
-    objects, not copies."""
+    """svbrdf_train.capture (deprecated: it warns, and still names the same objects for one
+    release), its photo and figure helpers and DataError are svbrdf-models' own objects, not
+    copies."""
+    import importlib
+    import sys
+
     import svbrdf_models.capture
     import svbrdf_models.errors
     import svbrdf_models.figures
     import svbrdf_models.photos
-    import svbrdf_train.capture
+    import svbrdf_train
     from svbrdf_train.data import photos, sheet
 
-    for name in svbrdf_train.capture.__all__:
-        assert getattr(svbrdf_train.capture, name) is getattr(svbrdf_models.capture, name), name
+    sys.modules.pop("svbrdf_train.capture", None)
+    with pytest.warns(DeprecationWarning, match="svbrdf_models.capture"):
+        old = importlib.import_module("svbrdf_train.capture")
+    for name in old.__all__:
+        assert getattr(old, name) is getattr(svbrdf_models.capture, name), name
+    assert svbrdf_train.flash_consistency is svbrdf_models.capture.flash_consistency
     assert photos.orient is svbrdf_models.photos.orient
     assert photos.exif_orientation is svbrdf_models.photos.exif_orientation
     assert sheet.image_grid is svbrdf_models.figures.image_grid

@@ -15,16 +15,6 @@ from svbrdf_render.errors import exit_status
 from . import __version__
 from ._registry import Registry, default_registry
 from .commands import names, predict, show
-from .commands.names import (  # noqa: F401 - re-exported, where they were
-    DEFAULT_CHANNELS,
-    DEFAULT_REPEATS,
-    EPILOG_DESCRIBE,
-    EPILOG_LIST,
-    MAX_CHANNELS,
-    MAX_REPEATS,
-)
-from .commands.predict import EPILOG_PREDICT, MAX_MAP_SIZE  # noqa: F401 - re-exported
-from .commands.show import EPILOG_SHOW  # noqa: F401 - re-exported
 
 __all__ = ["build_parser", "main"]
 

@@ -40,7 +40,7 @@ _PUBLIC: dict[str, tuple[str, ...]] = {
     ".errors": ("DataError",),
     # figures and image sheets
     ".metrics": ("display_rendering", "map_rmse", "per_sample_rmse", "preview_flash"),
-    ".capture": ("flash_consistency",),
+    "svbrdf_models.capture": ("flash_consistency",),
     ".data.sheet": ("image_grid", "map_tiles"),
     # the command line a sibling tool shares: one-line errors, the common options
     ".cli": ("OneLineErrors", "run_main"),
