@@ -25,7 +25,7 @@ export OMP_NUM_THREADS=1 MLFLOW_TRACKING_URI="sqlite:///$OUT/bench.db"
 .venv/bin/python benchmarks/compare_models.py "$DATA/unseen-dev" "$DATA/des18-dev" \
     --models "$OUT/ours-materials-cpu.pt,pretrained:ours-general-cpu,pretrained:ours-mix-cpu" | tee "$OUT/compare.txt"
 .venv/bin/python benchmarks/real_photos.py "$DATA/real-dev" \
-    --models "$OUT/ours-materials-cpu.pt,pretrained:ours-general-cpu" -o docs/real-photos.png | tee "$OUT/real_photos.txt"
+    --models "$OUT/ours-materials-cpu.pt,pretrained:ours-general-cpu" -o "$OUT/real-photos.png" | tee "$OUT/real_photos.txt"
 .venv/bin/python benchmarks/real_photos.py "$DATA/real-dev" --refine 100 --size 256 \
     --models "$OUT/ours-materials-cpu.pt,pretrained:ours-general-cpu" | tee "$OUT/real_photos_refined.txt"
 echo "judged: $OUT"

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The long fit of issue 34: ours-materials at the cpu size, from the shipped procedural model,
-# 50/50 procedural and real-train strips (fold 1/5 held out: val_fold/ and the normal scale),
+# 20% procedural and 80% real-train strips (fold 1/5 held out: val_fold/ and the normal scale),
 # unseen-dev watched as val_real/ and never chosen on, 240 minutes of CPU time on one thread.
 # Run from the repository root:  fits/ours-materials/run.sh [start|resume]
 # State (checkpoint, MLflow store, log) stays in this folder so that a later session resumes it;
@@ -10,7 +10,7 @@ cd "$(dirname "$0")/../.."
 DIR=fits/ours-materials
 DATA="${SVBRDF_DATA:-$(cd .. && pwd)/shared/data}"
 SHARD=$DIR/real-train-256.h5
-WEIGHT="${WEIGHT:-0.5}"
+WEIGHT="${WEIGHT:-0.8}"
 [ -f "$SHARD" ] || .venv/bin/svbrdf-train data strips "$DATA/real-train" --out "$SHARD" --tile 256
 export MLFLOW_TRACKING_URI="sqlite:///$DIR/mlflow.db" OMP_NUM_THREADS=1
 mode="${1:-start}"
