@@ -3,13 +3,8 @@ They are defined once, in :mod:`svbrdf_render.compare` (the renderer's package, 
 tool and the metal/rough round trip use the same ones); this module names them for training,
 with the preview flash of its sample grids.
 
-Every figure is an RMSE per sample, so callers can average, or bootstrap over samples:
-
-- maps: on the values a map file stores, all in [0, 1]: normal as ``(n + 1) / 2``, diffuse
-  and specular linear, roughness as is (so the four RMSEs share one scale);
-- renderings: under :func:`svbrdf_render.evaluation_scene` (6 fixed light/view pairs, the
-  same for every model), each rendering clipped to [0, 1] and sRGB-encoded as a display would
-  show it, which is how images are compared in the Des18 literature.
+What each figure measures (stored encodings, display renderings under the 6 evaluation
+views) is said there.
 """
 
 from __future__ import annotations
