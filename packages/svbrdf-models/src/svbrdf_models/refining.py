@@ -211,8 +211,9 @@ def refine_prediction(
         copy = {k: t.detach().clone() for k, t in start.maps().items()}
         point = highlight_point(photo)
         start = dering(without_checkerboard(SVBRDF(**copy, validate=False)), point)
+        start = refine_start(start, (h, w))  # once: refine_maps takes a photo-sized start as it is
         if scene is None:  # the flash over the highlight (the centre when there is none)
-            scene = axis_flash(refine_start(start, (h, w)), photo, over=point)
+            scene = axis_flash(start, photo, over=point)
         result = refine_maps(
             photo,
             start,

@@ -60,6 +60,11 @@ def highlight_point(photo: Tensor) -> Tensor:
     return torch.stack([2 * (cols + 0.5) / w - 1, 1 - 2 * (rows + 0.5) / h], dim=1) * clear
 
 
+def _slopes(normal: Tensor) -> Tensor:
+    """``(B, 2, HW)``: the slopes ``(x / z, y / z)`` of normals, ``z`` held at 0.05 or more."""
+    return (normal[:, :2] / normal[:, 2:3].clamp_min(0.05)).flatten(2)
+
+
 class RingBins:
     """The rings of a ``(B, C, H, W)`` map shape around points ``(B, 2)``: each pixel's ring,
     the pixel count of each ring, and each pixel's unit direction away from the point."""
@@ -97,8 +102,7 @@ class RingBins:
     def radial_slope(self, normal: Tensor) -> Tensor:
         """``(B, 1, H, W)``: the slope of ``normal`` along the direction away from the point."""
         b, _, h, w = normal.shape
-        slopes = (normal[:, :2] / normal[:, 2:3].clamp_min(0.05)).flatten(2)
-        return (slopes * self.away).sum(1, keepdim=True).view(b, 1, h, w)
+        return (_slopes(normal) * self.away).sum(1, keepdim=True).view(b, 1, h, w)
 
     def profile(self, values: Tensor) -> Tensor:
         """``(B, C, HW)``: per-ring ``values`` ``(B, C, RINGS)`` read at each pixel, linearly
@@ -135,7 +139,6 @@ def dering(maps: SVBRDF, point: Tensor) -> SVBRDF:
         out[name] = (x.flatten(2) * bins.profile(gain)).clamp(0, 1).view_as(x)
     n = maps.normal
     b, _, h, w = n.shape
-    slopes = (n[:, :2] / n[:, 2:3].clamp_min(0.05)).flatten(2)
-    slopes = slopes - bins.profile(bins.means(bins.radial_slope(n))) * bins.away
+    slopes = _slopes(n) - bins.profile(bins.means(bins.radial_slope(n))) * bins.away
     normal = F.normalize(torch.cat([slopes, torch.ones_like(slopes[:, :1])], 1), dim=1).view(b, 3, h, w)
     return SVBRDF(normal, out["diffuse"], out["roughness"], out["specular"], validate=False)
