@@ -5,9 +5,12 @@ other programs keep the cores busy, those threads wait for cores that never come
 2-core machine with two CPU-bound processes beside it, the default refinement of a 256 px
 photo took 15.8 s with 2 threads against 7.4 s with 1 (117 s against 11.5 s seen by a
 user). :func:`choose_threads` therefore takes one thread per core that is *free*: the cores
-this process may run on, less the load average of the last minute (the processes already
-running), at least 1. A number given by the user (``--threads N``, or ``OMP_NUM_THREADS`` in
-the environment) is taken as it is.
+this process may run on, less the other tasks running *now* (Linux: the running count of
+``/proc/loadavg``, less this process, the median of a few readings over 40 ms; elsewhere the
+load average of the last minute), at least 1. The load average alone lags: a minute after a
+benchmark ends it still reads 1.6 on an idle machine, and a command started then took 1
+thread where 2 were free. A number given by the user (``--threads N``, or ``OMP_NUM_THREADS``
+in the environment) is taken as it is.
 
     from svbrdf_render.machine import choose_threads
     choice = choose_threads(None)        # sets torch's threads; choice.describe() for people
@@ -16,6 +19,8 @@ the environment) is taken as it is.
 from __future__ import annotations
 
 import os
+import statistics
+import time
 from dataclasses import dataclass
 
 __all__ = ["THREADS_HELP", "ThreadChoice", "choose_threads", "usable_cores"]
@@ -36,7 +41,31 @@ def usable_cores() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+#: Linux's load file: its fourth field is ``running/total`` tasks at this instant.
+_LOADAVG = "/proc/loadavg"
+
+
+def _running_now() -> float | None:
+    """Tasks running or ready to run now besides this one (median of 5 readings 10 ms apart);
+    None where the system has no :data:`_LOADAVG`."""
+    counts = []
+    for i in range(5):
+        try:
+            with open(_LOADAVG) as f:
+                counts.append(int(f.read().split()[3].split("/")[0]) - 1)  # less this process
+        except (OSError, IndexError, ValueError):
+            return None
+        if i < 4:
+            time.sleep(0.01)
+    return float(max(0.0, statistics.median(counts)))
+
+
 def _load() -> float | None:
+    """How many cores other programs keep busy: :func:`_running_now`, else the 1-minute load
+    average; None where the system gives neither."""
+    now = _running_now()
+    if now is not None:
+        return now
     try:
         return float(os.getloadavg()[0])
     except (AttributeError, OSError):  # pragma: no cover - Windows
@@ -49,7 +78,7 @@ class ThreadChoice:
 
     threads: int
     cores: int
-    #: The 1-minute load average seen (None where the system gives none, or when given).
+    #: The other tasks seen running (:func:`_load`; None where the system gives none, or when given).
     load: float | None
     #: ``"--threads"``, ``"OMP_NUM_THREADS"`` or ``"free cores"``.
     source: str
@@ -64,7 +93,7 @@ class ThreadChoice:
         plural = "s" if self.threads != 1 else ""
         if self.source != "free cores":
             return f"{self.threads} torch thread{plural} ({self.source})"
-        load = f", load {self.load:.1f}" if self.load is not None else ""
+        load = f", {self.load:g} other tasks running" if self.load is not None else ""
         busy = ": the machine is busy, so fewer threads than cores" if self.busy else ""
         return f"{self.threads} torch thread{plural} ({self.cores} cores{load}{busy})"
 
