@@ -48,3 +48,25 @@ def test_reproduces_the_des18_inputs(shared_data, capsys):
     flipped = SVBRDF(maps.normal * torch.tensor([1.0, -1.0, 1.0]).view(1, 3, 1, 1),
                      maps.diffuse, maps.roughness, maps.specular)
     assert float(fit_flash(flipped, photos, steps=60).rmse.median()) > median
+
+
+def test_the_hand_written_adam_steps_exactly_as_torch_optim_adam():
+    # refine_maps and fit_flash step their own Adam (torch.optim's first step imports
+    # torch._dynamo, 0.8 s); its steps must be torch.optim.Adam's, groups and learning rates too.
+    from svbrdf_render.fit import _Adam
+
+    gen = torch.Generator().manual_seed(0)
+    start = [torch.randn(2, 3, 8, 8, generator=gen), torch.randn(2, 1, 1, 1, generator=gen), torch.randn(4)]
+    ours = [t.clone().requires_grad_() for t in start]
+    theirs = [t.clone().requires_grad_() for t in start]
+    opt_ours = _Adam([{"params": ours[:2], "lr": 0.05}, {"params": ours[2:], "lr": 0.2}])
+    opt_theirs = torch.optim.Adam([{"params": theirs[:2], "lr": 0.05}, {"params": theirs[2:], "lr": 0.2}])
+    for step in range(25):
+        for params, opt in ((ours, opt_ours), (theirs, opt_theirs)):
+            opt.zero_grad()
+            used = params if step % 5 else params[:2]  # every fifth step one tensor gets no gradient
+            loss = sum((p.sin() * (i + 1)).square().sum() for i, p in enumerate(used))
+            loss.backward()
+            opt.step()
+    for a, b in zip(ours, theirs, strict=True):
+        assert torch.equal(a.detach(), b.detach())

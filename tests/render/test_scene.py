@@ -193,3 +193,17 @@ def test_scene_aliases_are_read_but_an_alias_bomb_is_refused_before_it_is_built(
     p.write_text(bomb)
     with pytest.raises(SceneError, match="aliases expand the document to more than 100000 values"):
         Scene.load(p)
+
+
+@pytest.mark.parametrize(
+    "shapes",
+    [[(), (3,)], [(2, 1), (1, 4)], [(4,), (2, 4), ()], [(2, 3), (3, 2)], [(0,), (1,)], [(2,), (0,)], [(5, 1, 1)]],
+)
+def test_the_configuration_broadcast_is_torch_s(shapes):
+    from svbrdf_render.scene import _broadcast
+
+    try:
+        want = torch.broadcast_shapes(*shapes)
+    except RuntimeError:
+        want = None
+    assert _broadcast([torch.Size(s) for s in shapes]) == want
