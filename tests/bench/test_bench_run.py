@@ -206,11 +206,26 @@ def test_report_rebuilds_the_same_tables_from_mlflow(bench, tmp_path):
     again = _invoke("report", parent_id, "-o", tmp_path / "again")
     assert again.exit_code == 0, again.output
     for title in ("RMSE", "SSIM", "Against the mean baseline", "Real photos", "Time and memory",
-                  "What accuracy costs"):  # fmt: skip
+                  "What accuracy costs", "Where the time went"):  # fmt: skip
         assert _section(again.stdout, title) == _section(result.stdout, title), title
     assert again.stdout.splitlines()[:5] == result.stdout.splitlines()[:5]  # the headline too
     assert (tmp_path / "again" / "pareto.png").is_file()
     assert (tmp_path / "again" / "against_mean.csv").read_text() == (out / "against_mean.csv").read_text()
+
+
+def test_the_report_says_how_long_each_phase_took(bench):
+    out, result, parent_id = bench
+    table = _section(result.stdout, "Where the time went")
+    phases = [line.split("  ")[0] for line in table[3:]]
+    assert phases == ["checks and test set", "MLflow store", "training ours", "training radn", "scoring ours",
+                      "scoring radn", "scoring the baseline mean", "scoring the baseline photo",
+                      "total (before the report)"]  # fmt: skip
+    seconds = [float(line.split()[-2]) for line in table[3:]]
+    assert all(s >= 0 for s in seconds) and seconds[2] > 0 and seconds[3] > 0  # the fits take time
+    assert seconds[-1] == pytest.approx(sum(seconds[:-1]), abs=0.1 * len(seconds))
+    metrics = _client().get_run(parent_id).data.metrics
+    assert sorted(k for k in metrics if k.startswith("phase/"))[2] == "phase/03 training ours"
+    assert "## Where the time went" in (out / "report.md").read_text()
 
 
 def test_learning_curves_read_both_validation_sets(bench):

@@ -38,6 +38,10 @@ params ``refine_budgets``,          parent  the refinement budgets (``0``: none;
 ``refine_backend``,                         runs), the renderer backend and how the flash was
 ``refine_flash``                            found (:data:`REFINE_PARAM`, :data:`REFINE_BACKEND_PARAM`,
                                             :data:`REFINE_FLASH_PARAM`)
+metrics ``phase/NN <name>``         parent  wall seconds of each phase of the run, in order (NN):
+                                            checks and the test set, each training, each row's
+                                            scoring; logged as each phase ends (:data:`PHASE_PREFIX`,
+                                            :func:`phase_key`, :func:`read_phases`)
 artifacts ``report/``               parent  the written report: ``report.md``, CSV, JSON, plots
                                             (:data:`REPORT_ARTIFACTS`)
 artifact ``eval/test_groups.json``  parent  of a real test set: how samples were grouped
@@ -158,6 +162,9 @@ __all__ = [
     "GROUP_BY_PARAM",
     "test_groups_json",
     "read_test_groups",
+    "PHASE_PREFIX",
+    "phase_key",
+    "read_phases",
 ]
 
 #: Tag of the parent run; its value :data:`BENCH_KIND` marks a benchmark's parent.
@@ -273,3 +280,20 @@ def read_test_groups(text: str) -> tuple[str, list[str], list[tuple[str, ...]]]:
     """``(group_by, names, groups)`` back from the text of :data:`TEST_GROUPS`."""
     doc = json.loads(text)
     return doc["group_by"], list(doc["names"]), [tuple(g) for g in doc["groups"]]
+
+
+#: Metrics of the parent run: the wall seconds of each phase of the benchmark (see :func:`phase_key`).
+PHASE_PREFIX = "phase/"
+
+
+def phase_key(index: int, name: str) -> str:
+    """The parent metric of the ``index``-th phase, ``name`` in words: ``phase/03 training ours``
+    (characters MLflow refuses in a metric name become ``_``; the number keeps the order)."""
+    safe = "".join(c if c.isalnum() or c in " -_./:" else "_" for c in name)
+    return f"{PHASE_PREFIX}{index:02d} {safe}"
+
+
+def read_phases(metrics: Mapping[str, float]) -> list[tuple[str, float]]:
+    """``[(name, seconds)]`` in the order the phases ran, from a parent run's metrics."""
+    keys = sorted(k for k in metrics if k.startswith(PHASE_PREFIX))
+    return [(k[len(PHASE_PREFIX) :].split(" ", 1)[-1], float(metrics[k])) for k in keys]

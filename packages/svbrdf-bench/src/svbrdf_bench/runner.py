@@ -24,8 +24,10 @@ child run (:mod:`svbrdf_bench.children`); :func:`_report` writes the report and 
 from __future__ import annotations
 
 import tempfile
+import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
@@ -62,6 +64,7 @@ from .layout import (
     REPORT_ARTIFACTS,
     TEST_GROUPS,
     TEST_SET_PARAM,
+    phase_key,
     test_groups_json,
 )
 from .mlflow_view import describe_in_mlflow, metric_prefix, parent_metrics, parent_note
@@ -108,6 +111,33 @@ class _Plan:
         )
 
 
+class _Phases:
+    """Wall seconds of each phase of a benchmark, logged on its parent run as each phase ends
+    (:func:`svbrdf_bench.layout.phase_key`; the report's "Where the time went"). Phases that end
+    before the parent run exists are logged when it is attached."""
+
+    def __init__(self) -> None:
+        self.done: list[tuple[str, float]] = []
+        self._run: tuple | None = None  # (MLflow client, parent run id)
+
+    @contextmanager
+    def __call__(self, name: str):
+        start = time.perf_counter()
+        yield
+        self.done.append((name, time.perf_counter() - start))
+        self._log(len(self.done) - 1)
+
+    def attach(self, client, run_id: str) -> None:
+        self._run = (client, run_id)
+        for i in range(len(self.done)):
+            self._log(i)
+
+    def _log(self, i: int) -> None:
+        if self._run is not None:
+            name, seconds = self.done[i]
+            self._run[0].log_metric(self._run[1], phase_key(i + 1, name), round(seconds, 2))
+
+
 @dataclass
 class _Bench:
     """A benchmark under way: its parent run, MLflow client, scratch folder and row scorer."""
@@ -118,6 +148,7 @@ class _Bench:
     parent: object  # svbrdf_train.MlflowTracker
     work: Path
     scorer: RowScorer
+    phases: _Phases = field(default_factory=_Phases)
 
     def refined_children(self, base: tuple[str, str, dict[str, str]], refined: dict, params: float) -> None:
         """The child runs of ``base``'s refined rows (:func:`~svbrdf_bench.children.log_refined_children`)."""
@@ -131,10 +162,14 @@ def run_bench(options: BenchOptions) -> str:
 
     from .report import terminal
 
-    plan = _plan(options)
-    client = tracking_client()
-    sha, dirty = git_revision()
-    parent = _open_parent(options, plan, sha, dirty)
+    phases = _Phases()
+    with phases("checks and test set"):
+        plan = _plan(options)
+    with phases("MLflow store"):
+        client = tracking_client()
+        sha, dirty = git_revision()
+        parent = _open_parent(options, plan, sha, dirty)
+    phases.attach(client, parent.run_id)
     status = "FAILED"
     try:
         with tempfile.TemporaryDirectory(prefix="svbrdf-bench-") as tmp:
@@ -147,18 +182,23 @@ def run_bench(options: BenchOptions) -> str:
             p = options.preset
             scorer = RowScorer(plan.test, plan.device, plan.lpips, plan.photos, options.refine,
                                p.latency_repeats, options.say)  # fmt: skip
-            bench = _Bench(options, plan, client, parent, work, scorer)
+            bench = _Bench(options, plan, client, parent, work, scorer, phases)
             for job in _fits(bench):
-                _score_fit(bench, *job)
+                with phases(f"scoring {job[0]}"):
+                    _score_fit(bench, *job)
             for ref in plan.refs:  # trained elsewhere: scored, not trained; the label says so
-                _score_reference(bench, ref)
+                with phases(f"scoring the reference {ref.name}"):
+                    _score_reference(bench, ref)
             for name in options.baselines:
-                _score_baseline(bench, name)
+                with phases(f"scoring the baseline {name}"):
+                    _score_baseline(bench, name)
+            start = time.perf_counter()
             report = _report(bench)
             view = describe_in_mlflow(client, parent, plan.test, options.out, options.test_data, sha)
         status = "FINISHED"
         options.say(terminal(report))
-        options.say(f"report: {options.out}/report.md; MLflow parent run {parent.run_id}")
+        options.say(f"report: {options.out}/report.md (written in {time.perf_counter() - start:.0f} s); "
+                    f"MLflow parent run {parent.run_id}")
         options.say(f"  MLflow: {ui_hint(parent.uri, parent.experiment_id, view=view)}")
     except KeyboardInterrupt:
         status = "KILLED"
@@ -325,7 +365,8 @@ def _fits(bench: _Bench) -> list[tuple[str, str, float | None, str | None, Path 
     jobs = []
     for i, model in enumerate(plan.to_train, 1):
         options.say(f"[{i}/{len(plan.labels)}] training {model} ({plan.size} size)")
-        run_id, wall, local = train(model, options, parent.run_id, bench.work)
+        with bench.phases(f"training {Path(model).stem}"):
+            run_id, wall, local = train(model, options, parent.run_id, bench.work)
         jobs.append((Path(model).stem, run_id, wall, None, local))
     for label, source in plan.reuse:
         child = reused_child(bench.client, parent.experiment_id, parent.run_id, label, source)

@@ -48,6 +48,9 @@ class Report:
     sample_names: list[str] = field(default_factory=list)
     #: How the samples were grouped: ``des18`` or ``file`` (with :attr:`groups`).
     group_by: str | None = None
+    #: Wall seconds of each phase of the benchmark, in order (parent metrics ``phase/*``; empty in
+    #: older runs): ``[(name, seconds)]``.
+    phases: list[tuple[str, float]] = field(default_factory=list)
     #: :meth:`latency_front`'s last answer, with the rows it was computed for.
     _front_cache: dict = field(default_factory=dict, repr=False, compare=False)
 

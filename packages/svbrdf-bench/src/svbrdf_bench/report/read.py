@@ -38,6 +38,7 @@ from ..layout import (
     TRAINER_PREFIXES,
     is_baseline,
     read_per_sample,
+    read_phases,
     read_test_groups,
     reference_name,
     refine_steps,
@@ -85,6 +86,7 @@ def build_report(parent_id: str) -> Report:
         refine={
             k: params[k] for k in (REFINE_PARAM, REFINE_BACKEND_PARAM, REFINE_FLASH_PARAM) if k in params
         },
+        phases=read_phases(parent.data.metrics),
         **_grouping(client, parent_id, params),
     )
 

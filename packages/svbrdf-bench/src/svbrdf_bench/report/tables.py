@@ -26,6 +26,7 @@ __all__ = [
     "real_table",
     "refine_table",
     "time_table",
+    "phase_table",
     "cost_table",
 ]
 
@@ -106,6 +107,16 @@ def time_table(report: Report) -> Table:
             "with it.",
         ]
     return Table("Time and memory", ["model", *(c[1] for c in cols)], rows, after)
+
+
+def phase_table(report: Report) -> Table | None:
+    """Where the benchmark's wall time went, phase by phase (None for runs that did not record it)."""
+    if not report.phases:
+        return None
+    total = sum(s for _, s in report.phases)
+    rows = [[name, f"{s:.1f}", f"{s / total:.0%}" if total > 0 else "-"] for name, s in report.phases]
+    rows.append(["total (before the report)", f"{total:.1f}", "100%" if total > 0 else "-"])
+    return Table("Where the time went", ["phase", "wall s", "share"], rows)
 
 
 def refine_table(report: Report) -> Table | None:

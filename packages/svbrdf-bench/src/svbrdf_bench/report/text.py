@@ -13,6 +13,7 @@ from .tables import (
     accuracy_table,
     against_table,
     cost_table,
+    phase_table,
     real_table,
     refine_table,
     time_table,
@@ -63,6 +64,7 @@ def _tables(report: Report, markdown: bool) -> list[str]:
     if len(report.costed) > 1:
         blocks.append(table_lines(cost_table(report), markdown))
     blocks.append(words.front_lines(report))
+    blocks.append(table_lines(phase_table(report), markdown))
     return [line for block in blocks if block for line in (*block, "")]
 
 
