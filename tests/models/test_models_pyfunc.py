@@ -254,3 +254,16 @@ def test_a_request_over_the_pixel_limit_is_refused_before_any_work(loaded, monke
         loaded.predict(_photos(2, 16, 16))
     monkeypatch.setenv("SVBRDF_SERVE_MAX_PIXELS", "512")
     assert loaded.predict(_photos(2, 16, 16))["normal"].shape[0] == 2
+
+
+def test_under_mlflow_serve_a_refinement_ends_before_the_request_timeout(loaded, monkeypatch):
+    """Issue 36: under ``mlflow models serve`` a request with a huge budget was answered 504 after
+    60 s while its work went on, and held the worker for good. Served, a refinement now stops at
+    80% of MLflow's request timeout (here 2 s: 100 000 steps would take minutes)."""
+    monkeypatch.setenv("SVBRDF_SERVE_MAX_REFINE", "100000")
+    assert pyfunc._serving_seconds() is None  # not serving: no bound
+    monkeypatch.setenv("_MLFLOW_IS_IN_SERVING_ENVIRONMENT", "true")
+    monkeypatch.setenv("MLFLOW_SCORING_SERVER_REQUEST_TIMEOUT", "2")
+    assert pyfunc._serving_seconds() == pytest.approx(1.6)
+    maps = loaded.predict(_photos(1, 32, 32), params={"refine": 100000})
+    assert maps["diffuse"].shape == (1, 32, 32, 3) and np.isfinite(maps["diffuse"]).all()

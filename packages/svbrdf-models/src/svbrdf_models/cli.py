@@ -1,5 +1,6 @@
 """``svbrdf-models``: what generators, attention modules and discriminators are installed, what a
-trained model file holds, and maps from flash photos (``predict``).
+trained model file holds, maps from flash photos (``predict``), and a model served over HTTP
+(``serve``).
 
 The commands live in :mod:`svbrdf_models.commands`, one module each; this module builds the
 parser from them and runs one, turning the project's errors into one line and an exit status."""
@@ -14,7 +15,7 @@ from svbrdf_render.errors import exit_status
 
 from . import __version__
 from ._registry import Registry, default_registry
-from .commands import names, predict, show
+from .commands import names, predict, serve, show
 
 __all__ = ["build_parser", "main"]
 
@@ -25,6 +26,7 @@ COMMANDS = {
     "describe": names.run_describe,
     "show": show.run,
     "predict": predict.run,
+    "serve": serve.run,
 }
 
 
@@ -34,7 +36,7 @@ def build_parser() -> OneLineParser:
         prog="svbrdf-models",
         description="List and describe the registered generators, attention modules and discriminators "
         "(built-ins and plugins, found through entry points), show what a model file holds, and "
-        "capture maps from flash photos (predict).",
+        "capture maps from flash photos (predict), and serve a model over HTTP (serve).",
         epilog="Exit status: 0 done; 2 bad arguments (an unknown name, a bad option); 130 interrupted. "
         "predict: see svbrdf-models predict --help.",
     )
@@ -44,6 +46,7 @@ def build_parser() -> OneLineParser:
     names.add_describe(sub)
     show.add_parser(sub)
     predict.add_parser(sub)
+    serve.add_parser(sub)
     return parser
 
 
@@ -53,7 +56,7 @@ def main(argv: list[str] | None = None, registry: Registry | None = None) -> int
     except SystemExit as e:  # a usage error (one line, exit 2) or --help (exit 0)
         return int(e.code or 0)
     try:
-        if args.command != "predict":
+        if args.command not in ("predict", "serve"):
             registry = registry or default_registry()
         return COMMANDS[args.command](args, registry, sys.stdout) or 0
     except SVBRDFError as e:  # RegistryError, a model file, a photo option, a scene: one line

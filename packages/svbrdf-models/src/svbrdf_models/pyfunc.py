@@ -51,6 +51,7 @@ from svbrdf_render.maps import MAP_CHANNELS
 
 from .errors import DataError
 from .modelfile import PYFUNC_ARTIFACT, TrainedModel, load_model
+from .serve import ServeLimits, check_photo_array, maps_arrays, refine_budget
 
 __all__ = [
     "SERVE_LIMITS",
@@ -84,64 +85,27 @@ class PhotoInputError(DataError, MlflowException):
 
 def check_photos(photos: Any) -> np.ndarray:
     """``photos`` as a float32 ``(N, H, W, 3)`` array of linear RGB in [0, 1] (an ``(H, W, 3)``
-    photo gets a batch axis), or a :class:`PhotoInputError` that says what is wrong."""
-    what = "photos (linear RGB in [0, 1], shape (N, H, W, 3) or (H, W, 3))"
+    photo gets a batch axis), or a :class:`PhotoInputError` that says what is wrong
+    (:func:`svbrdf_models.serve.check_photo_array` under ``SVBRDF_SERVE_MAX_PIXELS``)."""
     try:
-        array = np.asarray(photos)
-    except Exception as e:  # ragged nested lists, objects numpy cannot hold in one array
-        raise PhotoInputError(f"{what}: not an array ({type(e).__name__})") from None
-    if array.dtype.kind not in "fiu":
-        raise PhotoInputError(f"{what}: expected numbers, got {array.dtype} values ({type(photos).__name__})")
-    if array.ndim == 3:
-        array = array[None]
-    if array.ndim != 4 or array.shape[-1] != 3 or 0 in array.shape:
-        hint = "; channels go last" if array.ndim == 4 and array.shape[1] == 3 else ""
-        raise PhotoInputError(f"{what}: got shape {tuple(np.shape(photos))}{hint}")
-    pixels, limit = int(np.prod(array.shape[:3])), serve_limit("MAX_PIXELS")
-    if pixels > limit:
-        raise PhotoInputError(
-            f"{what}: {pixels:,} pixels in one request, over this server's limit of {limit:,} "
-            "(SVBRDF_SERVE_MAX_PIXELS); send fewer or smaller photos"
-        )
-    array = array.astype(np.float32, copy=False)
-    bad = int(np.count_nonzero(~np.isfinite(array)))
-    if bad:
-        raise PhotoInputError(f"{what}: {bad} values are NaN or infinite; give finite pixel values")
-    low, high = float(array.min()), float(array.max())
-    if high > 1:
-        raise PhotoInputError(
-            f"{what}: values span [{low:.4g}, {high:.4g}]; scale 8-bit values by 1/255, and decode "
-            "sRGB to linear first"
-        )
-    if low < 0:
-        raise PhotoInputError(f"{what}: values down to {low:.4g}; linear radiance is never below 0")
-    return array
+        return check_photo_array(photos, serve_limit("MAX_PIXELS"), "SVBRDF_SERVE_MAX_PIXELS")
+    except DataError as e:
+        raise PhotoInputError(str(e)) from None
 
 
 def _refine_steps(params: dict[str, Any] | None) -> int:
     """The refinement budget of ``params`` (``{"refine": STEPS}``, default 0)."""
-    from .refining import check_refine
-
-    refine = (params or {}).get("refine", 0)
-    if isinstance(refine, np.integer):  # MLflow's parameter schema may hand numpy integers
-        refine = int(refine)
     try:
-        steps = check_refine(refine)
+        refine = (params or {}).get("refine", 0)
+        return refine_budget(refine, serve_limit("MAX_REFINE"), "SVBRDF_SERVE_MAX_REFINE")
     except DataError as e:
-        raise PhotoInputError(f"params: {e}") from None
-    limit = serve_limit("MAX_REFINE")
-    if steps > limit:
-        raise PhotoInputError(
-            f"params: refine {steps} is over this server's limit of {limit} steps (SVBRDF_SERVE_MAX_REFINE); "
-            "ask for fewer"
-        )
-    return steps
+        raise PhotoInputError(str(e)) from None
 
 
 #: What one request may ask of a served model, each changed by ``SVBRDF_SERVE_<NAME>``: the
 #: pixels of all its photos (4 megapixels: a 2048x2048 photo, about 2 GB refined), and the
 #: refinement steps (500: minutes for a large photo, never a worker held for good).
-SERVE_LIMITS = {"MAX_PIXELS": 4 * 1024 * 1024, "MAX_REFINE": 500}
+SERVE_LIMITS = {"MAX_PIXELS": ServeLimits.pixels, "MAX_REFINE": ServeLimits.refine}
 
 
 def serve_limit(name: str) -> int:
@@ -195,10 +159,25 @@ class SVBRDFPythonModel(PythonModel):
         photos = torch.from_numpy(check_photos(model_input)).permute(0, 3, 1, 2)
         steps = _refine_steps(params)
         try:
-            maps = self.model.predict(photos, refine=steps)
+            maps = self.model.predict(photos, refine=steps, seconds=_serving_seconds() if steps else None)
         except DataError as e:  # a photo too small to refine against
             raise PhotoInputError(str(e)) from None
-        return {name: t.permute(0, 2, 3, 1).contiguous().numpy() for name, t in maps.maps().items()}
+        return maps_arrays(maps)
+
+
+def _serving_seconds() -> float | None:
+    """Under ``mlflow models serve``: 80% of its request timeout (``MLFLOW_SCORING_SERVER_REQUEST_TIMEOUT``,
+    default 60 s), so that a refinement ends before MLflow answers 504 and never holds the worker
+    after it; None elsewhere (no time bound)."""
+    import os
+
+    if os.environ.get("_MLFLOW_IS_IN_SERVING_ENVIRONMENT", "").lower() != "true":
+        return None
+    text = os.environ.get("MLFLOW_SCORING_SERVER_REQUEST_TIMEOUT", "60").strip()
+    try:
+        return max(1.0, 0.8 * float(text))
+    except ValueError:
+        return 48.0
 
 
 # -- logging ------------------------------------------------------------------------------------

@@ -1,0 +1,69 @@
+"""``svbrdf-models serve``: a model behind a guarded HTTP server (:mod:`svbrdf_models.serve`)."""
+
+from __future__ import annotations
+
+import argparse
+
+from svbrdf_render.cli import float_range, int_range
+from svbrdf_render.machine import THREADS_HELP
+
+from .._registry import Registry
+from ..serve import ServeLimits
+
+__all__ = ["add_parser", "run"]
+
+EPILOG_SERVE = """\
+examples:
+  svbrdf-models serve                                   # the shipped model on 127.0.0.1:5001
+  svbrdf-models serve models:/svbrdf-ours/1 --port 8080 # a registered model (needs mlflow)
+  curl 127.0.0.1:5001/invocations -H 'Content-Type: application/json' \\
+       -d '{"inputs": [[[[0.5, 0.4, 0.3], ...]]], "params": {"refine": 0}}'
+
+The protocol is MLflow's (what `mlflow models serve` answers): "inputs" holds linear RGB
+photos in [0, 1], channels last, (N, H, W, 3); the answer is {"predictions": {"normal": ...,
+"diffuse": ..., "roughness": ..., "specular": ...}}. Every limit is checked before any work,
+and a refusal is one line of text (413 body too large, 400 bad photo or parameter, 415 not
+JSON, 503 busy, 504 late). A refinement stops at the request's deadline with the maps it
+reached; GET /ping answers 503 while a request holds the worker past its timeout. SIGTERM or
+Ctrl-C ends the server and its work. Needs svbrdf-models[mlflow] (starlette and uvicorn).
+"""
+
+
+def add_parser(sub) -> None:
+    """The ``serve`` sub-command and its options."""
+    d = ServeLimits()
+    p = sub.add_parser(
+        "serve",
+        help="serve a model over HTTP (MLflow's protocol), with limits a client cannot break",
+        description="Serve a model file or registered model: POST /invocations, GET /ping.",
+        epilog=EPILOG_SERVE,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("source", nargs="?", default="pretrained",
+                   help="a model file, models:/NAME/VERSION, runs:/ID/PATH or pretrained[:NAME] (default: "
+                   "the model shipped with this package)")  # fmt: skip
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on [127.0.0.1: this machine only]")
+    p.add_argument("--port", type=int_range(1, 65535), default=5001, help="port [5001]")
+    p.add_argument("--max-body-mb", type=float_range(0, above=True), default=d.body_mb, metavar="MB",
+                   help=f"largest request body [{d.body_mb:g}]; a 2048x2048 photo is 60-120 MB of JSON")  # fmt: skip
+    p.add_argument("--max-pixels", type=int_range(1), default=d.pixels, metavar="N",
+                   help=f"pixels of all the photos of one request [{d.pixels:,}]")  # fmt: skip
+    p.add_argument("--max-refine", type=int_range(0), default=d.refine, metavar="STEPS",
+                   help=f"refinement steps one request may ask [{d.refine}]")  # fmt: skip
+    p.add_argument("--timeout", type=float_range(1), default=d.timeout, metavar="S",
+                   help=f"seconds a request may take, its wait included; refinement stops before "
+                   f"[{d.timeout:g}]")  # fmt: skip
+    p.add_argument("--threads", type=int_range(1), metavar="N", help=THREADS_HELP)
+
+
+def run(args, registry: Registry, out) -> None:
+    from svbrdf_render.machine import choose_threads
+
+    from ..modelfile import load_model
+    from ..serve import serve
+
+    choice = choose_threads(args.threads)
+    model = load_model(args.source)
+    limits = ServeLimits(args.max_body_mb, args.max_pixels, args.max_refine, args.timeout)
+    serve(model, args.host, args.port, limits, say=lambda line: print(f"{line}; {choice.describe()}", file=out,
+                                                                       flush=True))  # fmt: skip
