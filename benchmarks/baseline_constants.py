@@ -38,7 +38,7 @@ import torch
 import svbrdf_models as sm
 from svbrdf_bench.metrics import evaluate
 from svbrdf_bench.testset import test_set
-from svbrdf_models.baselines import flash_falloff
+from svbrdf_models.networks.baselines import flash_falloff
 from svbrdf_render import DES18_DISTANCE, SVBRDF
 from svbrdf_train.metrics import render_rmse
 

@@ -48,7 +48,7 @@ What it does, per folder (``blender -b --factory-startup --python <script>``; th
    ``svbrdf_render.read_map_folder``: the project's own diffuse/specular/roughness/normal
    maps, which the preview renders) under the same scene. Both are exposed with the
    preview's gain (all 24 frames scaled so their brightest 1% reaches 0.9; the project's
-   frames are checked equal to ``svbrdf_models.capture.relight_frames``), clipped to [0, 1]
+   frames are checked equal to ``svbrdf_models.capture.one.relight_frames``), clipped to [0, 1]
    and sRGB-encoded: display values, as the GIF shows them. Figures per light: RMSE of
    display values against the preview; RMSE against the project's renderer fed the glTF maps
    themselves (base colour + metallic converted back with ``svbrdf_render.from_metal_rough``),
@@ -100,7 +100,7 @@ from pathlib import Path
 import torch
 
 PROG = "blender_check"
-#: The relit preview's light circle (``svbrdf_models.capture.relight_frames``' defaults).
+#: The relit preview's light circle (``svbrdf_models.capture.one.relight_frames``' defaults).
 RELIT_RADIUS, RELIT_HEIGHT = 1.5, 1.6
 #: Albedo of the grey Lambertian patch that calibrates Blender's light against the project's.
 CALIBRATION_ALBEDO = 0.5
@@ -291,7 +291,7 @@ render_to(job["calibration_light"], "calibration")
 
 
 def light_positions(n: int = 24) -> torch.Tensor:
-    """``(n, 3)``: the relit preview's light positions (``svbrdf_models.capture._relight_raw``)."""
+    """``(n, 3)``: the relit preview's light positions (``svbrdf_models.capture.one._relight_raw``)."""
     angles = torch.arange(n, dtype=torch.float32) * (2 * math.pi / n)
     return torch.stack(
         [RELIT_RADIUS * angles.cos(), RELIT_RADIUS * angles.sin(), torch.full_like(angles, RELIT_HEIGHT)], -1
@@ -309,7 +309,7 @@ def preview_scene(positions: torch.Tensor, effects=None):
 
 def preview_gain(raw: torch.Tensor) -> float:
     """The preview's exposure: the gain that brings the brightest 1% of its frames to 0.9
-    (``svbrdf_models.capture``; checked against ``relight_frames`` by :func:`project_frames`)."""
+    (``svbrdf_models.capture.one``; checked against ``relight_frames`` by :func:`project_frames`)."""
     sample = raw.flatten()[:: max(1, raw.numel() // 1_000_000)]
     top = float(torch.quantile(sample, 0.99))
     return 0.9 / top if top > 0 else 1.0
@@ -350,7 +350,7 @@ class Project:
 
 
 def project_frames(folder: Path, gltf: dict) -> Project:
-    from svbrdf_models.capture import RELIT_FRAMES, RELIT_SIZE, relight_frames
+    from svbrdf_models.capture.one import RELIT_FRAMES, RELIT_SIZE, relight_frames
     from svbrdf_render import read_map_folder, render
 
     maps = read_map_folder(folder)

@@ -38,8 +38,8 @@ from collections.abc import Callable
 import torch
 from torch.utils.data import DataLoader
 
+from svbrdf_train.data.fitdata import device_batch
 from svbrdf_train.data.procedural import FAMILIES, GENERATOR_VERSION, ProceduralMaterials, materials
-from svbrdf_train.fitdata import device_batch
 
 #: Batch sizes timed on --device: the paper's batch, and a large one.
 DEVICE_BATCHES = (8, 32)

@@ -31,7 +31,7 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     import svbrdf_models as sm
     from svbrdf_bench.metrics import bootstrap_ci
-    from svbrdf_models.refining import refine_prediction
+    from svbrdf_models.capture.refining import refine_prediction
     from svbrdf_render import read_des18
     from svbrdf_train.data.materials import material_groups, per_material
 

@@ -47,7 +47,7 @@ def _lum_mean(x: torch.Tensor) -> float:
 def _one(photo, truth, net, known: float | None) -> dict[str, tuple[float, float]]:
     """(intensity, distance) of the true flash and of each estimator, for one strip."""
     from svbrdf_render import fit_flash
-    from svbrdf_render.fit import axis_flash
+    from svbrdf_render.refinement.fit import axis_flash
 
     if known is None:
         true = fit_flash(truth, photo)

@@ -253,6 +253,7 @@ class TestSet:
 def score_tests(tests: list[TestSet], models: dict) -> None:
     """Network maps (no refinement) of each model, at the strip's resolution, against the truth."""
     import torch
+
     from svbrdf_render import read_des18, refine_start
     from svbrdf_train.data.materials import per_material
 
@@ -441,8 +442,9 @@ def main(argv: list[str] | None = None) -> int:
     if not args.skip_fit:
         run_fits(fits, args.jobs, env)
 
-    import svbrdf_models as sm
     import torch
+
+    import svbrdf_models as sm
     from svbrdf_train.data.procedural import GENERATOR_VERSION
 
     torch.set_num_threads(args.threads)

@@ -12,7 +12,7 @@ minutes of wall time:
    then the batch times ``--big-batch`` with the rate scaled by its square root (Adam's usual
    rule for a larger batch); each measured over ``--steps`` steps after the trainer's warm-up,
    through the real trainer (``benchmarks/train_speed.py``'s ``measure``): samples/s, and the
-   share of the device's dense peak in the step's precision (``svbrdf_train.flops``).
+   share of the device's dense peak in the step's precision (``svbrdf_train.training.flops``).
 2. ``no-attn`` and the ablation recipes (``--recipes``) under the fastest option set of
    ``ours``, as long as the budget allows (the rest is listed as not measured).
 3. ``--train-recipe`` at ``--train-size`` (default ``cpu``: the ``small`` network, whose model
@@ -54,8 +54,8 @@ LADDER = [
 def _measure(recipe: str, size: str, steps: int, device: str, extra: dict) -> dict:
     from train_speed import measure
 
-    from svbrdf_train.flops import peak_tflops, step_flops
     from svbrdf_train.recipe import load_recipe
+    from svbrdf_train.training.flops import peak_tflops, step_flops
 
     fields = {k: v for k, v in extra.items() if k != "data.generate"}
     r = measure(

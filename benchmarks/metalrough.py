@@ -168,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_grad_enabled(False)
     mean = sm.create_generator("mean", {}).eval()
     from svbrdf_render import SVBRDFError
-    from svbrdf_render.files import write_text
+    from svbrdf_render.formats.files import write_text
 
     try:
         text = "## des18 -> glTF metal/rough -> des18, per material\n\n" + "\n".join(

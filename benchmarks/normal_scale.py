@@ -49,9 +49,9 @@ def _rmse(a: torch.Tensor, b: torch.Tensor) -> float:
 
 def _materials(folder: Path, fold: str | None, resolution: int):
     """``[(material, photo (3, R, R), true normals (1, 3, R, R))]`` of the folder (its fold)."""
+    from svbrdf_train.data.fitdata import Resized, open_materials
     from svbrdf_train.data.materials import material_groups
     from svbrdf_train.data.strips import MaterialStrips
-    from svbrdf_train.fitdata import Resized, open_materials
 
     data, _ = open_materials(folder, "normal_scale")
     if fold is not None:
@@ -126,7 +126,7 @@ def main(argv=None) -> None:
 
 def _apply(source: str, out: Path, scale: float) -> None:
     """A copy of a model file with ``normal_scale`` in its generator config."""
-    from svbrdf_models.modelfile import pretrained_path, save_model
+    from svbrdf_models.modelfile.files import pretrained_path, save_model
 
     path = (
         pretrained_path(source.partition(":")[2] or "ours-general-cpu")

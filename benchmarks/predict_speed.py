@@ -34,7 +34,7 @@ from pathlib import Path
 import torch
 
 import svbrdf_models as sm
-from svbrdf_models.modelfile import model_dict, pretrained_path, save_model
+from svbrdf_models.modelfile.files import model_dict, pretrained_path, save_model
 
 
 def _median_ms(fn, repeats: int, warm: bool = True) -> float:
@@ -66,7 +66,7 @@ def _row(label: str, source: str, repeats: int, photo: torch.Tensor) -> str:
 
 def _cli_seconds(source: str, photo: torch.Tensor, threads: int) -> float:
     from svbrdf_render import write_image
-    from svbrdf_render.mapfiles import linear_to_srgb
+    from svbrdf_render.formats.mapfiles import linear_to_srgb
 
     with tempfile.TemporaryDirectory() as tmp:
         path = write_image(Path(tmp) / "photo.png", linear_to_srgb(photo))

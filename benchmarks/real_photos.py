@@ -96,7 +96,7 @@ def _maps(model, photo: torch.Tensor, refine: int = 0) -> dict[str, torch.Tensor
 
 
 def _load(path: Path, size: int) -> torch.Tensor:
-    from svbrdf_models.photos import load_photo
+    from svbrdf_models.capture.photos import load_photo
 
     photo, _ = load_photo(path, linear=path.name.startswith("deschaintre"))
     return F.interpolate(photo[None], size=(size, size), mode="area")[0]

@@ -4,7 +4,7 @@
 
 For every material of a folder of Des18-layout strips (``unseen-dev``: materials unlike any Des18
 one; ``des18-dev``), the shipped model's maps (refined as the photo tools refine them,
-:func:`svbrdf_models.refining.refine_prediction`) and constant maps (the ``mean`` baseline,
+:func:`svbrdf_models.capture.refining.refine_prediction`) and constant maps (the ``mean`` baseline,
 :func:`svbrdf_render.refine_maps`) are refined at each budget, and each result is judged against
 the ground truth: RMSE of each map (stored encodings) and of renderings under the 6 evaluation
 views (never the photo's own view, which baking the photo into the diffuse map matches
@@ -62,7 +62,7 @@ def _scene(flash: str, photo, truth):
 
 def run_folder(folder: Path, budgets: list[int], flash: str, backend: str, model) -> dict:
     import svbrdf_models as sm
-    from svbrdf_models.refining import refine_prediction
+    from svbrdf_models.capture.refining import refine_prediction
     from svbrdf_render import read_des18, refine_maps
     from svbrdf_train.data.materials import material_groups, per_material
 

@@ -16,7 +16,7 @@ the machine do not tilt (wall time, the default here, is what a person waits on 
 ``--generate device`` makes the procedural batches on the training device instead of in
 DataLoader workers (``data.generate``). ``--set FIELD=VALUE`` (repeatable) sets any other recipe
 field: ``train.compile``, ``train.channels_last``, ``train.precision`` are the step's options.
-``--flops`` adds the model FLOPs per sample of the step (``svbrdf_train.flops``), the TFLOP/s
+``--flops`` adds the model FLOPs per sample of the step (``svbrdf_train.training.flops``), the TFLOP/s
 the measured rate achieves, and its share of the device's dense peak (a GPU's data-sheet TF32
 or BF16 peak; on a CPU the rate of a large matmul measured on the spot).
 """
@@ -31,10 +31,10 @@ from pathlib import Path
 
 import torch
 
-from svbrdf_render.yamlio import safe_load
-from svbrdf_train.clock import WARMUP_STEPS
+from svbrdf_render.formats.yamlio import safe_load
 from svbrdf_train.recipe import load_recipe
-from svbrdf_train.trainer import FitOptions, fit
+from svbrdf_train.training.clock import WARMUP_STEPS
+from svbrdf_train.training.trainer import FitOptions, fit
 
 
 def measure(
@@ -121,7 +121,7 @@ def main() -> None:
     )
     peak = None
     if args.flops:
-        from svbrdf_train.flops import peak_tflops
+        from svbrdf_train.training.flops import peak_tflops
 
         precision = extra.get("train.precision", "fp32")
         peak, where = peak_tflops(args.device, precision)
@@ -153,7 +153,7 @@ def main() -> None:
 
 
 def _flops_columns(name: str, size: str, device: str, extra: dict, rate: float, peak: float | None) -> str:
-    from svbrdf_train.flops import step_flops
+    from svbrdf_train.training.flops import step_flops
 
     per_sample = step_flops(load_recipe(name, size, extra), device)["step"]
     achieved = per_sample * rate / 1e12

@@ -32,9 +32,9 @@ from click.testing import CliRunner
 
 from conftest import des18_strips, run_cli
 from svbrdf_render import write_image
-from svbrdf_render.mapfiles import linear_to_srgb
-from svbrdf_train.checkpoint import load_checkpoint, save_checkpoint
+from svbrdf_render.formats.mapfiles import linear_to_srgb
 from svbrdf_train.data import ProceduralMaterials
+from svbrdf_train.training.checkpoint import load_checkpoint, save_checkpoint
 
 SMOKE = ("--recipe", "ours", "--size", "smoke", "-q", "--no-track")
 
@@ -155,7 +155,7 @@ def files(tmp_path_factory) -> dict[str, Path]:
     import zipfile
 
     from svbrdf_models import create_generator
-    from svbrdf_models.modelfile import model_dict, save_model
+    from svbrdf_models.modelfile.files import model_dict, save_model
 
     model = model_dict("ours", {"preset": "tiny"}, create_generator("ours", preset="tiny").state_dict(),
                        resolution=32, provenance={"steps": 1})  # fmt: skip
@@ -469,7 +469,7 @@ def test_a_real_full_disk(files, tmp_path):
     $PY -m svbrdf_train fit --recipe ours --size smoke -q --no-track --max-steps 4 \
         --set train.checkpoint_every=1 --out "$DISK/run" 2>/dev/null
     report fit $?
-    $PY -c "from svbrdf_train.checkpoint import load_checkpoint as l; print('== kept step', l('$DISK/run/last.pt')['step'])"
+    $PY -c "from svbrdf_train.training.checkpoint import load_checkpoint as l; print('== kept step', l('$DISK/run/last.pt')['step'])"
     """
     done = _on_small_disk("3m", script, tmp_path)
     lines = [line for line in done.stdout.splitlines() if line.startswith("==")]

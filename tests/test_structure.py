@@ -1,7 +1,8 @@
 """The shape of the code, read from the source with :mod:`ast` alone (nothing here imports the
-packages): no import circle, no long function and no long file in any of the four packages, and
-the knowledge that was once copied from place to place (the Des18 effect set, the stored normal
-encoding) written in one place."""
+packages): no import circle, no long function, no long file and no crowded folder in any of the
+four packages, no private module imported across packages, docs/architecture.md naming every
+subpackage, and the knowledge that was once copied from place to place (the Des18 effect set,
+the stored normal encoding) written in one place."""
 
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ MAX_FILE_LINES = 500
 
 @dataclass(frozen=True)
 class Module:
-    name: str  # dotted: "svbrdf_render.fit"; a package's __init__ is the package's name
+    name: str  # dotted: "svbrdf_render.refinement.fit"; a package's __init__ is the package's name
     path: Path
 
     @property
@@ -276,3 +277,52 @@ def test_the_des18_effect_set_is_spelled_once():
     """The Des18 effect set is one constant (effects.DES18_EFFECTS); nothing lists it again."""
     found = [f for f in _string_lines("cosine") if f in _string_lines("falloff")]
     assert len(found) == 1 and found[0].startswith("packages/svbrdf-render/src/svbrdf_render/effects.py:"), found
+
+
+# -- rooms: subpackages ----------------------------------------------------------------------------
+
+#: The most modules one package folder holds of its own (``__init__`` and ``__main__`` aside):
+#: past it a newcomer cannot tell the rooms apart, and the folder wants subpackages.
+MAX_FOLDER_MODULES = 20
+
+
+def _package_folders() -> list[Path]:
+    return [
+        init.parent
+        for dist, name in PACKAGES.items()
+        for init in sorted((REPO / "packages" / dist / "src" / name).rglob("__init__.py"))
+    ]
+
+
+def test_no_package_folder_holds_more_than_20_modules():
+    crowded = [
+        f"{folder.relative_to(REPO)} ({n} modules)"
+        for folder in _package_folders()
+        if (n := len([p for p in folder.glob("*.py") if p.name not in ("__init__.py", "__main__.py")]))
+        > MAX_FOLDER_MODULES
+    ]
+    assert not crowded, f"package folders over {MAX_FOLDER_MODULES} modules:\n" + "\n".join(crowded)
+
+
+def test_no_private_module_is_imported_from_another_package(graph):
+    """A module whose name (or a package above it) starts with ``_`` is its package's own: another
+    of the four packages imports the public names instead."""
+    found = [
+        f"{e.source} imports {e.target} at line {e.line}"
+        for edges in graph.values()
+        for e in edges
+        if e.source.split(".")[0] != e.target.split(".")[0] and any(p.startswith("_") for p in e.target.split("."))
+    ]
+    assert not found, "private modules imported across packages:\n" + "\n".join(found)
+
+
+def test_docs_architecture_names_every_subpackage():
+    """docs/architecture.md draws the house: each subpackage of the four packages has a row in its
+    table (``svbrdf_x.sub``), and no row names a subpackage that is gone."""
+    real = {".".join(folder.relative_to(REPO / "packages").parts[2:]) for folder in _package_folders()}
+    real = {name for name in real if "." in name}  # the four packages themselves aside
+    text = (REPO / "docs" / "architecture.md").read_text()
+    section = text.split("## Subpackages", 1)[1].split("\n## ", 1)[0]
+    named = set(re.findall(r"^\| `(svbrdf_\w+(?:\.\w+)+)` \|", section, re.M))  # the table's first column
+    assert real - named == set(), f"subpackages missing from docs/architecture.md: {sorted(real - named)}"
+    assert named - real == set(), f"docs/architecture.md names subpackages that do not exist: {sorted(named - real)}"

@@ -48,12 +48,12 @@ def test_the_check_sees_submodules_and_private_names():
         "from svbrdf_train import load_recipe\n"
         "def f():\n"
         "    from svbrdf_train.tracking import ui_page\n"  # inside a function, as the bench's are
-        "    import svbrdf_train.clock\n"
+        "    import svbrdf_train.training.clock\n"
         "    from svbrdf_train import _PUBLIC\n"
     )
     assert _private_uses(source, {"load_recipe"}) == [
         "4: from svbrdf_train.tracking import ...",
-        "5: import svbrdf_train.clock",
+        "5: import svbrdf_train.training.clock",
         "6: _PUBLIC (not public)",
     ]
 

@@ -32,7 +32,7 @@ def tiny_model(path, *, resolution=32, files=(), steps=8300, seconds=3960.0, dev
     """A model file of the smoke generator (random weights) whose provenance says it trained
     ``steps`` steps for ``seconds`` on ``device``, on procedural materials and the Des18 strips
     ``files``; returns its SHA-256."""
-    from svbrdf_models.modelfile import model_dict, save_model
+    from svbrdf_models.modelfile.files import model_dict, save_model
 
     torch.manual_seed(seed)
     generator = sm.create_generator("ours", {"preset": "tiny"})

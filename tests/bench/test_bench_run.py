@@ -104,7 +104,7 @@ def test_terminal_tables_in_the_paper_layout_with_time_columns(bench):
 
 
 def test_the_report_says_which_clock_budgeted_the_training(bench):
-    from svbrdf_train.clock import CLOCK_TAG
+    from svbrdf_train.training.clock import CLOCK_TAG
 
     out, result, parent_id = bench
     children = _children(parent_id)

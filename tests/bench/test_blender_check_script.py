@@ -8,10 +8,10 @@ import copy
 import pytest
 
 from conftest import load_benchmark
-from svbrdf_models.capture import CaptureOptions, capture_one
+from svbrdf_models.capture.one import CaptureOptions, capture_one
 from svbrdf_render import Scene, render, write_image
 from svbrdf_render.examples import example_material
-from svbrdf_render.mapfiles import linear_to_srgb
+from svbrdf_render.formats.mapfiles import linear_to_srgb
 
 GLTF = {"materials": [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0},
                                                 "metallicRoughnessTexture": {"index": 1}},

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 import svbrdf_models as sm
-from svbrdf_models.baselines import (
+from svbrdf_models.networks.baselines import (
     MEAN_DIFFUSE_SCALE,
     PHOTO_DIFFUSE_SCALE,
     ROUGHNESS,

@@ -16,12 +16,13 @@ import pytest
 import torch
 
 import svbrdf_models as sm
-from svbrdf_models import capture, tiles
-from svbrdf_models.batch import ProgressBar
+from svbrdf_models.capture import one as capture
+from svbrdf_models.capture import tiles
+from svbrdf_models.capture.batch import ProgressBar
+from svbrdf_models.capture.refining import rerender, rerender_rmse
 from svbrdf_models.cli import main
 from svbrdf_models.errors import DataError
-from svbrdf_models.modelfile import square_photo
-from svbrdf_models.refining import rerender, rerender_rmse
+from svbrdf_models.modelfile.files import square_photo
 from svbrdf_render import (
     DEFAULT_REFINE_STEPS,
     MIN_REFINE_SIDE,
@@ -33,10 +34,10 @@ from svbrdf_render import (
     write_image,
 )
 from svbrdf_render.examples import example_material
-from svbrdf_render.mapfiles import linear_to_srgb
+from svbrdf_render.formats.mapfiles import linear_to_srgb
 
 MAPS = ("normal", "diffuse", "roughness", "specular")
-#: The material folder's files besides the four maps and the figures (svbrdf_models.material).
+#: The material folder's files besides the four maps and the figures (svbrdf_models.capture.material).
 MATERIAL = {"basecolor.png", "metallic.png", "metallic_roughness.png", "material.json", "material.gltf",
             "material.mtlx", "index.html"}  # fmt: skip
 SCENE = Scene.flash(intensity=12.0)
@@ -103,7 +104,7 @@ def test_the_flash_is_found_over_the_highlight_of_a_phone_held_off_centre(model,
     """A shiny material photographed by a phone held off-centre (camera and flash over
     ``over``): without a given scene, the refinement's flash stands over the highlight. The
     control: the same material photographed from the centre gets the flash at the centre."""
-    from svbrdf_models.refining import refine_prediction
+    from svbrdf_models.capture.refining import refine_prediction
     from svbrdf_render import SVBRDF
 
     maps = SVBRDF.constant(1, 64, diffuse=(0.2, 0.15, 0.1), roughness=0.25, specular=(0.04,) * 3)
@@ -420,8 +421,8 @@ def test_the_photo_extra_is_declared():
 
 
 def test_auto_backend_compiles_large_photos_only():
+    from svbrdf_models.capture.refining import COMPILE_PIXELS, pick_backend
     from svbrdf_models.errors import DataError
-    from svbrdf_models.refining import COMPILE_PIXELS, pick_backend
 
     assert pick_backend("auto", 256, 256) == "eager"
     assert pick_backend("auto", 1024, 1024) == "compiled"
@@ -435,7 +436,7 @@ def test_the_start_of_a_refinement_loses_the_two_pixel_pattern():
     """Transposed convolutions leave a 2-pixel checkerboard in a network's maps; the start and
     prior of a refinement are filtered so that it is gone (its Nyquist energy is 0), while a
     coarser pattern (8 pixels) keeps most of its amplitude."""
-    from svbrdf_models.refining import without_checkerboard
+    from svbrdf_models.capture.refining import without_checkerboard
     from svbrdf_render import SVBRDF
 
     y, x = torch.meshgrid(torch.arange(32), torch.arange(32), indexing="ij")

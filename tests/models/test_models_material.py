@@ -1,4 +1,4 @@
-"""The material folder of ``predict`` (svbrdf_models.material): every image says its encoding,
+"""The material folder of ``predict`` (svbrdf_models.capture.material): every image says its encoding,
 material.json describes it, the glTF and MaterialX files validate, refusals and interruptions
 leave nothing half-written.
 
@@ -15,8 +15,9 @@ import torch
 
 import svbrdf_models as sm
 from conftest import require_materialx, validate_gltf
-from svbrdf_models import capture, material
-from svbrdf_models.capture import CaptureOptions, capture_one
+from svbrdf_models.capture import material
+from svbrdf_models.capture import one as capture
+from svbrdf_models.capture.one import CaptureOptions, capture_one
 from svbrdf_models.cli import main
 from svbrdf_models.errors import DataError
 from svbrdf_render import (
@@ -33,7 +34,7 @@ from svbrdf_render import (
     write_image,
 )
 from svbrdf_render.examples import example_material
-from svbrdf_render.mapfiles import linear_to_srgb
+from svbrdf_render.formats.mapfiles import linear_to_srgb
 
 EIGHT_BIT = 1 / 255 + 1e-6
 

@@ -11,13 +11,13 @@ from pathlib import Path
 import pytest
 import torch
 
-from svbrdf_models.batch import folder_name
-from svbrdf_models.capture import write_summary
+from svbrdf_models.capture.batch import folder_name
+from svbrdf_models.capture.one import write_summary
 from svbrdf_models.cli import main
 from svbrdf_render import render, write_image
 from svbrdf_render.examples import example_material
-from svbrdf_render.files import locked
-from svbrdf_render.mapfiles import linear_to_srgb
+from svbrdf_render.formats.files import locked
+from svbrdf_render.formats.mapfiles import linear_to_srgb
 
 FAST = ["--refine", "0", "--relit", "none"]
 
@@ -50,8 +50,12 @@ def test_a_photo_named_dots_does_not_replace_the_folder_above_out(tmp_path):
 
 
 def _capture(args):
+    # One torch thread before any torch work: a forked child that enters an OpenMP region its
+    # parent already ran deadlocks (GNU OpenMP is not fork-safe; the model's checks hung here).
+    # The test is about the folder, not the threads.
+    torch.set_num_threads(1)
     photo, out = args
-    return main(["predict", photo, "-o", out, *FAST])
+    return main(["predict", photo, "-o", out, *FAST, "--threads", "1"])
 
 
 def test_two_captures_of_same_named_photos_into_one_folder_lose_nothing(tmp_path):
@@ -67,7 +71,7 @@ def test_two_captures_of_same_named_photos_into_one_folder_lose_nothing(tmp_path
         record = json.loads((out / "tiles" / "material.json").read_text())
         winner = a if codes[0] == 0 else b
         assert record["photo"]["file"] == winner.name
-        from svbrdf_models.material import photo_sha256
+        from svbrdf_models.capture.material import photo_sha256
 
         assert record["photo"]["sha256"] == photo_sha256(winner)
 
@@ -144,7 +148,7 @@ def test_the_lock_is_exclusive_across_processes(tmp_path):
 def test_photo_names_outside_ascii_make_a_material(tmp_path, stem):
     """A photo named in any script is captured (the MaterialX name is made ASCII), where it used
     to fail after the computing was done ("not a MaterialX name")."""
-    from svbrdf_render.materialfiles import _MTLX_NAME
+    from svbrdf_render.formats.materialfiles import _MTLX_NAME
 
     photo = _photo_file(tmp_path / f"{stem}.png")
     assert main(["predict", str(photo), "-o", str(tmp_path / "out"), *FAST]) == 0
@@ -164,7 +168,7 @@ def test_predict_says_how_many_threads_it_takes_and_refuses_zero(tmp_path, capsy
 
 
 def test_refined_maps_are_bounded_by_default_and_full_on_request(tmp_path, monkeypatch):
-    from svbrdf_models import refining
+    from svbrdf_models.capture import refining
 
     monkeypatch.setattr(refining, "DEFAULT_MAP_SIZE", 64)
     photo = _photo_file(tmp_path / "big.png", size=96)
@@ -177,7 +181,7 @@ def test_refined_maps_are_bounded_by_default_and_full_on_request(tmp_path, monke
 
 
 def test_a_refinement_the_memory_cannot_hold_is_refused_before_it_starts(tmp_path, monkeypatch, capsys):
-    from svbrdf_models import tiles
+    from svbrdf_models.capture import tiles
 
     monkeypatch.setattr(tiles, "available_memory", lambda: 2**20)
     photo = _photo_file(tmp_path / "shot.png")
@@ -188,7 +192,7 @@ def test_a_refinement_the_memory_cannot_hold_is_refused_before_it_starts(tmp_pat
 
 
 def test_a_long_refinement_is_announced_before_it_starts(tmp_path, monkeypatch, capsys):
-    from svbrdf_models import refining
+    from svbrdf_models.capture import refining
 
     monkeypatch.setattr(refining, "REFINE_SECONDS_PER_PIXEL_STEP", 1.0)
     photo = _photo_file(tmp_path / "shot.png")

@@ -7,8 +7,8 @@ import torch
 import torch.nn.functional as F
 
 import svbrdf_models as sm
-from svbrdf_models.attention import MultiScaleAttention
-from svbrdf_models.generators import DownBlock, UNetGenerator, encode_photo, maps_from_output
+from svbrdf_models.networks.attention import MultiScaleAttention
+from svbrdf_models.networks.generators import DownBlock, UNetGenerator, encode_photo, maps_from_output
 
 
 def test_multiscale_attention_is_equation_1():

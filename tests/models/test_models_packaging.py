@@ -31,7 +31,7 @@ def test_importing_the_photo_tool_pulls_no_trainer_tracking_io_or_compiler():
     neither svbrdf-train, svbrdf-bench, mlflow, h5py nor click; Pillow and PyYAML only when a
     photo or scene is read; torch._dynamo (0.8 s) not at all."""
     code = (
-        "import sys, svbrdf_models.capture, svbrdf_models.batch, svbrdf_models.cli\n"
+        "import sys, svbrdf_models.capture.one, svbrdf_models.capture.batch, svbrdf_models.cli\n"
         "bad = sorted(m for m in ('mlflow', 'h5py', 'PIL', 'yaml', 'click', 'svbrdf_train', 'svbrdf_bench',"
         " 'torch._dynamo') if m in sys.modules)\n"
         "print(','.join(bad))\n"

@@ -11,7 +11,7 @@ import svbrdf_models as sm
 from svbrdf_models.errors import DataError
 from svbrdf_render import Scene, render, write_image
 from svbrdf_render.examples import example_material
-from svbrdf_render.mapfiles import linear_to_srgb
+from svbrdf_render.formats.mapfiles import linear_to_srgb
 
 
 @pytest.fixture(scope="module")
@@ -47,7 +47,7 @@ def test_load_photo_is_public_and_gives_what_predict_takes(model, tmp_path):
 def test_the_api_takes_a_numpy_integer_budget_and_refuses_what_memory_cannot_hold(model, monkeypatch):
     import numpy as np
 
-    from svbrdf_models import tiles
+    from svbrdf_models.capture import tiles
 
     photo = torch.rand(3, 32, 32) * 0.5
     maps = model.predict(photo, refine=np.int64(1), backend="eager")

@@ -12,7 +12,7 @@ import torch
 
 import svbrdf_models as sm
 from conftest import REPO
-from svbrdf_models.modelfile import PRETRAINED, card_path, pretrained_path
+from svbrdf_models.modelfile.files import PRETRAINED, card_path, pretrained_path
 
 MAX_BYTES = 20 * 10**6
 #: Every model shipped in the package (``pretrained:NAME``); ``pretrained`` alone is PRETRAINED.

@@ -1,4 +1,4 @@
-"""A model file as an MLflow model (svbrdf_models.pyfunc): logged with a signature and an input
+"""A model file as an MLflow model (svbrdf_models.modelfile.pyfunc): logged with a signature and an input
 example, loaded by ``mlflow.pyfunc`` in a fresh process, served by ``mlflow models serve`` on
 loopback, and still read by ``svbrdf_models.load_model``, old registered versions included.
 
@@ -23,7 +23,7 @@ import svbrdf_models as sm
 from conftest import free_port, serving
 
 mlflow = pytest.importorskip("mlflow")
-pyfunc = pytest.importorskip("svbrdf_models.pyfunc")
+pyfunc = pytest.importorskip("svbrdf_models.modelfile.pyfunc")
 
 NAME = "svbrdf-test-pyfunc"
 MAPS = {"normal": 3, "diffuse": 3, "roughness": 1, "specular": 3}

@@ -39,11 +39,11 @@ BUILTIN = FakeDist("svbrdf-models")
 def registry_with(attention=(), generators=(), discriminators=()) -> Registry:
     groups = {
         "svbrdf.attention": [
-            FakeEntryPoint("multiscale", "svbrdf_models.attention:MULTISCALE", BUILTIN),
-            FakeEntryPoint("none", "svbrdf_models.attention:NONE", BUILTIN),
+            FakeEntryPoint("multiscale", "svbrdf_models.networks.attention:MULTISCALE", BUILTIN),
+            FakeEntryPoint("none", "svbrdf_models.networks.attention:NONE", BUILTIN),
             *attention,
         ],
-        "svbrdf.generators": [FakeEntryPoint("ours", "svbrdf_models.generators:OURS", BUILTIN), *generators],
+        "svbrdf.generators": [FakeEntryPoint("ours", "svbrdf_models.networks.generators:OURS", BUILTIN), *generators],
         "svbrdf.discriminators": list(discriminators),
     }
     return Registry(lambda group: groups[group])
@@ -80,10 +80,10 @@ def test_discovery_is_lazy():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     on_import, after_list, after_create = out.strip().splitlines()
-    networks = ("svbrdf_models.attention", "svbrdf_models.generators", "svbrdf_models.discriminators")
+    networks = ("svbrdf_models.networks.attention", "svbrdf_models.networks.generators", "svbrdf_models.networks.discriminators")
     assert not any(n in on_import for n in networks)
     assert not any(n in after_list for n in networks) and "svbrdf_example" not in after_list
-    assert "svbrdf_models.attention" in after_create and "svbrdf_models.generators" not in after_create
+    assert "svbrdf_models.networks.attention" in after_create and "svbrdf_models.networks.generators" not in after_create
 
 
 def test_describe_gives_fields_defaults_and_source():
@@ -132,7 +132,7 @@ def test_a_broken_plugin_names_itself_when_created():
 
 def test_an_entry_point_must_name_a_spec_of_its_kind():
     not_spec = FakeEntryPoint("conv", "torch.nn:Conv2d", FakeDist("p"))
-    wrong_kind = FakeEntryPoint("se-as-gen", "svbrdf_models.attention:SE", FakeDist("p"))
+    wrong_kind = FakeEntryPoint("se-as-gen", "svbrdf_models.networks.attention:SE", FakeDist("p"))
     reg = registry_with(attention=[not_spec], generators=[wrong_kind])
     with pytest.raises(sm.PluginLoadError, match="expected a svbrdf_models.ModelSpec of kind 'attention'"):
         reg.create("attention", "conv", channels=8)
@@ -141,14 +141,14 @@ def test_an_entry_point_must_name_a_spec_of_its_kind():
 
 
 def test_duplicate_name_is_an_error_naming_both_distributions():
-    clash = FakeEntryPoint("multiscale", "svbrdf_models.attention:SE", FakeDist("svbrdf-other-plugin"))
+    clash = FakeEntryPoint("multiscale", "svbrdf_models.networks.attention:SE", FakeDist("svbrdf-other-plugin"))
     reg = registry_with(attention=[clash])
     with pytest.raises(sm.DuplicateNameError) as e:
         reg.create("attention", "multiscale", channels=8)
     assert "svbrdf-models" in str(e.value) and "svbrdf-other-plugin" in str(e.value)
     assert reg.sources("attention", "multiscale") == ["svbrdf-models", "svbrdf-other-plugin"]
     # One distribution seen twice on sys.path is one registration, not a conflict.
-    again = FakeEntryPoint("none", "svbrdf_models.attention:NONE", BUILTIN)
+    again = FakeEntryPoint("none", "svbrdf_models.networks.attention:NONE", BUILTIN)
     assert registry_with(attention=[again]).create("attention", "none", channels=4).out_channels == 4
 
 

@@ -27,7 +27,7 @@ from conftest import free_port, load_benchmark, serving
 
 pytest.importorskip("starlette")
 pytest.importorskip("uvicorn")
-from svbrdf_models.serve import ServeLimits, build_app, check_depth, parse_request  # noqa: E402
+from svbrdf_models.modelfile.serve import ServeLimits, build_app, check_depth, parse_request  # noqa: E402
 
 LIMITS = ["--max-body-mb", "1", "--max-pixels", "20000", "--max-refine", "100000", "--timeout", "4"]
 

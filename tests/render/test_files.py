@@ -1,4 +1,4 @@
-"""svbrdf_render.files: atomic writes, one-line write failures, leftovers of killed writers."""
+"""svbrdf_render.formats.files: atomic writes, one-line write failures, leftovers of killed writers."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import sys
 import pytest
 
 from svbrdf_render.errors import OutputError, SVBRDFError, exit_status
-from svbrdf_render.files import (
+from svbrdf_render.formats.files import (
     atomic_output,
     check_output_folder,
     remove_stale_temporaries,

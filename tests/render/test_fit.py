@@ -53,7 +53,7 @@ def test_reproduces_the_des18_inputs(shared_data, capsys):
 def test_the_hand_written_adam_steps_exactly_as_torch_optim_adam():
     # refine_maps and fit_flash step their own Adam (torch.optim's first step imports
     # torch._dynamo, 0.8 s); its steps must be torch.optim.Adam's, groups and learning rates too.
-    from svbrdf_render.fit import _Adam
+    from svbrdf_render.refinement.fit import _Adam
 
     gen = torch.Generator().manual_seed(0)
     start = [torch.randn(2, 3, 8, 8, generator=gen), torch.randn(2, 1, 1, 1, generator=gen), torch.randn(4)]

@@ -1,4 +1,4 @@
-"""The flash's ring in maps (svbrdf_render.rings): where the flash was, taking a ring out of
+"""The flash's ring in maps (svbrdf_render.refinement.rings): where the flash was, taking a ring out of
 maps without touching their texture, the ring penalty on every map of a refinement, and the
 dielectric prior on specular."""
 
@@ -10,9 +10,9 @@ import torch
 from svbrdf_render import SVBRDF, Scene, refine_maps, render
 from svbrdf_render.errors import MapError
 from svbrdf_render.geometry import surface_positions
-from svbrdf_render.fit import axis_flash
-from svbrdf_render.refine import DIELECTRIC_F0, RefineSettings, dielectric_prior
-from svbrdf_render.rings import RingBins, dering, highlight_point, ring_penalty
+from svbrdf_render.refinement.fit import axis_flash
+from svbrdf_render.refinement.refine import DIELECTRIC_F0, RefineSettings, dielectric_prior
+from svbrdf_render.refinement.rings import RingBins, dering, highlight_point, ring_penalty
 
 SIZE = 64
 CENTRE = torch.tensor([[0.25, -0.375]])

@@ -165,8 +165,8 @@ def test_a_gpu_index_the_machine_lacks_is_named_as_such(monkeypatch):
     # cuda:K beyond the GPUs there failed later in torch; cuda:x was a traceback.
     import torch
 
-    from svbrdf_train.distributed import pick_device
     from svbrdf_train.errors import TrainingError
+    from svbrdf_train.training.distributed import pick_device
 
     monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
     monkeypatch.setattr(torch.cuda, "device_count", lambda: 2)
@@ -216,8 +216,8 @@ HEADER_ROWS = [
 def test_a_damaged_checkpoint_header_is_refused_naming_the_file_and_the_field(tmp_path, change, says):
     import torch
 
-    from svbrdf_train.checkpoint import check_resumable, load_checkpoint
     from svbrdf_train.errors import CheckpointError
+    from svbrdf_train.training.checkpoint import check_resumable, load_checkpoint
 
     good = tmp_path / "good.pt"
     torch.save(_resumable(), good)

@@ -13,6 +13,7 @@ import torch
 
 from svbrdf_render import SVBRDF, render
 from svbrdf_train.data.capture import _photos
+from svbrdf_train.data.fitdata import build_datasets
 from svbrdf_train.data.jpeg import LUMINANCE_TABLE, jpeg_roundtrip, quantisation_table
 from svbrdf_train.data.procedural import (
     CAPTURE_PRESETS,
@@ -22,7 +23,6 @@ from svbrdf_train.data.procedural import (
     photo_scene,
 )
 from svbrdf_train.errors import DataError, RecipeError
-from svbrdf_train.fitdata import build_datasets
 from svbrdf_train.recipe import CAPTURES, load_recipe
 
 PHONE = PhotoSettings.preset("phone")

@@ -8,7 +8,7 @@ import torch
 from PIL import Image, ImageOps
 
 from svbrdf_render import MapFileError, write_image
-from svbrdf_render.mapfiles import srgb_to_linear
+from svbrdf_render.formats.mapfiles import srgb_to_linear
 from svbrdf_train.data.photos import PhotoFolder
 from svbrdf_train.errors import DataError
 

@@ -17,6 +17,7 @@ from torch.utils.data import DataLoader
 
 from svbrdf_render import SVBRDF, Camera, PointLight, Scene, render
 from svbrdf_train.data import families
+from svbrdf_train.data.families import family_fields
 from svbrdf_train.data.procedural import (
     FAMILIES,
     GENERATOR_VERSION,
@@ -26,7 +27,6 @@ from svbrdf_train.data.procedural import (
     materials,
     photo_scene,
 )
-from svbrdf_train.data.families import family_fields
 from svbrdf_train.data.procedural_maps import _normals
 from svbrdf_train.errors import DataError
 

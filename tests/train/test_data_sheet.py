@@ -7,7 +7,7 @@ import pytest
 import torch
 from PIL import Image
 
-from svbrdf_render.mapfiles import linear_to_srgb
+from svbrdf_render.formats.mapfiles import linear_to_srgb
 from svbrdf_train.cli import main
 from svbrdf_train.data.procedural import ProceduralMaterials
 from svbrdf_train.data.sheet import contact_sheet

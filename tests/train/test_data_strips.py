@@ -11,14 +11,14 @@ import torch.nn.functional as F
 from click.testing import CliRunner
 
 from svbrdf_render import SVBRDF, encode_normal, safe_normalize
-from svbrdf_render.mapfiles import write_image
+from svbrdf_render.formats.mapfiles import write_image
 from svbrdf_train.cli import cli
 from svbrdf_train.data.capture import PhotoSettings
 from svbrdf_train.data.des18 import dihedral_image
+from svbrdf_train.data.fitdata import open_materials
 from svbrdf_train.data.strip_bank import MaterialBank, read_strip_shard, resize_bank, write_strip_shard
 from svbrdf_train.data.strips import ALBEDO_CEILING, CROP_SIDE, MaterialStrips, fold_split
 from svbrdf_train.errors import DataError
-from svbrdf_train.fitdata import open_materials
 
 
 def _height(size: int, seed: int) -> torch.Tensor:
@@ -220,7 +220,7 @@ def test_bad_strips_are_refused_in_one_line_naming_the_file(tmp_path):
 
 def test_a_fit_on_strips_validates_the_held_out_fold(strips, tmp_path):
     from svbrdf_train.recipe import load_recipe
-    from svbrdf_train.trainer import FitOptions, fit
+    from svbrdf_train.training.trainer import FitOptions, fit
 
     recipe = load_recipe(
         "ours-materials",
@@ -243,8 +243,8 @@ def test_init_takes_the_shipped_model_file():
     """``fit --init pretrained``: the shipped generator, its steps and time, no discriminator;
     it matches ours-materials at the cpu size, the recipe meant to go on from it."""
     from svbrdf_models import load_model
-    from svbrdf_train.init import check_generator, load_init
     from svbrdf_train.recipe import load_recipe
+    from svbrdf_train.training.init import check_generator, load_init
 
     init = load_init("pretrained")
     shipped = load_model("pretrained")
@@ -302,7 +302,7 @@ def test_a_fit_on_strips_stopped_and_resumed_ends_bitwise_as_one_that_never_stop
     """Every window, turn and photo follows from (seed, epoch, index): a resumed fit sees the
     very samples the uninterrupted one saw."""
     from conftest import run_cli
-    from svbrdf_train.checkpoint import load_checkpoint
+    from svbrdf_train.training.checkpoint import load_checkpoint
 
     base = (
         "fit", "--recipe", "ours-materials", "--size", "smoke", "-q", "--no-track", "--data", str(strips),

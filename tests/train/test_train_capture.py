@@ -1,4 +1,4 @@
-"""Capture (``svbrdf_models.capture`` through ``svbrdf-train predict``): from real photos to maps.
+"""Capture (``svbrdf_models.capture.one`` through ``svbrdf-train predict``): from real photos to maps.
 
 Photos are made here: known maps rendered under a flash, or known pixel arrays, saved as PNG
 (exact) or JPEG (quality 95). The geometry (EXIF orientation, crops, tiles) is checked against
@@ -19,10 +19,7 @@ from click.testing import CliRunner
 from PIL import Image, ImageOps
 
 from conftest import random_svbrdf, run_cli
-from svbrdf_render import SVBRDF, Scene, read_image, render, write_image
-from svbrdf_render.examples import example_material
-from svbrdf_render.mapfiles import linear_to_srgb, srgb_to_linear
-from svbrdf_models.capture import (
+from svbrdf_models.capture.one import (
     MAX_PIXELS,
     MIN_SIDE,
     CaptureOptions,
@@ -36,6 +33,9 @@ from svbrdf_models.capture import (
     tile_predict,
     to_directx,
 )
+from svbrdf_render import SVBRDF, Scene, read_image, render, write_image
+from svbrdf_render.examples import example_material
+from svbrdf_render.formats.mapfiles import linear_to_srgb, srgb_to_linear
 from svbrdf_train.cli import cli
 from svbrdf_train.errors import DataError
 
@@ -551,22 +551,23 @@ def test_the_photo_tool_has_one_home():
     import importlib
     import sys
 
-    import svbrdf_models.capture
+    import svbrdf_models.capture.figures
+    import svbrdf_models.capture.one
+    import svbrdf_models.capture.photos
     import svbrdf_models.errors
-    import svbrdf_models.figures
-    import svbrdf_models.photos
     import svbrdf_train
     from svbrdf_train.data import photos, sheet
 
     sys.modules.pop("svbrdf_train.capture", None)
-    with pytest.warns(DeprecationWarning, match="svbrdf_models.capture"):
+    with pytest.warns(DeprecationWarning, match="svbrdf_train.capture moved to svbrdf_models.capture"):
         old = importlib.import_module("svbrdf_train.capture")
+    assert old is sys.modules["svbrdf_models.capture"]
     for name in old.__all__:
-        assert getattr(old, name) is getattr(svbrdf_models.capture, name), name
-    assert svbrdf_train.flash_consistency is svbrdf_models.capture.flash_consistency
-    assert photos.orient is svbrdf_models.photos.orient
-    assert photos.exif_orientation is svbrdf_models.photos.exif_orientation
-    assert sheet.image_grid is svbrdf_models.figures.image_grid
+        assert getattr(old, name) is getattr(svbrdf_models.capture.one, name), name
+    assert svbrdf_train.flash_consistency is svbrdf_models.capture.one.flash_consistency
+    assert photos.orient is svbrdf_models.capture.photos.orient
+    assert photos.exif_orientation is svbrdf_models.capture.photos.exif_orientation
+    assert sheet.image_grid is svbrdf_models.capture.figures.image_grid
     assert DataError is svbrdf_models.errors.DataError
 
 

@@ -11,8 +11,8 @@ import torch
 
 import svbrdf_models as sm
 from conftest import des18_strips, run_cli
-from svbrdf_train.checkpoint import load_checkpoint
 from svbrdf_train.predict import Predictor
+from svbrdf_train.training.checkpoint import load_checkpoint
 
 
 @pytest.fixture(scope="module")

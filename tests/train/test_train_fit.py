@@ -11,9 +11,9 @@ import pytest
 import torch
 import yaml
 
-from svbrdf_train.checkpoint import load_checkpoint
 from svbrdf_train.recipe import list_recipes, load_recipe
-from svbrdf_train.trainer import FitOptions, fit
+from svbrdf_train.training.checkpoint import load_checkpoint
+from svbrdf_train.training.trainer import FitOptions, fit
 
 BUILT_IN = ("ours", "no-attn", "no-adv", "no-svbrdf", "multigan", "radn")
 
@@ -198,7 +198,7 @@ def test_default_store_is_mlflow_db_in_the_working_folder_with_artifacts_beside_
 def test_a_non_finite_gradient_behind_a_finite_loss_stops_before_the_step(tmp_path, monkeypatch):
     """sqrt at 0 has an infinite derivative: the loss stays finite, every gradient becomes NaN.
     The step checks the gradient norm, stops without stepping, and names the gradient."""
-    import svbrdf_train.losses as losses  # the step's loss (recipe.loss.setup()) calls generator_loss
+    import svbrdf_train.training.losses as losses  # the step's loss (recipe.loss.setup()) calls generator_loss
 
     real_loss = losses.generator_loss
 

@@ -13,10 +13,10 @@ from types import SimpleNamespace
 
 import pytest
 
-from svbrdf_train import step
-from svbrdf_train.hooks import Cadence, HookRunner, StepEnd
 from svbrdf_train.recipe import load_recipe
-from svbrdf_train.trainer import FitOptions, fit
+from svbrdf_train.training import step
+from svbrdf_train.training.hooks import Cadence, HookRunner, StepEnd
+from svbrdf_train.training.trainer import FitOptions, fit
 
 
 @pytest.fixture

@@ -15,9 +15,9 @@ import torch
 from click.testing import CliRunner
 
 from conftest import des18_strips
-from svbrdf_train import step as step_module
 from svbrdf_train.cli import cli
 from svbrdf_train.recipe import checks, files
+from svbrdf_train.training import step as step_module
 
 SMOKE = ("fit", "--recipe", "ours-mix", "--size", "smoke", "-q", "--no-track", "--set", "data.count=8")
 

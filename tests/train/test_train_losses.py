@@ -10,7 +10,7 @@ import torch
 import torch.nn.functional as F
 
 from conftest import random_svbrdf
-from svbrdf_models.discriminators import PatchGAN
+from svbrdf_models.networks.discriminators import PatchGAN
 from svbrdf_render import (
     DES18_EFFECTS,
     MAP_NAMES,
@@ -21,8 +21,8 @@ from svbrdf_render import (
     render,
     training_scene,
 )
-from svbrdf_train import losses
-from svbrdf_train.losses import (
+from svbrdf_train.training import losses
+from svbrdf_train.training.losses import (
     GAN_KINDS,
     MAP_WEIGHTS,
     LossWeights,

@@ -12,11 +12,11 @@ from test_train_fit_cli import _assert_refused
 from test_train_fit_cli import _fit as _cli
 
 from conftest import des18_strips, run_cli
-from svbrdf_train.checkpoint import load_checkpoint
 from svbrdf_train.data import Des18Folder, PhotoSettings, ProceduralMaterials
-from svbrdf_train.fitdata import Mixture, build_datasets
+from svbrdf_train.data.fitdata import Mixture, build_datasets
 from svbrdf_train.recipe import load_recipe
-from svbrdf_train.trainer import FitOptions, fit
+from svbrdf_train.training.checkpoint import load_checkpoint
+from svbrdf_train.training.trainer import FitOptions, fit
 
 
 class _Numbers(torch.utils.data.Dataset):

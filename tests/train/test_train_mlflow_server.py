@@ -18,7 +18,7 @@ import torch
 
 from conftest import free_port, run_cli, serving
 from svbrdf_render import read_image, write_image
-from svbrdf_render.mapfiles import linear_to_srgb, srgb_to_linear
+from svbrdf_render.formats.mapfiles import linear_to_srgb, srgb_to_linear
 from svbrdf_train.data import ProceduralMaterials
 from svbrdf_train.predict import Predictor
 
@@ -125,7 +125,7 @@ def test_predict_from_a_run_on_the_server(server, fitted, tmp_path):
     assert float((normal - torch.nn.functional.normalize(expected.normal, dim=1)[0]).abs().max()) <= 2 / 255
     written = {p.name for p in (out / "shot").iterdir()}
     material = {"basecolor.png", "metallic.png", "metallic_roughness.png", "material.json", "material.gltf",
-                "material.mtlx", "index.html"}  # the material folder's (svbrdf_models.material)
+                "material.mtlx", "index.html"}  # the material folder's (svbrdf_models.capture.material)
     assert written == {f"{n}.png" for n in (*MAPS, "input", "rerender")} | {"relit.gif"} | material
 
 

@@ -35,7 +35,7 @@ def test_public_names_resolve():
 def test_trainer_and_cli_import_without_mlflow():
     """mlflow (~2 s to import) loads when a fit starts tracking, not with the trainer or the CLI."""
     code = (
-        "import sys, svbrdf_train.trainer, svbrdf_train.predict, svbrdf_train.cli\n"
+        "import sys, svbrdf_train.training.trainer, svbrdf_train.predict, svbrdf_train.cli\n"
         "print('mlflow' in sys.modules)\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
@@ -47,7 +47,7 @@ def test_inference_and_predict_import_no_training_code():
     trainer, its losses, its training data nor mlflow load with them."""
     code = (
         "import sys, svbrdf_train.inference, svbrdf_train.predict\n"
-        "names = ['svbrdf_train.trainer', 'svbrdf_train.losses', 'svbrdf_train.fitdata', 'mlflow']\n"
+        "names = ['svbrdf_train.training.trainer', 'svbrdf_train.training.losses', 'svbrdf_train.data.fitdata', 'mlflow']\n"
         "print(*[n for n in names if n in sys.modules] or ['none'])\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout

@@ -11,10 +11,7 @@ import torch
 from conftest import random_svbrdf
 from svbrdf_render import render, training_scene
 from svbrdf_render.errors import OutputError
-from svbrdf_train.checkpoint import load_checkpoint, rng_state, save_checkpoint, set_rng_state
 from svbrdf_train.errors import CheckpointError, RecipeError
-from svbrdf_train.order import From as _From
-from svbrdf_train.progress import Progress, format_duration
 from svbrdf_train.recipe import (
     list_recipes,
     load_recipe,
@@ -23,7 +20,10 @@ from svbrdf_train.recipe import (
     recipe_from_dict,
     with_overrides,
 )
-from svbrdf_train.step import scene_rows as _scene_rows
+from svbrdf_train.training.checkpoint import load_checkpoint, rng_state, save_checkpoint, set_rng_state
+from svbrdf_train.training.order import From as _From
+from svbrdf_train.training.progress import Progress, format_duration
+from svbrdf_train.training.step import scene_rows as _scene_rows
 
 # -- checkpoints --------------------------------------------------------------------------
 

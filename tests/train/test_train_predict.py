@@ -15,7 +15,7 @@ from click.testing import CliRunner
 
 from conftest import run_cli
 from svbrdf_render import read_image, write_image
-from svbrdf_render.mapfiles import linear_to_srgb, srgb_to_linear
+from svbrdf_render.formats.mapfiles import linear_to_srgb, srgb_to_linear
 from svbrdf_train.cli import cli
 from svbrdf_train.data import ProceduralMaterials
 from svbrdf_train.data.photos import square_photo
@@ -238,7 +238,7 @@ def test_without_a_model_the_shipped_one_is_used_and_named(tmp_path, photos):
     """No --model, --checkpoint or --run: the model inside svbrdf-models predicts, and stderr says
     which and where its card is; the maps are the shipped model's own."""
     import svbrdf_models as sm
-    from svbrdf_models.modelfile import card_path
+    from svbrdf_models.modelfile.files import card_path
 
     out = tmp_path / "maps"
     result = run_cli("predict", str(photos[0]), "-o", str(out), "--relit", "none")

@@ -10,13 +10,13 @@ import torch
 from click.testing import CliRunner
 
 from conftest import des18_strips as _strips
-from svbrdf_train.checkpoint import load_checkpoint
 from svbrdf_train.cli import cli
-from svbrdf_train.clock import CLOCK_TAG, TrainClock
 from svbrdf_train.data import Des18Folder
-from svbrdf_train.fitdata import build_datasets, real_validation_set
+from svbrdf_train.data.fitdata import build_datasets, real_validation_set
 from svbrdf_train.recipe import load_recipe
-from svbrdf_train.trainer import FitOptions, fit
+from svbrdf_train.training.checkpoint import load_checkpoint
+from svbrdf_train.training.clock import CLOCK_TAG, TrainClock
+from svbrdf_train.training.trainer import FitOptions, fit
 
 MAPS = ("normal", "diffuse", "roughness", "specular", "render")
 

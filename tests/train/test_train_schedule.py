@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 
 from svbrdf_train.recipe import OptimSection, load_recipe, recipe_from_dict
-from svbrdf_train.schedule import WARN_BELOW, LrSchedule
-from svbrdf_train.trainer import FitOptions, fit
+from svbrdf_train.training.schedule import WARN_BELOW, LrSchedule
+from svbrdf_train.training.trainer import FitOptions, fit
 
 
 def _schedule(per_step=8, samples_per_epoch=16, **optim):
@@ -121,8 +121,8 @@ def test_a_fit_on_a_few_samples_keeps_learning_across_its_budget(tmp_path):
 @pytest.mark.parametrize(("rule", "factor"), [("none", 1.0), ("sqrt", 2.0), ("linear", 4.0)])
 def test_the_rates_follow_a_larger_batch_by_the_recipes_rule(rule, factor):
     """optim.batch_rule: a batch 4x the reference scales lr and d_lr by 1, 2 or 4 (issue 37)."""
-    from svbrdf_train import distributed
-    from svbrdf_train.step import GanStep
+    from svbrdf_train.training import distributed
+    from svbrdf_train.training.step import GanStep
 
     recipe = load_recipe("ours", "smoke", {"train.batch": 8, "optim.batch_rule": rule, "optim.batch_reference": 2})
     gan = GanStep(recipe, distributed.Dist(), 8)

@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from conftest import random_svbrdf
-from svbrdf_train.losses import GanLoss, LossWeights, discriminator_loss, generator_loss
 from svbrdf_train.recipe import LossSection, OptimSection, load_recipe
+from svbrdf_train.training.losses import GanLoss, LossWeights, discriminator_loss, generator_loss
 
 
 def test_optim_setup_makes_adam_at_the_sections_rates_and_betas_along_the_schedule():

@@ -7,13 +7,13 @@ import io
 import pytest
 import torch
 
-from svbrdf_train import distributed
-from svbrdf_train.checkpoint import load_checkpoint
-from svbrdf_train.fitdata import build_datasets
-from svbrdf_train.order import BatchOrder
+from svbrdf_train.data.fitdata import build_datasets
 from svbrdf_train.recipe import load_recipe
-from svbrdf_train.step import GanStep
-from svbrdf_train.trainer import FitOptions, fit
+from svbrdf_train.training import distributed
+from svbrdf_train.training.checkpoint import load_checkpoint
+from svbrdf_train.training.order import BatchOrder
+from svbrdf_train.training.step import GanStep
+from svbrdf_train.training.trainer import FitOptions, fit
 
 
 def _gan(recipe):
@@ -105,7 +105,7 @@ def test_a_compiled_step_learns_and_its_generator_predicts_as_the_eager_one():
 
 
 def _fit_recording_saves(tmp_path, monkeypatch, **settings):
-    import svbrdf_train.hooks as hooks
+    import svbrdf_train.training.hooks as hooks
 
     saved = []
     real = hooks.save_checkpoint

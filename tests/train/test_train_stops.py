@@ -16,7 +16,7 @@ import pytest
 import torch
 
 from conftest import run_cli
-from svbrdf_train.checkpoint import load_checkpoint
+from svbrdf_train.training.checkpoint import load_checkpoint
 
 SMOKE = ("fit", "--recipe", "ours", "--size", "smoke", "-q", "--experiment", "tests-stops")
 
@@ -270,7 +270,7 @@ def test_predict_stopped_by_a_signal_exits_130_with_the_summary_of_the_photos_do
     import threading
 
     from svbrdf_render import write_image
-    from svbrdf_render.mapfiles import linear_to_srgb
+    from svbrdf_render.formats.mapfiles import linear_to_srgb
     from svbrdf_train.data import ProceduralMaterials
 
     fit = run_cli("fit", "--recipe", "ours", "--size", "smoke", "-q", "--no-track", "--out", "fit",
@@ -312,7 +312,7 @@ def test_a_deleted_run_is_refused_by_resume_predict_init_and_bench_in_one_line(t
     from mlflow import MlflowClient
 
     from svbrdf_render import write_image
-    from svbrdf_render.mapfiles import linear_to_srgb
+    from svbrdf_render.formats.mapfiles import linear_to_srgb
     from svbrdf_train.data import ProceduralMaterials
 
     env = {"MLFLOW_TRACKING_URI": f"sqlite:///{tmp_path / 'mlflow.db'}"}

@@ -11,7 +11,7 @@ from .refinement import RefinePlan
 
 __all__ = ["BenchOptions", "BASELINES"]
 
-#: The baselines every benchmark evaluates unless told not to (svbrdf_models.baselines).
+#: The baselines every benchmark evaluates unless told not to (svbrdf_models.networks.baselines).
 BASELINES = ("mean", "photo")
 
 

@@ -88,7 +88,7 @@ def split_pretrained(models: Sequence[str]) -> tuple[list[str], list[str]]:
 
 def _short_name(source: str) -> str:
     if is_pretrained(source):
-        from svbrdf_models.modelfile import PRETRAINED
+        from svbrdf_models.modelfile.files import PRETRAINED
 
         return source.partition(":")[2] or PRETRAINED
     if source.startswith("models:/"):

@@ -32,7 +32,7 @@ import torch
 from torch import Tensor
 
 from svbrdf_render import BACKENDS
-from svbrdf_render.fit import FLASH_MODES
+from svbrdf_render.refinement.fit import FLASH_MODES
 
 from .errors import BenchError
 from .layout import (
@@ -265,7 +265,7 @@ def refine_real(
     Each photo's centre square at ``resolution`` (as the unrefined real-photo figure takes it) is
     predicted, its maps refined for each budget against it with the plan's backend, flash and
     settings, then re-rendered under the flash fitted to the refined maps
-    (:func:`~svbrdf_models.capture.flash_consistency`, as for the unrefined row).
+    (:func:`~svbrdf_models.capture.one.flash_consistency`, as for the unrefined row).
 
     Returns ``{steps: (per-photo RMSE, shown)}`` for every budget, 0 (the network's maps) too;
     ``shown``: up to ``shown`` ``(photo, maps, fitted re-rendering)`` on the CPU, for the sheet.

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import torch
 
-from svbrdf_render.files import check_output_folder
+from svbrdf_render.formats.files import check_output_folder
 
 from .children import (
     baseline_child,

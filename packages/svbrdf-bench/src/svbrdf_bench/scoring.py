@@ -56,7 +56,7 @@ def _self_consistency(generator, photos, resolution: int, device: torch.device) 
     """Per photo: RMSE of the predicted maps re-rendered under the flash fitted to the photo.
 
     The photo's centre square at the model's resolution is predicted, then the capture tool's
-    :func:`~svbrdf_models.capture.flash_consistency` finds the flash that re-renders those maps
+    :func:`~svbrdf_models.capture.one.flash_consistency` finds the flash that re-renders those maps
     closest to the photo; its RMSE (clipped re-rendering against the photo) is the figure.
     """
     from svbrdf_train import flash_consistency, square_photo

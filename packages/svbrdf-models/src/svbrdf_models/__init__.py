@@ -17,7 +17,7 @@ A plugin registers a :class:`ModelSpec` under one of the entry-point groups
 ``svbrdf.generators``, ``svbrdf.attention`` or ``svbrdf.discriminators``; the built-ins use
 the same groups. Nothing is imported until a name is described or created.
 
-The photo tool (``svbrdf-models predict``, :mod:`svbrdf_models.capture`) needs the ``photo``
+The photo tool (``svbrdf-models predict``, :mod:`svbrdf_models.capture.one`) needs the ``photo``
 extra (``pip install svbrdf-models[photo]``: Pillow, pypng and PyYAML through svbrdf-render).
 """
 
@@ -56,14 +56,14 @@ __version__ = "0.1.0"
 
 # The built-in networks load on first access, like any plugin.
 _LAZY = {
-    "UNetGenerator": "generators",
-    "GeneratorConfig": "generators",
-    "maps_from_output": "generators",
-    "encode_photo": "generators",
-    "AttentionModule": "attention",
-    "MultiScaleAttention": "attention",
-    "PatchGAN": "discriminators",
-    "PatchGANDiscriminator": "discriminators",
+    "UNetGenerator": "networks.generators",
+    "GeneratorConfig": "networks.generators",
+    "maps_from_output": "networks.generators",
+    "encode_photo": "networks.generators",
+    "AttentionModule": "networks.attention",
+    "MultiScaleAttention": "networks.attention",
+    "PatchGAN": "networks.discriminators",
+    "PatchGANDiscriminator": "networks.discriminators",
     "TrainedModel": "modelfile",
     "load_model": "modelfile",
     "save_model": "modelfile",
@@ -71,8 +71,8 @@ _LAZY = {
     "pretrained_path": "modelfile",
     "square_photo": "modelfile",
     "PRETRAINED": "modelfile",
-    "MultiGANDiscriminator": "discriminators",
-    "load_photo": "photos",
+    "MultiGANDiscriminator": "networks.discriminators",
+    "load_photo": "capture.photos",
 }
 
 
@@ -109,3 +109,29 @@ __all__ = [
     "resolve_config",
     *_LAZY,
 ]
+
+# Modules that moved into subpackages (issue 38): the old names import the new modules with a
+# DeprecationWarning for one release (svbrdf_render.moved; CHANGELOG.md).
+_MOVED = {
+    "svbrdf_models.generators": "svbrdf_models.networks.generators",
+    "svbrdf_models.attention": "svbrdf_models.networks.attention",
+    "svbrdf_models.discriminators": "svbrdf_models.networks.discriminators",
+    "svbrdf_models.baselines": "svbrdf_models.networks.baselines",
+    "svbrdf_models.trained": "svbrdf_models.modelfile.trained",
+    "svbrdf_models.modelcheck": "svbrdf_models.modelfile.modelcheck",
+    "svbrdf_models.download": "svbrdf_models.modelfile.download",
+    "svbrdf_models.pyfunc": "svbrdf_models.modelfile.pyfunc",
+    "svbrdf_models.serve": "svbrdf_models.modelfile.serve",
+    "svbrdf_models.batch": "svbrdf_models.capture.batch",
+    "svbrdf_models.photos": "svbrdf_models.capture.photos",
+    "svbrdf_models.tiles": "svbrdf_models.capture.tiles",
+    "svbrdf_models.refining": "svbrdf_models.capture.refining",
+    "svbrdf_models.relight": "svbrdf_models.capture.relight",
+    "svbrdf_models.figures": "svbrdf_models.capture.figures",
+    "svbrdf_models.material": "svbrdf_models.capture.material",
+    "svbrdf_models.reference": "svbrdf_models.capture.reference",
+}
+
+from svbrdf_render.moved import install as _install_moved
+
+_install_moved(_MOVED)

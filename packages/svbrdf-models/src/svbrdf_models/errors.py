@@ -43,6 +43,6 @@ class ModelFileError(RegistryError):
 class DataError(SVBRDFError):
     """Bad input data: a folder, file or argument that cannot be used. Say what, which, and what to do.
 
-    The photo tool's errors (:class:`svbrdf_models.capture.PhotoError`) are DataErrors;
+    The photo tool's errors (:class:`svbrdf_models.capture.one.PhotoError`) are DataErrors;
     svbrdf-train raises the same class for its data sets (``svbrdf_train.errors.DataError`` is
     this class)."""

@@ -1,7 +1,7 @@
 """The toolkit's one progress display: a status line on a stream, and messages above it.
 
-A fit's step line (``svbrdf_train.progress.Progress``) and the photo tool's refinement bar
-(:class:`svbrdf_models.batch.ProgressBar`) both draw through :class:`StatusLine`, so they behave
+A fit's step line (``svbrdf_train.training.progress.Progress``) and the photo tool's refinement bar
+(:class:`svbrdf_models.capture.batch.ProgressBar`) both draw through :class:`StatusLine`, so they behave
 alike: on a terminal the line is redrawn in place with ``\\r`` (at most ``tty_every_s`` apart,
 blanks over the end of a longer previous line); into a file or a pipe (CI logs, ``nohup``) a
 whole line is printed every ``file_every_s`` seconds, or nothing when that is None, so logs hold

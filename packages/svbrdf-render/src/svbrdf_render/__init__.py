@@ -14,9 +14,7 @@ The core needs torch and numpy only; reading and writing image and YAML files ne
 from . import brdf
 from .effects import DES18_EFFECTS, EFFECTS, PHOTO_EFFECTS, resolve_effects
 from .errors import MapError, MapFileError, SceneError, SVBRDFError
-from .fit import FlashFit, fit_flash
-from .geometry import safe_normalize, surface_positions
-from .mapfiles import (
+from .formats.mapfiles import (
     linear_to_srgb,
     read_des18,
     read_image,
@@ -28,11 +26,13 @@ from .mapfiles import (
     write_image,
     write_map_folder,
 )
+from .formats.materialfiles import validate_materialx, write_gltf, write_materialx
+from .geometry import safe_normalize, surface_positions
 from .maps import MAP_NAMES, SVBRDF, decode_normal, encode_normal, stored_value
-from .materialfiles import validate_materialx, write_gltf, write_materialx
 from .metalrough import MetalRough, from_metal_rough, roundtrip_error, to_metal_rough
 from .reference import render_reference
-from .refine import (
+from .refinement.fit import FlashFit, fit_flash
+from .refinement.refine import (
     DEFAULT_REFINE_STEPS,
     MIN_REFINE_SIDE,
     Refinement,
@@ -114,3 +114,19 @@ __all__ = [
     "viewer_scene",
     "write_viewer",
 ]
+
+# Modules that moved into subpackages (issue 38): the old names import the new modules with a
+# DeprecationWarning for one release (svbrdf_render.moved; CHANGELOG.md).
+_MOVED = {
+    "svbrdf_render.refine": "svbrdf_render.refinement.refine",
+    "svbrdf_render.rings": "svbrdf_render.refinement.rings",
+    "svbrdf_render.fit": "svbrdf_render.refinement.fit",
+    "svbrdf_render.files": "svbrdf_render.formats.files",
+    "svbrdf_render.mapfiles": "svbrdf_render.formats.mapfiles",
+    "svbrdf_render.materialfiles": "svbrdf_render.formats.materialfiles",
+    "svbrdf_render.yamlio": "svbrdf_render.formats.yamlio",
+}
+
+from .moved import install as _install_moved
+
+_install_moved(_MOVED)

@@ -16,7 +16,7 @@ import torch
 from . import __version__
 from .effects import DES18_EFFECTS, EFFECTS
 from .errors import SVBRDFError, exit_status
-from .files import EXIT_STATUS
+from .formats.files import EXIT_STATUS
 from .machine import THREADS_HELP, choose_threads
 from .maps import SVBRDF
 from .renderer import BACKENDS
@@ -117,7 +117,7 @@ def _examples():
 
 def load_material(spec: str, size: int | None = None) -> SVBRDF:
     """Read a material from a Des18 strip, a map folder or ``example:NAME``."""
-    from .mapfiles import read_des18, read_map_folder
+    from .formats.mapfiles import read_des18, read_map_folder
 
     if spec.startswith("example:"):
         examples, make = _examples()
@@ -266,7 +266,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_render(args) -> None:
-    from .mapfiles import write_image
+    from .formats.mapfiles import write_image
     from .renderer import render
 
     _check_flags(args)
@@ -280,7 +280,7 @@ def _cmd_render(args) -> None:
 
 
 def _cmd_preview(args) -> None:
-    from .mapfiles import write_image
+    from .formats.mapfiles import write_image
     from .renderer import render
 
     _check_flags(args, light_moves=True)
@@ -324,7 +324,7 @@ def _cmd_scene(args) -> None:
 
     text = Scene(Camera(), (Flash(math.pi * 2.2 * 2.2),), DES18_EFFECTS).to_yaml()
     if args.output:
-        from .files import write_text
+        from .formats.files import write_text
 
         write_text(args.output, text)
         print(f"wrote {args.output}")

@@ -16,7 +16,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from .mapfiles import linear_to_srgb
+from .formats.mapfiles import linear_to_srgb
 from .maps import MAP_NAMES, SVBRDF, stored_value
 from .renderer import render
 from .sampling import evaluation_scene

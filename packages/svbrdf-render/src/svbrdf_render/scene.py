@@ -32,7 +32,7 @@ from torch import Tensor
 from ._optional import require
 from .effects import DES18_EFFECTS, resolve_effects
 from .errors import SceneError
-from .yamlio import safe_load
+from .formats.yamlio import safe_load
 
 __all__ = ["Camera", "PointLight", "Flash", "Light", "Scene", "DES18_DISTANCE"]
 
@@ -338,7 +338,7 @@ class Scene:
         return cls.from_dict(data, source=source)
 
     def save(self, path) -> None:
-        from .files import write_text
+        from .formats.files import write_text
 
         write_text(path, self.to_yaml())
 

@@ -57,8 +57,8 @@ from torch import Tensor
 from ._optional import require
 from .effects import DES18_EFFECTS, EFFECTS
 from .errors import MapError, SceneError, SVBRDFError
-from .files import write_text
-from .mapfiles import _encode_maps, linear_to_srgb
+from .formats.files import write_text
+from .formats.mapfiles import _encode_maps, linear_to_srgb
 from .maps import MAP_NAMES, SVBRDF
 from .scene import DES18_DISTANCE, Camera, PointLight, Scene
 

@@ -13,6 +13,7 @@ stays instant and imports neither torch nor mlflow.
 from __future__ import annotations
 
 import importlib
+import sys
 
 #: The package's version, its one source: pyproject.toml reads it (setuptools dynamic version).
 __version__ = "0.1.0"
@@ -22,25 +23,25 @@ _PUBLIC: dict[str, tuple[str, ...]] = {
     # recipes: the registered names, one loaded and checked, ``--set`` overrides parsed
     ".recipe": ("list_recipes", "load_recipe", "parse_overrides"),
     # a fit's checkpoint (a local file, or the one logged in its MLflow run) and its generator
-    ".checkpoint": ("load_checkpoint", "check_run_kept"),
-    ".init": ("download_run_checkpoint",),
+    ".training.checkpoint": ("load_checkpoint", "check_run_kept"),
+    ".training.init": ("download_run_checkpoint",),
     ".inference": ("load_generator",),
     # MLflow: the fits' tracker and client, the run's source and datasets, links to the UI
     ".tracking": (
         "MlflowTracker", "open_client", "check_store", "tracking_uri", "git_revision", "source_tags",
         "log_datasets", "test_dataset", "ui_page", "ui_hint",
     ),  # fmt: skip
-    ".clock": ("CLOCK_TAG",),
+    ".training.clock": ("CLOCK_TAG",),
     # data: test and photo sets, resizing, how strips group into materials
     ".data": ("PhotoFolder", "ProceduralMaterials"),
-    ".fitdata": ("open_materials",),
+    ".data.fitdata": ("open_materials",),
     ".data.fov": ("resize_sample",),
     ".data.photos": ("square_photo",),
     ".data.materials": ("GROUP_BY", "group_samples", "per_material"),
     ".errors": ("DataError",),
     # figures and image sheets
     ".metrics": ("display_rendering", "map_rmse", "per_sample_rmse", "preview_flash"),
-    "svbrdf_models.capture": ("flash_consistency",),
+    "svbrdf_models.capture.one": ("flash_consistency",),
     ".data.sheet": ("image_grid", "map_tiles"),
     # the command line a sibling tool shares: one-line errors, the common options
     ".cli": ("OneLineErrors", "run_main"),
@@ -64,3 +65,43 @@ def __getattr__(name: str):
 
 def __dir__() -> list[str]:
     return sorted({*globals(), *_WHERE})
+
+# Modules that moved into subpackages (issue 38): the old names import the new modules with a
+# DeprecationWarning for one release (svbrdf_render.moved; CHANGELOG.md).
+_MOVED = {
+    "svbrdf_train.trainer": "svbrdf_train.training.trainer",
+    "svbrdf_train.step": "svbrdf_train.training.step",
+    "svbrdf_train.losses": "svbrdf_train.training.losses",
+    "svbrdf_train.paper_weights": "svbrdf_train.training.paper_weights",
+    "svbrdf_train.schedule": "svbrdf_train.training.schedule",
+    "svbrdf_train.clock": "svbrdf_train.training.clock",
+    "svbrdf_train.checkpoint": "svbrdf_train.training.checkpoint",
+    "svbrdf_train.resume": "svbrdf_train.training.resume",
+    "svbrdf_train.init": "svbrdf_train.training.init",
+    "svbrdf_train.hooks": "svbrdf_train.training.hooks",
+    "svbrdf_train.distributed": "svbrdf_train.training.distributed",
+    "svbrdf_train.validation": "svbrdf_train.training.validation",
+    "svbrdf_train.fitlog": "svbrdf_train.training.fitlog",
+    "svbrdf_train.flops": "svbrdf_train.training.flops",
+    "svbrdf_train.order": "svbrdf_train.training.order",
+    "svbrdf_train.progress": "svbrdf_train.training.progress",
+    "svbrdf_train.fitdata": "svbrdf_train.data.fitdata",
+    "svbrdf_train.capture": "svbrdf_models.capture",
+}
+
+
+class _MovedFinder:
+    """svbrdf_render.moved's finder for the names above, imported only when one is asked for:
+    importing svbrdf_train imports neither svbrdf_render nor torch."""
+
+    @staticmethod
+    def find_spec(fullname, path=None, target=None):
+        if fullname not in _MOVED:
+            return None
+        from svbrdf_render.moved import spec_for
+
+        return spec_for(fullname, _MOVED)
+
+
+if _MovedFinder not in sys.meta_path:
+    sys.meta_path.append(_MovedFinder)

@@ -2,7 +2,7 @@
 
 ``svbrdf-train export`` calls :func:`export_contents` on a checkpoint (a file, or the weights an
 MLflow run logged) and writes it with :func:`svbrdf_models.save_model`; ``--register`` then
-logs the file to MLflow as an MLflow model (:mod:`svbrdf_models.pyfunc`) and makes it a version
+logs the file to MLflow as an MLflow model (:mod:`svbrdf_models.modelfile.pyfunc`) and makes it a version
 of a registered model (:func:`register`). A finished fit logs its generator the same way
 (:func:`log_fit_model`).
 
@@ -21,7 +21,7 @@ from typing import Any
 import torch
 
 from svbrdf_models import create_generator
-from svbrdf_models.modelfile import model_dict
+from svbrdf_models.modelfile.files import model_dict
 from svbrdf_render import MAP_NAMES
 
 from .errors import CheckpointError
@@ -123,7 +123,7 @@ def check_export_target(out: Path, force: bool = False) -> None:
     a file that is not one (a fit's checkpoint, a photo, anything else) unless ``force``: the
     file would be lost, and a checkpoint overwritten can no longer be resumed. A model file over
     a model file, or a new path, is always fine; a folder in the way is always refused."""
-    from svbrdf_models.modelfile import is_model_file
+    from svbrdf_models.modelfile.files import is_model_file
     from svbrdf_render import SVBRDFError
 
     out = Path(out)
@@ -131,7 +131,7 @@ def check_export_target(out: Path, force: bool = False) -> None:
         raise SVBRDFError(f"-o {out}: is a folder; give the path of the model file to write")
     if force or not out.exists() or is_model_file(out):
         return
-    from .checkpoint import FORMAT
+    from .training.checkpoint import FORMAT
 
     try:
         head = torch.load(out, map_location="cpu", weights_only=True, mmap=True)
@@ -152,7 +152,7 @@ def export_contents(
     run: dict[str, Any] | None = None,
     metrics: dict[str, float] | None = None,
 ) -> dict[str, Any]:
-    """The model file's contents for a checkpoint ``state`` (see :mod:`svbrdf_models.modelfile`)."""
+    """The model file's contents for a checkpoint ``state`` (see :mod:`svbrdf_models.modelfile.files`)."""
     recipe = state.get("recipe") or {}
     generator = recipe.get("generator") or {}
     if state.get("generator") is None or not generator.get("name"):
@@ -177,7 +177,7 @@ def export_contents(
 
 def log_fit_model(run, metrics: dict[str, float]) -> str | None:
     """A finished fit's generator as the MLflow model ``model`` of its run (``run``: a
-    :class:`svbrdf_train.hooks.Run`), made as ``svbrdf-train export`` makes a model file, with
+    :class:`svbrdf_train.training.hooks.Run`), made as ``svbrdf-train export`` makes a model file, with
     the last validation ``metrics``; its URI (``models:/MODEL_ID``).
 
     A failure (the store, the disk) does not fail the finished fit: it is said on the terminal
@@ -185,8 +185,8 @@ def log_fit_model(run, metrics: dict[str, float]) -> str | None:
     """
     import tempfile
 
-    from svbrdf_models.modelfile import save_model
-    from svbrdf_models.pyfunc import log_pyfunc_model
+    from svbrdf_models.modelfile.files import save_model
+    from svbrdf_models.modelfile.pyfunc import log_pyfunc_model
 
     if run.run_id is None:
         return None
@@ -212,7 +212,7 @@ def register(
 ) -> tuple[str, str]:
     """Log the model file as an MLflow model and register it as a new version of ``name``.
 
-    The MLflow model (:mod:`svbrdf_models.pyfunc`: the file, a signature, an input example and
+    The MLflow model (:mod:`svbrdf_models.modelfile.pyfunc`: the file, a signature, an input example and
     requirements; ``mlflow.pyfunc.load_model`` and ``mlflow models serve`` take it) is logged as
     ``model-<SHA-256 prefix>`` of the training run (``run_id``) when the store has it, else of a
     new run of experiment ``svbrdf-models`` holding the provenance; the version carries the
@@ -220,7 +220,7 @@ def register(
     """
     from mlflow.exceptions import MlflowException
 
-    from svbrdf_models.pyfunc import log_pyfunc_model
+    from svbrdf_models.modelfile.pyfunc import log_pyfunc_model
 
     client, run_id = _export_run(contents, run_id)
     logged = log_pyfunc_model(path, f"{MODEL_ARTIFACT}-{sha256[:8]}", run_id=run_id)

@@ -6,7 +6,7 @@ schedules, tracking, training data).
 
 ::
 
-    from svbrdf_train.checkpoint import load_checkpoint
+    from svbrdf_train.training.checkpoint import load_checkpoint
     from svbrdf_train.inference import load_generator
     generator, recipe = load_generator(load_checkpoint("runs/ours-cpu/last.pt"))
 """
@@ -20,9 +20,9 @@ from torch import nn
 
 from svbrdf_models import create_generator
 
-from .checkpoint import load_weights
 from .errors import CheckpointError
 from .recipe import Recipe, recipe_from_dict
+from .training.checkpoint import load_weights
 
 __all__ = ["load_generator"]
 

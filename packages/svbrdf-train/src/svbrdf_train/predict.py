@@ -9,7 +9,7 @@ checkpoint, or an MLflow run.
     svbrdf = p.predict(photo)           # (3, H, W) linear photo -> SVBRDF of 1 at p.resolution
     svbrdfs = p.predict_batch(photos)   # (N, 3, R, R) linear photos at p.resolution -> SVBRDF of N
 
-A :class:`Predictor` is svbrdf-models' :class:`~svbrdf_models.trained.TrainedModel` (the one
+A :class:`Predictor` is svbrdf-models' :class:`~svbrdf_models.modelfile.trained.TrainedModel` (the one
 implementation of prediction: the photo checks, the centre square, refinement) that can also be
 made from what training writes.
 """
@@ -21,20 +21,20 @@ from pathlib import Path
 
 import torch
 
-from svbrdf_models.modelfile import is_model_file, load_model
-from svbrdf_models.trained import TrainedModel
+from svbrdf_models.modelfile.files import is_model_file, load_model
+from svbrdf_models.modelfile.trained import TrainedModel
 
-from .checkpoint import load_checkpoint
 from .errors import CheckpointError
 from .inference import load_generator
-from .init import RUN_CHECKPOINT, download_run_checkpoint
+from .training.checkpoint import load_checkpoint
+from .training.init import RUN_CHECKPOINT, download_run_checkpoint
 
 __all__ = ["Predictor", "RUN_CHECKPOINT"]
 
 
 @dataclass
 class Predictor(TrainedModel):
-    """A :class:`~svbrdf_models.trained.TrainedModel` from a model file, a training checkpoint or
+    """A :class:`~svbrdf_models.modelfile.trained.TrainedModel` from a model file, a training checkpoint or
     an MLflow run; ``card`` is one line about a model file's training, for people (None for a
     checkpoint)."""
 

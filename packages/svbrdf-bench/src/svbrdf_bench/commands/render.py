@@ -96,7 +96,7 @@ class _Progress:
 
 
 def _write(out: Path, header: str, table: str, records: list[dict], meta: dict) -> list[Path]:
-    from svbrdf_render.files import write_text
+    from svbrdf_render.formats.files import write_text
 
     from ..report import csv_text
 

@@ -11,7 +11,7 @@ from svbrdf_render.cli import float_range, int_range
 from svbrdf_render.machine import THREADS_HELP
 
 from .._registry import Registry
-from ..refining import DEFAULT_MAP_SIZE, FULL
+from ..capture.refining import DEFAULT_MAP_SIZE, FULL
 
 __all__ = ["MAX_MAP_SIZE", "add_parser", "run"]
 
@@ -40,7 +40,7 @@ Training checkpoints and MLflow runs of fits: `svbrdf-train predict --checkpoint
 def add_parser(sub) -> None:
     """The ``predict`` sub-command and its options: the photos, the model and refinement here,
     the square and the files written in :func:`_add_output_options`."""
-    from ..batch import help_text
+    from ..capture.batch import help_text
 
     p = sub.add_parser(
         "predict",
@@ -100,7 +100,7 @@ def add_parser(sub) -> None:
 def _add_output_options(p, more) -> None:
     """``predict``'s options for the square read and the maps and figures written: ``--crop``
     and ``--map-size`` on ``p`` (what most captures need), the rest in the group ``more``."""
-    from ..capture import ALBEDO_ENCODINGS, RELIT_FORMATS
+    from ..capture.one import ALBEDO_ENCODINGS, RELIT_FORMATS
 
     more.add_argument(
         "--linear",
@@ -157,8 +157,8 @@ def _add_output_options(p, more) -> None:
 
 
 def _reference(text: str):
+    from ..capture.reference import Reference
     from ..errors import DataError
-    from ..reference import Reference
 
     try:
         return Reference.parse(text)
@@ -173,7 +173,7 @@ def _map_size(text: str) -> int | str:
 
 
 def _normal_convention(text: str) -> str:
-    from ..capture import NORMAL_ALIASES, NORMAL_CONVENTIONS
+    from ..capture.one import NORMAL_ALIASES, NORMAL_CONVENTIONS
 
     convention = NORMAL_ALIASES.get(text.lower(), text.lower())
     if convention not in NORMAL_CONVENTIONS:
@@ -195,16 +195,16 @@ def _crop(text: str) -> tuple[int, int, int]:
 
 def run(args, registry: Registry, out) -> int:
     """``predict``: the options checked, the model loaded and announced, the photos captured."""
-    from svbrdf_render.files import check_output_folder
+    from svbrdf_render.formats.files import check_output_folder
 
-    from ..batch import capture_batch, check_material_folders, pick_device, set_threads
+    from ..capture.batch import capture_batch, check_material_folders, pick_device, set_threads
 
     options = _capture_options(args)
     device = pick_device(args.device)  # a GPU that is not there is named as such
     check_output_folder(args.out, "-o")  # before the model is loaded and the first photo is done
     check_material_folders(args.photos, args.out)
     if args.tiles and isinstance(args.map_size, int):  # refused before the model loads
-        from ..tiles import check_tiled_memory
+        from ..capture.tiles import check_tiled_memory
 
         check_tiled_memory(args.map_size, f"--tiles --map-size {args.map_size}")
     model = _load_predict_model(
@@ -217,10 +217,10 @@ def run(args, registry: Registry, out) -> int:
 
 
 def _capture_options(args):
-    """The :class:`~svbrdf_models.capture.CaptureOptions` of ``predict``'s flags; flags that go
+    """The :class:`~svbrdf_models.capture.one.CaptureOptions` of ``predict``'s flags; flags that go
     with another one given alone, and a scene that cannot be a photo's capture, are refused."""
-    from ..batch import load_scene
-    from ..capture import CaptureOptions
+    from ..capture.batch import load_scene
+    from ..capture.one import CaptureOptions
     from ..errors import DataError
 
     if args.map_size is not None and not (args.tiles or args.refine):
@@ -252,7 +252,7 @@ def _capture_options(args):
 def _load_predict_model(source, device, tile_size):
     """The model of --model (the shipped one when None), announced on stderr."""
     from ..errors import DataError
-    from ..modelfile import PRETRAINED, card_path, load_model
+    from ..modelfile.files import PRETRAINED, card_path, load_model
 
     if source is None:
         print(
@@ -265,7 +265,7 @@ def _load_predict_model(source, device, tile_size):
         raise DataError(f"--map-size {tile_size} is smaller than the model's resolution ({model.resolution})")
     print(model.describe(), file=sys.stderr)
     if tile_size is not None:
-        from ..tiles import available_memory, tile_count, tiled_capture_bytes
+        from ..capture.tiles import available_memory, tile_count, tiled_capture_bytes
 
         have = available_memory()
         print(

@@ -1,4 +1,4 @@
-"""``svbrdf-models serve``: a model behind a guarded HTTP server (:mod:`svbrdf_models.serve`)."""
+"""``svbrdf-models serve``: a model behind a guarded HTTP server (:mod:`svbrdf_models.modelfile.serve`)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from svbrdf_render.cli import float_range, int_range
 from svbrdf_render.machine import THREADS_HELP
 
 from .._registry import Registry
-from ..serve import ServeLimits
+from ..modelfile.serve import ServeLimits
 
 __all__ = ["add_parser", "run"]
 
@@ -59,8 +59,8 @@ def add_parser(sub) -> None:
 def run(args, registry: Registry, out) -> None:
     from svbrdf_render.machine import choose_threads
 
-    from ..modelfile import load_model
-    from ..serve import serve
+    from ..modelfile.files import load_model
+    from ..modelfile.serve import serve
 
     choice = choose_threads(args.threads)
     model = load_model(args.source)

@@ -44,7 +44,7 @@ def add_parser(sub) -> None:
 
 
 def run(args, registry: Registry, out) -> None:
-    from ..modelfile import PRETRAINED, card_path, load_model
+    from ..modelfile.files import PRETRAINED, card_path, load_model
 
     model = load_model(args.source)
     info = model.provenance

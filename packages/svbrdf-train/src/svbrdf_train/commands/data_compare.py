@@ -55,7 +55,7 @@ average, the values must move to turn one distribution into the other; 0 when th
 def _read_real(folder: Path, resolution: int, limit: int | None) -> dict:
     from torch.utils.data import default_collate
 
-    from ..fitdata import Resized, open_materials
+    from ..data.fitdata import Resized, open_materials
 
     data, _ = open_materials(folder, "data compare")  # a folder of the wrong kind fails here
     data = Resized(data, resolution)
@@ -122,7 +122,7 @@ def table(rows) -> str:
 
 
 def _sheet(proc: dict, families: list[str], real: dict, rows: int):
-    from svbrdf_render.mapfiles import linear_to_srgb
+    from svbrdf_render.formats.mapfiles import linear_to_srgb
 
     from ..data.sheet import COLUMNS, image_grid, map_tiles
 
@@ -232,7 +232,7 @@ def compare(ctx, real_folder, count, resolution, seed, real_count, sheet_path, r
             "in the statistic's unit",
             "statistics": [r.to_dict() for r in results],
         }
-        from svbrdf_render.files import write_text
+        from svbrdf_render.formats.files import write_text
 
         write_text(json_path, json.dumps(doc, indent=2) + "\n")
         click.echo(f"wrote {json_path}")

@@ -68,7 +68,7 @@ def _writing(out: Path):
     """Ctrl-C and SIGTERM alike: the shard's temporary file is removed and ``out`` is left as it
     was, one line says so, and the exit status is 130 (click alone would print "Aborted!" and
     exit 1). Temporaries of ``out`` left by earlier runs killed outright are removed first."""
-    from svbrdf_render.files import INTERRUPTED, remove_stale_temporaries, sigterm_as_interrupt
+    from svbrdf_render.formats.files import INTERRUPTED, remove_stale_temporaries, sigterm_as_interrupt
 
     remove_stale_temporaries(out.parent, (out.name,))
     try:

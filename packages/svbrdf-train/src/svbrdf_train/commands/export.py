@@ -77,9 +77,9 @@ def export(checkpoint, run_id, out, half, hash_name, register_as, metrics, force
 
     CHECKPOINT is a checkpoint file (last.pt, weights.pt) or a fit's --out folder.
     """
-    from svbrdf_models.modelfile import hash_name as hashed
-    from svbrdf_models.modelfile import save_model
-    from svbrdf_render.files import check_output_folder
+    from svbrdf_models.modelfile.files import hash_name as hashed
+    from svbrdf_models.modelfile.files import save_model
+    from svbrdf_render.formats.files import check_output_folder
 
     from ..errors import CheckpointError
 
@@ -131,14 +131,14 @@ def export(checkpoint, run_id, out, half, hash_name, register_as, metrics, force
 
 def _read(checkpoint: Path | None, run_id: str | None):
     """The checkpoint's state, a name for it, and the MLflow run's tags and metrics (--run only)."""
-    from ..checkpoint import CHECKPOINT_NAME, load_checkpoint
+    from ..training.checkpoint import CHECKPOINT_NAME, load_checkpoint
 
     if checkpoint is not None:
         path = checkpoint / CHECKPOINT_NAME if checkpoint.is_dir() else checkpoint
         return load_checkpoint(path), str(path), None
     from mlflow import MlflowClient
 
-    from ..init import download_run_checkpoint
+    from ..training.init import download_run_checkpoint
 
     state = download_run_checkpoint(run_id)
     data = MlflowClient().get_run(run_id).data

@@ -183,8 +183,8 @@ def fit(
     grids and checkpoints to one MLflow run. Ctrl-C saves a checkpoint first; --resume goes on.
     """
     from ..errors import RecipeError
-    from ..trainer import FitOptions
-    from ..trainer import fit as run_fit
+    from ..training.trainer import FitOptions
+    from ..training.trainer import fit as run_fit
 
     if init and resume:
         raise RecipeError(
@@ -221,7 +221,7 @@ def fit(
 def _check_init_run(init: str | None) -> None:
     """Refuse ``--init RUN_ID`` of a deleted MLflow run before anything is read or built."""
     if init and not Path(init).expanduser().exists() and _RUN_ID.fullmatch(init):
-        from ..checkpoint import check_run_kept
+        from ..training.checkpoint import check_run_kept
 
         hint = f"restore it (mlflow runs restore --run-id {init}) or give another run"
         check_run_kept(init, "--init", hint)
@@ -326,7 +326,7 @@ def _output_lock(out: Path):
     when the fit ends, and so is ``out`` if the fit made it and left it empty (refused early).
     Where ``flock`` is missing (Windows) ``filelock`` locks the same file, without the PID.
     """
-    from svbrdf_render.files import check_output_folder
+    from svbrdf_render.formats.files import check_output_folder
 
     from ..errors import TrainingError
 

@@ -1,6 +1,6 @@
 """``svbrdf-train predict``: capture maps a material artist can use from flash photos.
 
-The photo tool itself lives in svbrdf-models (:mod:`svbrdf_models.capture`, ``svbrdf-models
+The photo tool itself lives in svbrdf-models (:mod:`svbrdf_models.capture.one`, ``svbrdf-models
 predict``); this command adds the models only svbrdf-train reads: training checkpoints
 (--checkpoint) and the checkpoints logged by fits in MLflow (--run).
 """
@@ -12,7 +12,7 @@ from pathlib import Path
 
 import click
 
-from svbrdf_models.refining import DEFAULT_MAP_SIZE, FULL
+from svbrdf_models.capture.refining import DEFAULT_MAP_SIZE, FULL
 from svbrdf_render.machine import THREADS_HELP
 
 #: Largest --map-size: photos are refused over 50 megapixels (about 7071 px on a side).
@@ -40,7 +40,7 @@ The same tool without training code: svbrdf-models predict (it refines by defaul
 
 
 def _epilog() -> str:
-    from svbrdf_models.batch import help_text
+    from svbrdf_models.capture.batch import help_text
 
     return EPILOG + help_text(0, click=True)
 
@@ -172,8 +172,8 @@ def predict(photos, model_source, checkpoint, run_id, out, device, threads, **fl
     The maps are judged by re-rendering them under a flash fitted to the photo: the RMSE
     against the photo is printed per photo and as the median of the batch.
     """
-    from svbrdf_models.batch import capture_batch, check_material_folders, pick_device, set_threads
-    from svbrdf_render.files import check_output_folder
+    from svbrdf_models.capture.batch import capture_batch, check_material_folders, pick_device, set_threads
+    from svbrdf_render.formats.files import check_output_folder
 
     from ..errors import CheckpointError
 
@@ -197,10 +197,10 @@ def _options(
     linear, crop, tiles, map_size, normal_convention, bits, albedo_encoding, exr, tileable, relit, refine,
     refine_seconds, scene, backend,
 ):  # fmt: skip
-    """The :class:`~svbrdf_models.capture.CaptureOptions` of the flags (a flag that goes with
+    """The :class:`~svbrdf_models.capture.one.CaptureOptions` of the flags (a flag that goes with
     another given alone is a usage error)."""
-    from svbrdf_models.batch import load_scene
-    from svbrdf_models.capture import CaptureOptions
+    from svbrdf_models.capture.batch import load_scene
+    from svbrdf_models.capture.one import CaptureOptions
 
     if map_size is not None and not (tiles or refine):
         raise click.UsageError("--map-size goes with --tiles (or --refine STEPS > 0)")
@@ -233,14 +233,14 @@ def _load_model(model_source, checkpoint, run_id, device, tile_size):
     if checkpoint is not None:
         model = Predictor.from_checkpoint(checkpoint, device)
     elif run_id is not None:
-        from ..checkpoint import check_run_kept
+        from ..training.checkpoint import check_run_kept
 
         hint = f"restore it (mlflow runs restore --run-id {run_id}) or give another run"
         check_run_kept(run_id, "--run", hint)
         model = Predictor.from_run(run_id, device)
     else:
         if model_source is None:
-            from svbrdf_models.modelfile import PRETRAINED, card_path
+            from svbrdf_models.modelfile.files import PRETRAINED, card_path
 
             click.echo(
                 f"no --model, --checkpoint or --run: using the model shipped with svbrdf-models "

@@ -45,7 +45,7 @@ from torch import Tensor
 from torch.utils.data import Dataset
 
 from svbrdf_render import encode_normal, safe_normalize
-from svbrdf_render.files import is_write_failure, temporary_path, write_failure
+from svbrdf_render.formats.files import is_write_failure, temporary_path, write_failure
 
 from ..errors import DataError, ShardError
 from .shard_format import (

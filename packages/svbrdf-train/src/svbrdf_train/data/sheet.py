@@ -16,9 +16,9 @@ from typing import Any
 
 from torch import Tensor
 
-from svbrdf_models.figures import image_grid
+from svbrdf_models.capture.figures import image_grid
 from svbrdf_render import MAP_NAMES, encode_normal
-from svbrdf_render.mapfiles import linear_to_srgb
+from svbrdf_render.formats.mapfiles import linear_to_srgb
 
 from ..errors import DataError
 

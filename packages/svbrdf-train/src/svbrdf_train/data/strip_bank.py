@@ -34,8 +34,8 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from svbrdf_render import decode_normal, encode_normal
-from svbrdf_render.files import temporary_path
-from svbrdf_render.mapfiles import read_image
+from svbrdf_render.formats.files import temporary_path
+from svbrdf_render.formats.mapfiles import read_image
 
 from ..errors import DataError, ShardError
 from .shard_format import created_by

@@ -15,7 +15,7 @@ ones that finish in minutes on a CPU::
 Recipes are found by name through the entry-point group ``svbrdf.recipes`` (each entry
 names a YAML file path; svbrdf-train registers its own that way), or given as a path. Any
 field can be overridden with ``--set section.field=value`` (the value is read as YAML;
-files and values alike read ``3e-4`` as a number, see :mod:`svbrdf_render.yamlio`).
+files and values alike read ``3e-4`` as a number, see :mod:`svbrdf_render.formats.yamlio`).
 Unknown sections and fields are errors naming the field and the file.
 
 =====================================  ==========================================================

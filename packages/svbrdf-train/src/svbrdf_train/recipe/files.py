@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from svbrdf_models import ConfigError, build_config
-from svbrdf_render.yamlio import safe_load
+from svbrdf_render.formats.yamlio import safe_load
 
 from ..errors import RecipeError
 from .checks import check_recipe, show
@@ -62,7 +62,7 @@ def _read_yaml(path: Path) -> dict[str, Any]:
         raise RecipeError(f"{path}: cannot read the recipe ({e.strerror})") from None
     try:
         # lr: 3e-4 is a number, as with --set; duplicate keys, deep nesting and alias bombs
-        # are refused here, before anything walks the document (svbrdf_render.yamlio)
+        # are refused here, before anything walks the document (svbrdf_render.formats.yamlio)
         data = safe_load(text)
     except yaml.YAMLError as e:
         raise RecipeError(f"{path}: not valid YAML: {e}") from None

@@ -9,12 +9,12 @@ by :func:`svbrdf_train.recipe.checks.check_recipe`.
 Sections build what they describe:
 
 - ``optim.setup(params, schedule)`` -> ``(Adam, ScheduledRate)``: the optimiser at the
-  section's rate and betas, and the rate it follows along :class:`~svbrdf_train.schedule.LrSchedule`
+  section's rate and betas, and the rate it follows along :class:`~svbrdf_train.training.schedule.LrSchedule`
   (``optim.schedule(per_step, samples_per_epoch)``);
-- ``loss.setup()`` -> :class:`~svbrdf_train.losses.GanLoss`: the generator's and the
+- ``loss.setup()`` -> :class:`~svbrdf_train.training.losses.GanLoss`: the generator's and the
   discriminator's objectives with the section's weights;
 - ``data.setup(resolution)`` -> ``(train, validation)`` data sets
-  (:func:`svbrdf_train.fitdata.section_datasets`).
+  (:func:`svbrdf_train.data.fitdata.section_datasets`).
 """
 
 from __future__ import annotations
@@ -28,14 +28,14 @@ from typing import TYPE_CHECKING, Any
 
 from svbrdf_models import param
 
-from ..paper_weights import MAP_WEIGHTS
+from ..training.paper_weights import MAP_WEIGHTS
 
 if TYPE_CHECKING:  # annotations only: these modules read no recipe, so nothing imports back
     import torch
     from torch.utils.data import Dataset
 
-    from ..losses import GanLoss
-    from ..schedule import LrSchedule, ScheduledRate
+    from ..training.losses import GanLoss
+    from ..training.schedule import LrSchedule, ScheduledRate
 
 __all__ = [
     "SIZES",
@@ -141,8 +141,8 @@ class LossSection:
 
     def setup(self) -> GanLoss:
         """The objectives this section describes: the generator's ``L_G`` with these weights and
-        the discriminator's, both of the ``gan`` kind (:class:`svbrdf_train.losses.GanLoss`)."""
-        from ..losses import GanLoss, LossWeights
+        the discriminator's, both of the ``gan`` kind (:class:`svbrdf_train.training.losses.GanLoss`)."""
+        from ..training.losses import GanLoss, LossWeights
 
         weights = LossWeights(adv=self.adv, render=self.render, svbrdf=self.svbrdf)
         return GanLoss(weights=weights, map_weights=self.maps, gan=self.gan, eps=self.eps)
@@ -206,9 +206,9 @@ class OptimSection:
         return {"none": 1.0, "sqrt": math.sqrt(ratio), "linear": ratio}[self.batch_rule]
 
     def schedule(self, per_step: int, samples_per_epoch: int) -> LrSchedule:
-        """The rate factor along the fit (:class:`svbrdf_train.schedule.LrSchedule`):
+        """The rate factor along the fit (:class:`svbrdf_train.training.schedule.LrSchedule`):
         ``per_step`` samples a step (all processes), ``samples_per_epoch`` for an epoch period."""
-        from ..schedule import LrSchedule
+        from ..training.schedule import LrSchedule
 
         return LrSchedule(self, per_step, samples_per_epoch)
 
@@ -218,10 +218,10 @@ class OptimSection:
         """Adam over ``params`` with ``betas``, and the rate it follows: ``lr`` (``d_lr`` for the
         ``discriminator``) times :meth:`batch_factor` times ``schedule``'s factor, set for each
         step by the returned
-        :class:`~svbrdf_train.schedule.ScheduledRate` (``rate.at(step)``)."""
+        :class:`~svbrdf_train.training.schedule.ScheduledRate` (``rate.at(step)``)."""
         import torch
 
-        from ..schedule import ScheduledRate
+        from ..training.schedule import ScheduledRate
 
         base = (self.d_lr if discriminator else self.lr) * self.batch_factor(schedule.per_step)
         optimiser = torch.optim.Adam(params, lr=base, betas=tuple(self.betas))
@@ -321,9 +321,9 @@ class DataSection:
 
     def setup(self, resolution: int) -> tuple[Dataset, Dataset]:
         """``(train, validation)``: the data sets this section describes, at ``resolution``
-        pixels (:func:`svbrdf_train.fitdata.section_datasets`; ``DataError`` when a source is
+        pixels (:func:`svbrdf_train.data.fitdata.section_datasets`; ``DataError`` when a source is
         missing or too small)."""
-        from ..fitdata import section_datasets
+        from ..data.fitdata import section_datasets
 
         return section_datasets(self, resolution)
 

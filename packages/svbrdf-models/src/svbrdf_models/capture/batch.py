@@ -1,0 +1,373 @@
+"""The photo tool's command-line side, shared by ``svbrdf-models predict`` and ``svbrdf-train
+predict``: photos captured one by one into their folders, progress, the summary table and the
+exit status.
+
+::
+
+    status = capture_batch(model, ["a.jpg", "b.png"], Path("maps"), CaptureOptions(refine=100),
+                           prog="svbrdf-models", summary={"model": model.source})
+
+Messages go to stderr, one line each, starting with ``PROG: error:`` or ``PROG: note:``; the
+folder of each photo captured goes to stdout. Exit status: 0 every photo captured; 1 some
+failed; 2 all failed; 3 a file could not be written (the photos after it are not done); 130
+interrupted by Ctrl-C or SIGTERM alike (the photo in progress is not written; summary.json lists
+the photos done before it, marked ``"interrupted": true``).
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+from ..errors import DataError
+
+__all__ = [
+    "HELP_SECTIONS",
+    "ProgressBar",
+    "capture_batch",
+    "check_material_folders",
+    "set_threads",
+    "folder_name",
+    "help_text",
+    "load_scene",
+    "pick_device",
+]
+
+#: Exit status of an interrupted command (128 + SIGINT).
+INTERRUPTED = 130
+
+#: The ``--help`` paragraphs both photo commands share (``{refine}``: the command's --refine
+#: default; the limits are filled in by :func:`help_text`).
+HELP_SECTIONS = (
+    """Photos: JPEG or PNG, in colour, the flash roughly at the centre. The EXIF orientation is
+applied, then the largest centred square (or --crop X,Y,SIZE, in pixels of the photo as
+displayed) is resized to the model's resolution and decoded from sRGB (unless --linear).
+With --tiles the square is kept at its own size (or --map-size) and predicted in tiles of
+the model's resolution overlapping by half, blended with raised-cosine weights; each tile
+sees the flash off its centre, which the model may not have been trained for: check the
+re-rendering.""",
+    """Refinement (--refine STEPS, default {refine}; 0: the network's maps only): the network's
+maps are refined against the photo at the square's own resolution up to {map_size} px
+(--map-size N, or full for all of it: a refinement holds about 1.4 KB a pixel, and what this
+machine's memory cannot hold is refused before the work starts) through the differentiable
+renderer, for at most STEPS steps (and --refine-seconds S), under the flash
+svbrdf_render.refine_maps finds from the network's maps (or --scene FILE, a scene
+YAML as `svbrdf-render scene` writes: one camera, one view). The maps written are the refined
+ones. A progress bar is drawn on stderr when it is a terminal (nothing when it is not).
+Squares or --map-size under {min_refine} px are refused. --backend auto (default) refines
+photos from 512x512 up with the compiled renderer (it compiles first, seconds, and is then
+about 30% faster per step there) and smaller ones eagerly.""",
+    """Each photo gets a material folder DIR/NAME/, every image tagged with its encoding
+(PNG cICP/sRGB/gAMA chunks) and listed in material.json:
+  basecolor.png   metal/rough base colour, sRGB      metallic.png   metalness, linear
+  roughness.png   linear; GGX alpha = roughness^2     metallic_roughness.png  glTF packing
+  normal.png      tangent space, (n+1)/2, OpenGL y up (--normal dx: DirectX, green flipped;
+                  then normal_opengl.png too, for the material files)
+  diffuse.png     the project's diffuse albedo, sRGB (--linear or --albedo-encoding linear:
+  specular.png    as Des18 stores them); specular albedo (F0), encoded like diffuse.png
+  *.exr           with --exr: the maps as linear half floats
+  material.json   maps, encodings, normal convention, units, BRDF, model, refinement, photo
+  material.gltf   glTF 2.0 textured plane (metal/rough), for Blender, game engines, the web
+  material.mtlx   MaterialX document of the same material
+  index.html      viewer: the material under a light that follows the mouse (no network)
+  input.png       the square the maps are of (sRGB)
+  rerender.png    photo | re-rendering under the fitted flash | |error| heat map; refined:
+                  photo | network's | refined re-rendering | both heat maps, one flash
+  relit.gif       a point light circling the material (--relit png: a grid, refined: a row
+                  per version; none: skipped)
+--tileable makes opposite edges match (material.json: seam error before and after). A
+folder that holds another photo's material is refused before any work; the same photo's
+is replaced. DIR/summary.json holds, per photo, the status, notes, the re-rendering RMSE
+against the photo (linear) of the maps written and the flash, with refinement the budget,
+steps, seconds and the RMSE of the network's and the refined maps; and the median RMSE.""",
+    """Refused photos (each reported on its own line, the others still done): missing, folders,
+not an image, neither JPEG nor PNG, under {min_side} px on the short side, over {megapixels} megapixels,
+grey, translucent alpha, a crop that does not fit. Processed with a note: EXIF rotation,
+16-bit PNG, opaque alpha, palette or CMYK, grey saved as RGB, clipped highlights, a square
+smaller than the model's resolution.""",
+    """stdout: the folder of each photo captured; stderr: progress, notes, errors, a summary table.
+Exit status: 0 every photo captured; 1 some photos failed, others were captured; 2 every
+photo failed, or bad arguments (no model, unreadable model, bad option, -o not writable);
+3 a file could not be written (disk full...): the photos after it are not done; 130
+interrupted (Ctrl-C or SIGTERM): the photo in progress is not written; summary.json lists the
+photos done before it.
+Every file is written whole or not at all (summary.json too).""",
+)
+
+
+def help_text(refine: int, *, click: bool = False) -> str:
+    """:data:`HELP_SECTIONS` filled in; ``click``: each paragraph kept as written (``\\b``)."""
+    from svbrdf_render import MIN_REFINE_SIDE
+
+    from .one import MAX_PIXELS, MIN_SIDE
+    from .refining import DEFAULT_MAP_SIZE
+
+    limits = {"min_refine": MIN_REFINE_SIDE, "min_side": MIN_SIDE, "megapixels": MAX_PIXELS // 1_000_000,
+              "map_size": DEFAULT_MAP_SIZE}  # fmt: skip
+    parts = [p.format(refine=refine, **limits) for p in HELP_SECTIONS]
+    return "\n\n".join(f"\b\n{p}" if click else p for p in parts)
+
+
+def pick_device(name: str, local_rank: int = 0) -> torch.device:
+    """``auto`` (CUDA when there is one), ``cpu``, ``cuda`` or ``cuda:K``; ``cuda`` takes the GPU
+    of ``local_rank`` (under torchrun). A device this machine lacks is a :class:`DataError`."""
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cuda" or re.fullmatch(r"cuda:[0-9]+", name):
+        if not torch.cuda.is_available():
+            raise DataError(f"--device {name}: this torch sees no CUDA GPU; use --device cpu")
+        count = torch.cuda.device_count()
+        if name == "cuda":
+            name = f"cuda:{local_rank % count}"
+        elif int(name[5:]) >= count:
+            raise DataError(f"--device {name}: this machine has {count} GPU(s), cuda:0 to cuda:{count - 1}")
+    elif name != "cpu":
+        raise DataError(f"--device {name!r}: expected auto, cpu, cuda or cuda:K")
+    return torch.device(name)
+
+
+class ProgressBar:
+    """``callback(step, total, loss)`` drawing one line on ``stream`` with ``\\r`` updates:
+    ``NAME: refining  37/100 [#######.............] 1.2 s loss 0.0812``.
+
+    Silent when ``enabled`` is false (by default: when ``stream`` is not a terminal, so logs and
+    pipes get no control characters; ``enabled=True`` there prints whole lines). :meth:`close`
+    ends the line. At most ~10 redraws a second,
+    and always the last step. Drawn by :class:`svbrdf_models.progress.StatusLine`, the display a
+    fit's progress uses too.
+    """
+
+    #: Said at the end of every progress line when the machine is busy (set by ``predict``
+    #: from :func:`svbrdf_render.machine.choose_threads`): why the refinement is slower.
+    busy_note = ""
+
+    def __init__(self, name: str, stream=None, enabled: bool | None = None, width: int = 20):
+        from ..progress import StatusLine
+
+        # enabled=True off a terminal: a whole line per redraw (no \r in a file)
+        self.line = StatusLine(stream, enabled=enabled is not False, file_every_s=0.1 if enabled else None)
+        self.stream = self.line.stream
+        self.enabled = self.line.enabled
+        self.name = name
+        self.width = width
+        self.start = time.perf_counter()
+
+    def __call__(self, step: int, total: int, loss: float) -> None:
+        if not self.line.due(force=step >= total):
+            return
+        filled = round(self.width * step / max(total, 1))
+        bar = "#" * filled + "." * (self.width - filled)
+        digits = len(str(total))
+        seconds = time.perf_counter() - self.start
+        self.line.show(
+            f"{self.name}: refining {step:>{digits}}/{total} [{bar}] {seconds:.1f} s loss {loss:.4f}"
+            + self.busy_note,
+            force=True,
+        )
+
+    def close(self) -> None:
+        self.line.close()
+
+
+def set_threads(requested: int | None):
+    """Choose and set the torch threads (:func:`svbrdf_render.machine.choose_threads`: one per
+    free core unless ``requested``); say so on stderr, and at the end of every progress line
+    when the machine is busy. Returns the :class:`~svbrdf_render.machine.ThreadChoice`."""
+    from svbrdf_render.machine import choose_threads
+
+    choice = choose_threads(requested)
+    print(choice.describe(), file=sys.stderr)
+    plural = "s" if choice.threads > 1 else ""
+    ProgressBar.busy_note = f" (busy machine: {choice.threads} thread{plural})" if choice.busy else ""
+    return choice
+
+
+def load_scene(path):
+    """A scene file for refinement, refused (one line naming it) when it is not one camera and
+    one view (the shapes :func:`svbrdf_render.refine_maps` takes for one photo)."""
+    from svbrdf_render import Scene, SceneError, SVBRDFError
+
+    from .refining import check_scene
+
+    scene = Scene.load(path)  # a SceneError naming the file when it cannot be read or parsed
+    try:
+        return check_scene(scene)
+    except SVBRDFError as e:
+        raise SceneError(f"--scene {path}: {e}") from None
+
+
+def folder_name(path: Path, used: set[str]) -> str:
+    """The photo's stem as the name of one folder inside ``-o``, numbered (``NAME-2``, ...) when
+    an earlier photo of the batch took it. Leading dots and spaces go (``...png`` would name
+    ``..``, the folder above ``-o``; ``..png`` would name ``.``, ``-o`` itself; ``.x.png`` a
+    hidden folder), and a stem left empty becomes ``photo``: a folder made from a photo's name
+    never leaves ``-o``."""
+    stem = path.stem.lstrip(". ").rstrip(" ") or "photo"
+    name, k = stem, 1
+    while name in used:
+        k += 1
+        name = f"{stem}-{k}"
+    return name
+
+
+def check_material_folders(photos, out: Path) -> None:
+    """Before any work: refuse (:class:`DataError`) when the folder a photo would be captured
+    into holds another material (:func:`svbrdf_models.capture.material.check_material_folder`)."""
+    from .material import check_material_folder
+
+    used: set[str] = set()
+    for path in map(Path, photos):
+        if path.is_file():
+            name = folder_name(path, used)
+            used.add(name)
+            check_material_folder(Path(out) / name, path)
+
+
+def capture_batch(predictor, photos, out: Path, options, *, prog: str, summary: dict) -> int:
+    """Capture each photo into ``out/NAME``, write ``out/summary.json`` (with ``summary``'s
+    fields), print the table; the exit status (see the module)."""
+    from svbrdf_render.formats.files import sigterm_as_interrupt
+
+    from .one import write_summary
+
+    out = Path(out)
+    with sigterm_as_interrupt():  # SIGTERM (kill, a scheduler) stops the batch as Ctrl-C does
+        entries, stopped = _capture_all(predictor, photos, out, options, prog)
+    if stopped == INTERRUPTED:
+        if entries:  # the photos done before the stop keep their summary
+            write_summary(out / "summary.json", entries, **summary, interrupted=True)
+        return INTERRUPTED
+
+    result = write_summary(out / "summary.json", entries, **summary)
+    err = sys.stderr
+    print(_table(entries, result), file=err, end="", flush=True)
+    if stopped is not None:
+        left = len(photos) - len(entries)
+        print(f"stopped: a file could not be written; {left} photo(s) after it not done", file=err)
+        return stopped.exit_code
+    failed = result["failed"]
+    if failed:
+        print(f"{failed} of {len(photos)} photo(s) failed", file=err)
+        return 2 if failed == len(photos) else 1
+    return 0
+
+
+def _capture_all(predictor, photos, out: Path, options, prog: str):
+    """Capture each photo into its own folder of ``out``; the summary entries, and what stopped the
+    batch (None: every photo was tried; an OutputError; or INTERRUPTED). A photo that fails is
+    reported and skipped; a file that cannot be written stops the photos after it. An interrupt
+    (Ctrl-C, or SIGTERM under :func:`~svbrdf_render.formats.files.sigterm_as_interrupt`) is caught
+    wherever it lands, between photos too: the entries of the photos done are kept."""
+    entries: list[dict] = []
+    now: dict = {}  # the photo in progress and its bar, for an interrupt wherever it lands
+    try:
+        return entries, _capture_each(predictor, photos, out, options, prog, entries, now)
+    except KeyboardInterrupt:
+        if "bar" in now:
+            now["bar"].close()
+        done = f"summary.json of the {len(entries)} before it" if entries else "no photo before it"
+        what = f"{now['path']} not written" if "path" in now else "stopped"
+        print(f"{prog}: interrupted: {what} ({done})", file=sys.stderr)
+        return entries, INTERRUPTED
+
+
+def _capture_each(predictor, photos, out: Path, options, prog: str, entries: list, now: dict):
+    """The loop of :func:`_capture_all`: ``entries`` grows as photos are done, ``now`` names the
+    photo in progress; what stopped the batch (None, or the OutputError of a failed write)."""
+    from svbrdf_render import SVBRDFError
+    from svbrdf_render.errors import OutputError
+
+    from .one import capture_one
+
+    used: set[str] = set()
+    for path in map(Path, photos):
+        now.clear()
+        now["path"] = path
+        name = folder_name(path, used)
+        _announce_cost(path, options, prog)
+        bar = now["bar"] = ProgressBar(path.name)
+        try:
+            entry = capture_one(predictor, path, out / name, options, progress=bar)
+        except OutputError as e:  # the disk, not the photo: the photos after it would fail alike
+            bar.close()
+            print(f"{prog}: error: {e}", file=sys.stderr)
+            entries.append({"photo": str(path), "status": "failed", "error": str(e)})
+            return e
+        except (SVBRDFError, OSError, RuntimeError) as e:  # RuntimeError: out of memory, a broken model
+            bar.close()
+            what = str(e) if isinstance(e, (SVBRDFError, OSError)) else f"{type(e).__name__}: {e}"
+            text = what if what.startswith(str(path)) else f"{path}: {what}"
+            print(f"{prog}: error: {text}", file=sys.stderr)
+            entries.append({"photo": str(path), "status": "failed", "error": text})
+            continue
+        bar.close()
+        used.add(name)
+        for note in entry["notes"]:
+            print(f"{prog}: note: {path}: {note}", file=sys.stderr)
+        entries.append({"name": name, **entry})
+        print(str(out / name), flush=True)
+    now.clear()
+    return None
+
+
+def _announce_cost(path: Path, options, prog: str) -> None:
+    """Before a long refinement: about how long and how much memory it takes (from the file's
+    header; said when over 10 s or 1 GB)."""
+    from .photos import square_side
+    from .refining import refine_cost, refine_map_size
+
+    side = square_side(path, options.crop) if options.refine and not options.tiles else None
+    if side is None:
+        return
+    size = refine_map_size(side, options.map_size)
+    seconds, memory = refine_cost(size, options.refine)
+    if seconds >= 10 or memory >= 2**30:
+        print(
+            f"{prog}: {path.name}: refining {size} px maps for {options.refine} steps: about "
+            f"{seconds:.0f} s on 2 cores and {memory / 2**30:.1f} GB",
+            file=sys.stderr,
+            flush=True,
+        )
+
+
+def _table(entries: list[dict], summary: dict) -> str:
+    """The summary table: one line per photo, then the median. With refinement, the network's
+    RMSE, the refined one (under the same scene) and the steps and seconds taken."""
+    names = [Path(e["photo"]).name for e in entries]
+    width = max(len("photo"), *(len(n) for n in names))
+    refined = any(e.get("refine") for e in entries)
+    extra = f"  {'network':>7}  {'steps':>5}  {'seconds':>7}" if refined else ""
+    lines = [
+        f"{'photo':<{width}}  status  {'rmse':>7}{extra}  {'flash x, y, z':>21}  {'intensity':>9}  notes"
+    ]
+    for name, e in zip(names, entries, strict=True):
+        if e["status"] != "ok":
+            dash = f"  {'-':>7}  {'-':>5}  {'-':>7}" if refined else ""
+            lines.append(f"{name:<{width}}  failed  {'-':>7}{dash}  {'-':>21}  {'-':>9}")
+            continue
+        rmse = _number(e["rmse"], ".4f")
+        more = ""
+        if refined:
+            r = e.get("refine") or {}
+            more = (
+                f"  {_number(r.get('rmse_network'), '.4f'):>7}  {r.get('steps', 0):>5}  "
+                f"{_number(r.get('seconds'), '.1f'):>7}"
+            )
+        pos = ", ".join(_number(v, "+.2f") for v in e["flash"]["position"])
+        k = _number(e["flash"]["intensity"], "9.3g")
+        lines.append(f"{name:<{width}}  ok      {rmse:>7}{more}  {pos:>21}  {k:>9}  {len(e['notes'])}")
+    median = summary["median_rmse"]
+    lines.append(
+        f"median re-rendering RMSE over {summary['captured']} photo(s): "
+        + ("-" if median is None else f"{median:.4f}")
+        + " (how well the maps explain these photos, not how right they are)"
+    )
+    return "\n".join(lines) + "\n"
+
+
+def _number(value, spec: str) -> str:
+    return "nan" if value is None else format(value, spec)

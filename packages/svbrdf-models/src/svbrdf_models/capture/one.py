@@ -1,0 +1,497 @@
+"""Capture: from a real flash photo to maps a material artist can use.
+
+The pieces of ``svbrdf-models predict`` (and ``svbrdf-train predict``), each usable alone::
+
+    photo, notes = load_photo("shot.jpg")              # EXIF-oriented, centre square, linear
+    svbrdf = model.predict(photo)                       # maps at the model's resolution
+    svbrdf = model.predict(photo, refine=100)           # refined at the square's own resolution
+    svbrdf = tile_predict(model.predict, photo, model.resolution)  # or tiles at full size
+    fit = flash_consistency(svbrdf, photo)              # re-render under the fitted flash
+    entry = capture_one(model, "shot.jpg", "maps/shot", CaptureOptions(refine=100))  # all, written
+
+It needs svbrdf-render and this package only (Pillow through ``svbrdf-models[photo]``, which is
+``svbrdf-render[io]``): no training code, no tracking.
+
+The steps live in modules of their own, re-exported here: reading and judging photos
+(:mod:`svbrdf_models.capture.photos`: what is refused, what is noted), tiles and their memory cost
+(:mod:`svbrdf_models.capture.tiles`), the flash fit and the relit preview (:mod:`svbrdf_models.capture.relight`).
+This module runs them for one photo (:func:`capture_one`: with refinement, maps asked smaller
+than :data:`svbrdf_render.MIN_REFINE_SIDE` are refused; a square smaller than the model's
+resolution is noted, upsampled) and writes the batch's ``summary.json`` (:func:`write_summary`).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from svbrdf_render import MAP_NAMES, MIN_REFINE_SIDE, SVBRDF, Refinement, Scene, linear_to_srgb
+from svbrdf_render.formats.files import locked, write_text
+
+from ..errors import DataError
+from .figures import HEAT_MAX, error_heatmap, image_grid
+from .material import to_directx
+from .photos import MAX_PIXELS, MIN_SIDE, PhotoError, load_photo, orient, square
+from .reference import Reference
+from .refining import (
+    BACKEND,
+    FULL,
+    check_refine,
+    check_refine_memory,
+    pick_backend,
+    refine_cost,
+    refine_map_size,
+    refine_prediction,
+    rerender,
+    rerender_rmse,
+)
+from .relight import (  # noqa: F401 - RELIT_*, _relight_raw: re-exported, where they were
+    FLASH_FIT,
+    RELIT_FRAMES,
+    RELIT_SIZE,
+    _relight_raw,
+    _relit_grid,
+    _relit_versions,
+    flash_consistency,
+    relight_frames,
+)
+from .tiles import (  # noqa: F401 - TILED_*: re-exported, where they were
+    TILED_BYTES_PER_PIXEL,
+    TILED_FIXED_BYTES,
+    available_memory,
+    check_tiled_memory,
+    tile_count,
+    tile_predict,
+    tiled_capture_bytes,
+)
+
+__all__ = [
+    "ALBEDO_ENCODINGS",
+    "CaptureOptions",
+    "FLASH_FIT",
+    "HEAT_MAX",
+    "MAX_PIXELS",
+    "MIN_SIDE",
+    "MIN_TILEABLE_PHOTO",
+    "NORMAL_ALIASES",
+    "NORMAL_CONVENTIONS",
+    "PhotoError",
+    "RELIT_FORMATS",
+    "capture_one",
+    "available_memory",
+    "check_tiled_memory",
+    "tiled_capture_bytes",
+    "error_heatmap",
+    "flash_consistency",
+    "load_photo",
+    "orient",
+    "relight_frames",
+    "square",
+    "tile_count",
+    "tile_predict",
+    "to_directx",
+    "write_summary",
+]
+
+#: ``--normal-convention`` values: OpenGL (y up, the project's own) or DirectX (y down).
+NORMAL_CONVENTIONS = ("opengl", "directx")
+#: The smallest square (photo pixels) ``--tileable`` takes: the blend bands of
+#: :func:`svbrdf_render.make_tileable` cover a quarter of the side at each border, and the part
+#: they leave as it was must itself hold MIN_TILEABLE_SIDE (64) pixels of real detail.
+MIN_TILEABLE_PHOTO = 128
+
+#: Short names of the normal conventions.
+NORMAL_ALIASES = {"gl": "opengl", "dx": "directx"}
+#: ``--relit`` values: an animated GIF, a PNG grid of the frames, or no preview.
+RELIT_FORMATS = ("gif", "png", "none")
+#: How diffuse.png and specular.png store the albedos: linear (Des18) or sRGB (texture tools).
+ALBEDO_ENCODINGS = ("linear", "srgb")
+
+
+def _resample(photo: Tensor, size: int) -> Tensor:
+    if photo.shape[-1] == size:
+        return photo
+    return F.interpolate(
+        photo[None], size=(size, size), mode="bilinear", align_corners=False, antialias=True
+    )[0]
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(float(x)) else None
+
+
+# -- one photo, end to end -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class CaptureOptions:
+    """How :func:`capture_one` reads a photo and what it writes.
+
+    Attributes:
+        linear: the file holds linear values (default: sRGB-encoded, as cameras save).
+        crop: ``(x, y, size)`` in pixels of the oriented photo, or None for the centred square.
+        tiles: predict at high resolution from overlapping tiles of the model's resolution.
+        map_size: with ``tiles`` or ``refine``, the side of the maps, or ``"full"``: the
+            square's own (default: the square's own with tiles; with refinement the square's
+            own up to :data:`~svbrdf_models.capture.refining.DEFAULT_MAP_SIZE`, 1024 px).
+        bits: 8 or 16, the maps' and input.png's PNG depth.
+        normal_convention: ``"opengl"`` or ``"directx"`` (green channel flipped); ``"gl"`` and
+            ``"dx"`` are read as those.
+        relit: ``"gif"``, ``"png"`` or ``"none"``.
+        albedo_encoding: how diffuse.png and specular.png store values: ``"srgb"`` (default,
+            what colour inputs of texture tools such as Blender and Substance expect) or
+            ``"linear"`` (Des18's convention, for research). basecolor.png is always sRGB.
+        exr: also write the maps as OpenEXR (linear half floats).
+        tileable: make the maps' opposite edges match (:func:`svbrdf_render.tiling.make_tileable`).
+        refine: refinement steps after the network (0: the network's maps only).
+        refine_seconds: with ``refine``, stop refining a photo after this many seconds.
+        scene: with ``refine``, the capture's scene (default: the flash found from the maps).
+        backend: with ``refine``, the renderer's backend (``"auto"``, ``"eager"`` or ``"compiled"``).
+        reference: a region of known albedo (:class:`svbrdf_models.capture.reference.Reference`) that
+            pins the diffuse albedo's level, before any refinement.
+    """
+
+    linear: bool = False
+    crop: tuple[int, int, int] | None = None
+    tiles: bool = False
+    map_size: int | str | None = None
+    bits: int = 8
+    normal_convention: str = "opengl"
+    relit: str = "gif"
+    albedo_encoding: str = "srgb"
+    exr: bool = False
+    tileable: bool = False
+    refine: int = 0
+    refine_seconds: float | None = None
+    scene: Scene | None = None
+    backend: str = BACKEND
+    reference: Reference | None = None
+
+    def __post_init__(self):
+        convention = NORMAL_ALIASES.get(self.normal_convention, self.normal_convention)
+        object.__setattr__(self, "normal_convention", convention)
+        if self.albedo_encoding not in ALBEDO_ENCODINGS:
+            raise DataError(
+                f"albedo encoding must be one of {ALBEDO_ENCODINGS}, got {self.albedo_encoding!r}"
+            )
+        if self.normal_convention not in NORMAL_CONVENTIONS:
+            raise DataError(
+                f"normal convention must be one of {NORMAL_CONVENTIONS}, got {self.normal_convention!r}"
+            )
+        if self.relit not in RELIT_FORMATS:
+            raise DataError(f"relit preview must be one of {RELIT_FORMATS}, got {self.relit!r}")
+        if self.bits not in (8, 16):
+            raise DataError(f"bits must be 8 or 16, got {self.bits}")
+        if self.exr and importlib.util.find_spec("OpenEXR") is None:
+            raise DataError("--exr needs the OpenEXR package: pip install 'svbrdf-render[exr]'")
+        self._check_refine()
+
+    def _check_refine(self) -> None:
+        check_refine(self.refine, self.refine_seconds)
+        if self.map_size is not None and not (self.tiles or self.refine):
+            raise DataError("map size is for tiled or refined capture: give tiles=True (--tiles) with it")
+        if self.map_size is not None and self.map_size != FULL and not isinstance(self.map_size, int):
+            raise DataError(f"map size must be a number of pixels or 'full', got {self.map_size!r}")
+        if self.refine and isinstance(self.map_size, int) and self.map_size < MIN_REFINE_SIDE:
+            raise DataError(
+                f"map size (--map-size) {self.map_size} is smaller than {MIN_REFINE_SIDE} px: too few "
+                "pixels to refine"
+            )
+        if not self.refine and (self.refine_seconds is not None or self.scene is not None):
+            raise DataError(
+                "refine seconds and scene (--refine-seconds, --scene) are for refined capture: give "
+                "refine > 0 (--refine STEPS) with them"
+            )
+
+
+@dataclass(frozen=True)
+class _Judged:
+    """What a capture shows and records: the maps to write, the figures and the entry's figures."""
+
+    svbrdf: SVBRDF
+    figure: Tensor
+    frames: Tensor | None  # (V, n, 3, H, W): one set of relit frames per version
+    versions: list[str]
+    entry: dict
+
+
+def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None, *, progress=None) -> dict:
+    """Capture one photo into the material folder ``out_dir``; returns its summary entry
+    (``status`` ``"ok"``).
+
+    ``predictor`` has ``resolution`` and ``predict(photo)`` (a :class:`~svbrdf_models.TrainedModel`,
+    or svbrdf-train's ``Predictor``; its ``predict_batch(photos)`` is used for tiles when it has
+    one). Writes the maps (metal/rough and the project's own), material.json, material.gltf,
+    material.mtlx, index.html, input.png (the square the maps are of, sRGB), rerender.png (photo
+    | re-rendering | error heat map; with refinement the network's and the refined maps side by
+    side) and relit.gif or relit.png: see :mod:`svbrdf_models.capture.material`. ``progress(step, total,
+    loss)`` follows the refinement. A photo that cannot be used, or a folder that holds another
+    material, raises before any work; an interrupt or an error leaves ``out_dir`` as it was (the
+    folder is staged and moved in whole).
+    """
+    from .material import MaterialContent, check_material_folder, write_material
+
+    options = options or CaptureOptions()
+    path, out_dir = Path(path), Path(out_dir)
+    check_material_folder(out_dir, path)
+    photo, notes = load_photo(path, linear=options.linear, crop=options.crop)
+    side = photo.shape[-1]
+    if options.tileable and side < MIN_TILEABLE_PHOTO:
+        raise PhotoError(
+            path,
+            f"the square is {side} px; --tileable needs at least {MIN_TILEABLE_PHOTO} px of photo",
+            "give a larger photo or --crop, or leave out --tileable",
+        )
+    photo, svbrdf, tiles = _predict_square(predictor, photo, options, notes, path)
+    svbrdf, reference = _pin_reference(svbrdf, photo, options, path)
+    if options.refine:  # on the model's device, where the network ran
+        device = getattr(predictor, "device", torch.device("cpu"))
+        judged = _judge_refined(photo, svbrdf, options, progress, device)
+    else:
+        judged = _judge_network(photo, svbrdf, options)
+    svbrdf, frames, tileable = judged.svbrdf, judged.frames, None
+    if options.tileable:
+        svbrdf, tileable = _tileable(svbrdf)
+        if options.relit != "none":  # the preview shows the maps written
+            frames = torch.cat([frames[:-1], _relit_versions([svbrdf])])
+    relit = None
+    if options.relit == "png":
+        relit = _relit_grid(frames, judged.versions if len(judged.versions) > 1 else None)
+    elif options.relit == "gif":
+        relit = frames[-1]
+    entry = {
+        "photo": str(path),
+        "folder": str(out_dir),
+        "status": "ok",
+        "notes": notes,
+        "square": side,
+        "maps": int(svbrdf.size[0]),
+        "tiles": tiles,
+        **judged.entry,
+        "tileable": tileable,
+        "reference": reference,
+    }
+    record = _material_record(predictor, path, options, entry)
+    write_material(out_dir, svbrdf, MaterialContent(photo, judged.figure, relit, record), options)
+    return entry
+
+
+def _pin_reference(svbrdf: SVBRDF, photo: Tensor, options: CaptureOptions, path: Path) -> tuple[SVBRDF, dict | None]:
+    """The maps with the albedo level of ``options.reference`` (a card of known albedo), and
+    its record; the maps as they are without one."""
+    if options.reference is None:
+        return svbrdf, None
+    from .photos import square_box
+    from .reference import pin_albedo
+
+    return pin_albedo(svbrdf, photo, options.reference, square_box(path, options.crop), str(path))
+
+
+def _tileable(svbrdf: SVBRDF) -> tuple[SVBRDF, dict]:
+    """The maps made tileable, and their seam errors before and after (median over channels)."""
+    from svbrdf_render.tiling import make_tileable, seam_error
+
+    def seams(m: SVBRDF) -> dict:
+        return {name: round(float(seam_error(getattr(m, name))[0]), 3) for name in MAP_NAMES}
+
+    before = seams(svbrdf)
+    tiled = make_tileable(svbrdf)
+    return tiled, {"seam_error_before": before, "seam_error_after": seams(tiled)}
+
+
+def _material_record(predictor, path: Path, options: CaptureOptions, entry: dict) -> dict:
+    """material.json's fields that the capture knows: photo, model, refinement, provenance."""
+    from .material import photo_sha256, provenance
+
+    model = {key: getattr(predictor, key, None) for key in ("source", "sha256", "resolution")}
+    model["steps"] = getattr(predictor, "steps", getattr(predictor, "step", None))
+    return {
+        "name": path.stem,
+        "photo": {"file": path.name, "sha256": photo_sha256(path), "square": entry["square"],
+                  "crop": list(options.crop) if options.crop else None,
+                  "encoding": "linear" if options.linear else "srgb"},  # fmt: skip
+        "model": {k: (str(v) if k == "source" and v is not None else v) for k, v in model.items()},
+        "maps_size": entry["maps"],
+        "tiles": entry["tiles"],
+        "rerender_rmse": entry["rmse"],
+        "flash": entry["flash"],
+        "refine": entry["refine"] or {"budget": 0},
+        "tileable": entry["tileable"],
+        "reference": entry.get("reference"),
+        "provenance": provenance(),
+    }
+
+
+def _judge_network(photo: Tensor, svbrdf: SVBRDF, options: CaptureOptions) -> _Judged:
+    """The network's maps judged under the flash fitted to them."""
+    fit = flash_consistency(svbrdf, photo)
+    rmse = float(fit.rmse[0])
+    figure = _rerender_figure(photo, [fit.rendering[0]], [rmse], ["re-rendering"])
+    frames = _relit_versions([svbrdf]) if options.relit != "none" else None
+    entry = {
+        "rmse": _finite(rmse),
+        "flash": {
+            "position": [_finite(v) for v in fit.position[0].tolist()],
+            "intensity": _finite(fit.intensity[0]),
+        },
+        "refine": None,
+    }
+    return _Judged(svbrdf, figure, frames, ["network"], entry)
+
+
+def _judge_refined(photo: Tensor, network: SVBRDF, options: CaptureOptions, progress, device) -> _Judged:
+    """The network's maps refined against ``photo`` on ``device``; both judged under the
+    refinement's scene."""
+    result: Refinement = refine_prediction(
+        photo[None],
+        network.to(device),
+        options.refine,
+        seconds=options.refine_seconds,
+        scene=options.scene,
+        callback=progress,
+        backend=options.backend,
+    )
+    size = tuple(photo.shape[-2:])
+    renderings = [rerender(network, result.scene, size)[0], rerender(result.svbrdf, result.scene)[0]]
+    rmse = [float(rerender_rmse(r[None], photo)[0]) for r in renderings]
+    versions = ["network", "refined"]
+    figure = _rerender_figure(photo, renderings, rmse, versions)
+    frames = _relit_versions([network, result.svbrdf]) if options.relit != "none" else None
+    light = result.scene.point_lights[0]
+    entry = {
+        "rmse": _finite(rmse[1]),
+        "flash": {
+            "position": [_finite(v) for v in light.position.reshape(-1, 3)[0].tolist()],
+            "intensity": _finite(light.intensity.reshape(-1)[0]),
+        },
+        "refine": {
+            "budget": options.refine,
+            "seconds_budget": options.refine_seconds,
+            "steps": int(result.steps),
+            "seconds": round(float(result.seconds), 3),
+            "backend": pick_backend(options.backend, *size),
+            "rmse_network": _finite(rmse[0]),
+            "rmse_refined": _finite(rmse[1]),
+        },
+    }
+    return _Judged(result.svbrdf, figure, frames, versions, entry)
+
+
+def _predict_square(predictor, photo: Tensor, options: CaptureOptions, notes: list[str], path):
+    """The photo's square brought to the size the maps are made at, the network's maps, and the
+    tiles used (0: not tiled; 1: one tile). A square smaller than the model's resolution is
+    noted (upsampled). With refinement the maps are made at ``map_size`` or the square's side."""
+    res = int(predictor.resolution)
+    side = photo.shape[-1]
+    if not options.tiles:
+        if side < res:
+            soft = "the network sees it softened" if options.refine else "the maps will be soft"
+            notes.append(f"the square ({side} px) is upsampled to the model's {res} px: {soft}")
+        svbrdf = predictor.predict(_resample(photo, res))
+        size = refine_map_size(side, options.map_size) if options.refine else res
+        _check_refine_size(size, options, path)
+        if options.refine and options.map_size is None and size < side:
+            notes.append(
+                f"refined at {size} px, the default bound, of the {side} px square (--map-size full "
+                f"refines all of it: about {refine_cost(side, options.refine)[1] / 2**30:.1f} GB)"
+            )
+        return _resample(photo, size), svbrdf, 0
+    size = side if options.map_size in (None, FULL) else options.map_size
+    if size < res:
+        notes.append(f"the square ({size} px) is smaller than a tile ({res} px): predicted as one tile")
+        size = res
+    check_tiled_memory(size, f"{path}: --tiles")
+    photo = _resample(photo, size)
+    tiles = tile_count(size, res)
+    batch_fn = getattr(predictor, "predict_batch", predictor.predict)
+    svbrdf = tile_predict(batch_fn, photo, res) if tiles > 1 else predictor.predict(photo)
+    return photo, svbrdf, tiles
+
+
+def _check_refine_size(size: int, options: CaptureOptions, path) -> None:
+    if options.refine and size < MIN_REFINE_SIDE:
+        raise PhotoError(
+            path,
+            f"the maps would be {size} px, smaller than {MIN_REFINE_SIDE}: too few pixels to refine",
+            "give a larger photo or --map-size, or --refine 0",
+        )
+    if options.refine:
+        check_refine_memory(size, options.refine, str(path))
+
+
+def _rerender_figure(photo: Tensor, renderings: list[Tensor], rmse: list[float], names: list[str]) -> Tensor:
+    """rerender.png: the photo, its re-rendering by each version of the maps, and their error
+    heat maps; the row's label gives the RMSE of each (network first)."""
+    shown = [linear_to_srgb(photo), *(linear_to_srgb(r) for r in renderings)]
+    shown += [error_heatmap(photo, r) for r in renderings]
+    scale = f"|error| 0-{HEAT_MAX:g}"
+    if len(names) == 1:
+        columns = ["photo", names[0], scale]
+    else:
+        columns = ["photo", *(f"{n} re-rendering" for n in names), *(f"{n} {scale}" for n in names)]
+    label = "RMSE " + " -> ".join(f"{r:.4f}" for r in rmse)
+    return image_grid([shown], columns, [label])
+
+
+def write_summary(path, entries: list[dict], **extra) -> dict:
+    """``summary.json``: the entries, the median RMSE over the photos captured, and ``extra``.
+
+    An earlier ``summary.json`` in the folder (another run into the same ``-o``, or a run
+    stopped by Ctrl-C) keeps its entries of other photos: entries are merged by material folder
+    (by photo for failed ones), this run's replacing the earlier run's of the same photo. The
+    read and the write are one step under a lock of the folder, so two runs lose no entry."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with locked(path.parent):
+        return _write_summary(path, _merged(_earlier_entries(path), entries), extra)
+
+
+def _entry_key(entry: dict) -> str:
+    return f"folder:{entry['name']}" if entry.get("name") else f"photo:{entry.get('photo')}"
+
+
+def _earlier_entries(path: Path) -> list[dict]:
+    """The entries of an earlier summary.json at ``path`` (none when missing or unreadable)."""
+    try:
+        earlier = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return []
+    entries = earlier.get("entries") if isinstance(earlier, dict) else None
+    return [e for e in entries if isinstance(e, dict)] if isinstance(entries, list) else []
+
+
+def _merged(earlier: list[dict], entries: list[dict]) -> list[dict]:
+    new = {_entry_key(e) for e in entries}
+    return [e for e in earlier if _entry_key(e) not in new] + list(entries)
+
+
+#: What the re-rendering RMSE of summary.json and of the printed table says, and what not.
+RMSE_MEANS = (
+    "how well the maps explain this one photo under the flash found for it, not how right they "
+    "are: maps that bake the photo into the diffuse score near 0 and look wrong under any other "
+    "light; a highlight stamped into the maps is measured by benchmarks/real_photos.py"
+)
+
+
+def _write_summary(path: Path, entries: list[dict], extra: dict) -> dict:
+    import statistics
+
+    values = [e["rmse"] for e in entries if e.get("status") == "ok" and e.get("rmse") is not None]
+    summary = {
+        **extra,
+        "photos": len(entries),
+        "captured": sum(e.get("status") == "ok" for e in entries),
+        "failed": sum(e.get("status") != "ok" for e in entries),
+        "median_rmse": statistics.median(values) if values else None,
+        "rmse_means": RMSE_MEANS,
+        "entries": entries,
+    }
+    write_text(path, json.dumps(summary, indent=2) + "\n")  # atomic: never a 0-byte summary
+    return summary

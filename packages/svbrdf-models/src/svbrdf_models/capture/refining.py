@@ -1,0 +1,244 @@
+"""A network's maps refined against their photo (inverse rendering), and how well each explains it.
+
+The network sees the photo at its training resolution; :func:`refine_prediction` then runs
+:func:`svbrdf_render.refine_maps` at the photo's own resolution, starting from the network's
+maps and pulled toward them (start = prior = the network's maps, without their 2-pixel
+pattern and without the flash's ring around the photo's highlight: :func:`svbrdf_render.refinement.rings.dering`)::
+
+    from svbrdf_models.capture.refining import refine_prediction, rerender, rerender_rmse
+    result = refine_prediction(photo, network_maps, 100)      # a svbrdf_render.Refinement
+    rmse = rerender_rmse(rerender(result.svbrdf, result.scene), photo)   # (B,)
+
+:meth:`svbrdf_models.TrainedModel.predict` (``refine=STEPS``) and the photo tool
+(:mod:`svbrdf_models.capture.one`, ``--refine``) both go through it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+from collections.abc import Callable
+
+import torch
+from torch import Tensor
+
+from svbrdf_render import BACKENDS as RENDER_BACKENDS
+from svbrdf_render import MIN_REFINE_SIDE, SVBRDF, Refinement, Scene, refine_maps, refine_start, render
+from svbrdf_render.compare import per_sample_rmse
+from svbrdf_render.refinement.fit import axis_flash
+from svbrdf_render.refinement.rings import dering, highlight_point
+
+from ..errors import DataError
+
+__all__ = [
+    "without_checkerboard",
+    "BACKEND",
+    "BACKENDS",
+    "COMPILE_PIXELS",
+    "pick_backend",
+    "DEFAULT_MAP_SIZE",
+    "FULL",
+    "check_refine_memory",
+    "refine_cost",
+    "refine_map_size",
+    "check_refine", "check_scene", "refine_prediction", "rerender", "rerender_rmse"]
+
+#: The renderer backend the photo tools refine with. ``"auto"``: ``compiled`` for photos of at
+#: least :data:`COMPILE_PIXELS` pixels, ``eager`` below. Measured on 2 CPU cores, 100 steps
+#: (``benchmarks/refine_speed.py``): 256 px eager 1.5 s, compiled 1.2 s after a compile of about
+#: 4 s (warm cache; ~20 s cold); 1024 px eager 27 s, compiled 19 s.
+BACKEND = "auto"
+#: Photos with at least this many pixels are refined with the compiled renderer under ``"auto"``.
+COMPILE_PIXELS = 512 * 512
+#: What ``--backend`` takes.
+BACKENDS = ("auto", *RENDER_BACKENDS)
+
+
+#: The side refined maps are made at when the photo's square is larger (``--map-size`` sets
+#: another, ``--map-size full`` the square's own). A refinement holds about
+#: :data:`REFINE_BYTES_PER_PIXEL` a pixel and its time grows with the pixels: at 1024 px about
+#: 1.5 GB and 25 s for the default 100 steps on 2 CPU cores, where a 12-megapixel phone photo's
+#: 3000 px square would need 13 GB and minutes. 1024 px is more detail than the network's
+#: 128 px gives and what texture tools commonly take.
+DEFAULT_MAP_SIZE = 1024
+#: ``--map-size full``: refine at the photo's square's own side.
+FULL = "full"
+#: Peak memory of a refinement per pixel of its maps (measured on the CPU, eager renderer:
+#: 1.2-1.4 KB from 512 to 1024 px, plus the model and the photo), and its time per pixel and
+#: step on 2 idle CPU cores (256 px 1.5 s, 1024 px 19-27 s for 100 steps:
+#: ``benchmarks/refine_speed.py``). Estimates, to warn and refuse, not to promise.
+REFINE_BYTES_PER_PIXEL = 1400
+REFINE_SECONDS_PER_PIXEL_STEP = 2.6e-7
+
+
+def refine_map_size(side: int, map_size: int | str | None) -> int:
+    """The side refined maps are made at for a square of ``side`` px: ``map_size`` when given,
+    the square's own for :data:`FULL`, else ``side`` bounded by :data:`DEFAULT_MAP_SIZE`."""
+    if map_size == FULL:
+        return int(side)
+    if map_size is not None:
+        return int(map_size)
+    return min(int(side), DEFAULT_MAP_SIZE)
+
+
+def refine_cost(size: int, steps: int) -> tuple[float, int]:
+    """``(seconds, bytes)``: about what refining ``size`` px maps for ``steps`` steps takes."""
+    pixels = int(size) * int(size)
+    return pixels * steps * REFINE_SECONDS_PER_PIXEL_STEP, pixels * REFINE_BYTES_PER_PIXEL
+
+
+def check_refine_memory(size: int, steps: int, where: str, *, count: int = 1, remedy: str | None = None) -> None:
+    """Refuse (:class:`DataError`, one line naming ``where``) refining ``count`` maps of ``size``
+    px at once when this machine's free memory cannot hold it; ``remedy`` says what to do (the
+    command line's by default)."""
+    from .tiles import available_memory
+
+    need = refine_cost(size, steps)[1] * count
+    free = available_memory()
+    if free is not None and need > free:
+        default = refine_cost(DEFAULT_MAP_SIZE, steps)[1] / 2**30
+        what = f"{count} x {size} px maps" if count > 1 else f"{size} px maps"
+        raise DataError(
+            f"{where}: refining {what} needs about {need / 2**30:.1f} GB, and this machine has "
+            f"{free / 2**30:.1f} GB free; "
+            + (remedy or f"give a smaller --map-size (the default, {DEFAULT_MAP_SIZE}, needs about {default:.1f} GB) or --refine 0")
+        )
+
+
+def pick_backend(backend: str, height: int, width: int) -> str:
+    """The renderer backend of ``backend`` (one of :data:`BACKENDS`) for an ``height x width`` photo."""
+    if backend not in BACKENDS:
+        raise DataError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+    if backend != "auto":
+        return backend
+    return "compiled" if height * width >= COMPILE_PIXELS else "eager"
+
+
+def check_refine(refine, seconds=None) -> int:
+    """``refine`` as a number of steps: an integer >= 0 (not a bool); ``seconds`` None or a
+    finite number >= 0. A :class:`DataError` (one line) otherwise."""
+    if isinstance(refine, bool) or not isinstance(refine, numbers.Integral) or refine < 0:
+        raise DataError(
+            f"refine must be a whole number of refinement steps >= 0 (0: the network's maps "
+            f"only), got {refine!r}"
+        )
+    if seconds is not None and (
+        isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not math.isfinite(seconds)
+        or seconds < 0
+    ):  # fmt: skip
+        raise DataError(f"refine seconds must be a finite number >= 0 (or None), got {seconds!r}")
+    return int(refine)
+
+
+def check_scene(scene: Scene) -> Scene:
+    """``scene`` when it can be one photo's capture (one camera, one view: configuration shape
+    ``()`` or ``(1, 1)``), else the :class:`~svbrdf_render.SceneError` of
+    :func:`svbrdf_render.refine_maps` itself, raised at once (checked on a 1-pixel photo)."""
+    refine_maps(torch.zeros(1, 3, 1, 1), SVBRDF.constant(1, 1), scene=scene, steps=0)
+    return scene
+
+
+def without_checkerboard(maps: SVBRDF) -> SVBRDF:
+    """``maps`` with a binomial ``[1, 2, 1] / 4`` filter applied in each direction (edges
+    replicated; normals renormalised): its response is 0 at a 2-pixel period, so the pattern
+    transposed convolutions leave at the network's resolution is gone, while coarser detail
+    is kept (the response is 0.5 at a 4-pixel period). The start and prior of a refinement of
+    network maps, which would otherwise pull the refined maps back toward the pattern."""
+    import torch.nn.functional as F
+
+    from svbrdf_render import safe_normalize
+
+    k = torch.tensor([0.25, 0.5, 0.25], dtype=maps.dtype, device=maps.device)
+    kernel = (k[:, None] * k[None, :])[None, None]
+
+    def smooth(t: Tensor) -> Tensor:
+        c = t.shape[1]
+        padded = F.pad(t, (1, 1, 1, 1), mode="replicate")
+        return F.conv2d(padded, kernel.expand(c, 1, 3, 3), groups=c)
+
+    return SVBRDF(
+        safe_normalize(smooth(maps.normal), dim=1),
+        smooth(maps.diffuse).clamp(0, 1),
+        smooth(maps.roughness).clamp(0, 1),
+        smooth(maps.specular).clamp(0, 1),
+        validate=False,
+    )
+
+
+def refine_prediction(
+    photo: Tensor,
+    start: SVBRDF,
+    steps: int,
+    *,
+    seconds: float | None = None,
+    scene: Scene | None = None,
+    callback: Callable[[int, int, float], None] | None = None,
+    backend: str = BACKEND,
+) -> Refinement:
+    """Refine ``start`` (a network's maps, any size) against ``photo`` at the photo's size.
+
+    Args:
+        photo: ``(B, 3, H, W)`` linear photos (the squares the maps are of), ``H, W >=``
+            :data:`svbrdf_render.MIN_REFINE_SIDE`.
+        start: a network's maps of B materials; without their 2-pixel pattern
+            (:func:`without_checkerboard`) and their ring around the photo's highlight
+            (:func:`svbrdf_render.refinement.rings.dering`), the start and the prior of the refinement.
+        steps, seconds: the budget (see :func:`svbrdf_render.refine_maps`).
+        scene: the capture (default: :func:`svbrdf_render.refinement.fit.axis_flash` over the photo's
+            highlight, or over its centre when it shows none).
+        callback: ``callback(step, total, loss)`` after each step.
+        backend: the renderer's backend (:data:`BACKEND` by default).
+
+    The refinement runs on ``start``'s device with gradients on (also when called under
+    ``torch.no_grad`` or ``torch.inference_mode``); the :class:`~svbrdf_render.Refinement`
+    comes back on the CPU.
+    """
+    steps = check_refine(steps, seconds)
+    if photo.dim() == 3:
+        photo = photo[None]
+    h, w = photo.shape[-2:]
+    if min(h, w) < MIN_REFINE_SIDE:
+        raise DataError(
+            f"the photo is {w}x{h}, smaller than {MIN_REFINE_SIDE} px: too few pixels to refine "
+            "maps against; give a larger photo, or refine 0 (the network's maps only)"
+        )
+    device = start.device
+    # Gradients on, even under torch.no_grad or torch.inference_mode (whose tensors are copied
+    # into ordinary ones: autograd cannot save inference tensors for the backward pass).
+    with torch.inference_mode(False), torch.enable_grad():
+        photo = photo.detach().to(device, torch.float32).clone()
+        copy = {k: t.detach().clone() for k, t in start.maps().items()}
+        point = highlight_point(photo)
+        start = dering(without_checkerboard(SVBRDF(**copy, validate=False)), point)
+        start = refine_start(start, (h, w))  # once: refine_maps takes a photo-sized start as it is
+        if scene is None:  # the flash over the highlight (the centre when there is none)
+            scene = axis_flash(start, photo, over=point)
+        result = refine_maps(
+            photo,
+            start,
+            scene=scene.to(device),
+            steps=steps,
+            seconds=seconds,
+            backend=pick_backend(backend, h, w),
+            callback=callback,
+        )
+    return dataclasses.replace(result, svbrdf=result.svbrdf.to("cpu"), scene=result.scene.to("cpu"))
+
+
+@torch.no_grad()
+def rerender(svbrdf: SVBRDF, scene: Scene, size: tuple[int, int] | None = None) -> Tensor:
+    """``(B, 3, H, W)`` rendering of ``svbrdf`` (brought to ``size`` first, as a refinement's
+    start is) under ``scene`` (one view), clipped to [0, 1] as a camera saturates."""
+    if size is not None:
+        svbrdf = refine_start(svbrdf, tuple(size))
+    image = render(svbrdf.detach().to(torch.float32), scene.to(svbrdf.device))
+    if image.dim() == 5:  # (B, 1, 3, H, W): one configuration per material
+        image = image[:, 0]
+    return image.clamp(0, 1)
+
+
+def rerender_rmse(rendering: Tensor, photo: Tensor) -> Tensor:
+    """``(B,)`` RMSE of clipped renderings against linear photos ``(B, 3, H, W)``."""
+    photo = photo[None] if photo.dim() == 3 else photo
+    return per_sample_rmse(rendering, photo.to(rendering).clamp(0, 1))

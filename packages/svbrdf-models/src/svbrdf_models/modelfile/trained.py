@@ -1,0 +1,216 @@
+"""A trained generator ready to predict: :class:`TrainedModel`, what :func:`svbrdf_models.load_model`
+returns (and svbrdf-train's ``Predictor`` is, for training checkpoints too).
+
+::
+
+    maps = model.predict(photo)                 # (3, H, W) linear photo -> SVBRDF of one
+    maps = model.predict(photo, refine=150)     # + refined against the photo, at its size
+    maps = model.predict_batch(squares)         # (N, 3, S, S) at a size the generator takes
+
+Photos are linear float tensors; the network sees the largest centred square of each
+(:func:`square_photo`), resized to the resolution the generator was trained at.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from svbrdf_render import SVBRDF
+
+__all__ = ["TrainedModel", "square_photo"]
+
+
+#: Largest value a photo may hold (linear values are in [0, 1]; a little over 1 is rounding or
+#: a highlight a resize overshot), and how far below 0 noise may take it.
+_MAX_VALUE, _VALUE_SLACK = 1.05, 0.05
+#: The shortest photo side predict takes (the smallest size any network here trains at).
+_MIN_PHOTO_SIDE = 8
+
+
+@dataclass
+class TrainedModel:
+    """A trained generator (eval mode, float32) and what its file says about it.
+
+    ``sha256`` is the model file's (None for weights not read from a model file: a training
+    checkpoint, in svbrdf-train); ``provenance["steps"]`` the training steps behind the weights.
+    """
+
+    generator: nn.Module
+    name: str
+    config: dict[str, Any]
+    resolution: int
+    precision: str
+    source: str
+    sha256: str | None
+    recipe: dict[str, Any] = field(default_factory=dict)
+    provenance: dict[str, Any] = field(default_factory=dict)
+    metrics: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def steps(self) -> int:
+        return int(self.provenance.get("steps", 0))
+
+    @property
+    def device(self) -> torch.device:
+        return next(self.generator.parameters()).device
+
+    def to(self, device: str | torch.device) -> TrainedModel:
+        self.generator.to(device)
+        return self
+
+    def predict(
+        self,
+        photo: Tensor,
+        refine: int = 0,
+        *,
+        seconds: float | None = None,
+        scene=None,
+        callback=None,
+        backend: str | None = None,
+    ) -> SVBRDF:
+        """Maps of linear photos: ``(3, H, W)`` (one material) or ``(N, 3, H, W)``.
+
+        The photo contract: a float tensor of *linear* values in ``[0, 1]`` (radiance as the
+        sensor saw it, not sRGB-encoded), RGB channels first, any size of at least a few
+        pixels; the largest centred square is used. :func:`svbrdf_models.load_photo` turns a
+        JPEG or PNG file into exactly that (``load_photo(path)[0]``; ``linear=True`` for files
+        that hold linear values). Integer codes, values outside ``[0, 1]`` (a photo still in
+        0-255, or negative values), NaN and empty tensors are refused with one line
+        (:class:`~svbrdf_models.errors.DataError`), never guessed at.
+
+        ``refine=0``: the largest centred square is resized to :attr:`resolution` (antialiased,
+        on linear values) when it is not that size already; the maps are at :attr:`resolution`.
+
+        ``refine=STEPS > 0``: the network's maps of that square are then refined against the
+        square at its own resolution (:func:`svbrdf_models.capture.refining.refine_prediction`, start
+        and prior the network's maps) for at most STEPS steps and ``seconds`` seconds, under
+        ``scene`` (default: the flash found from the network's maps), with the renderer's
+        ``backend`` (default :data:`svbrdf_models.capture.refining.BACKEND`); ``callback(step, total,
+        loss)`` follows it. The maps are at the square's size (the photo's shorter side), which
+        must be at least :data:`svbrdf_render.MIN_REFINE_SIDE`; a refinement this machine's
+        free memory cannot hold (about 1.4 KB a pixel) is refused before it starts.
+
+        ``refine`` is 0 by default here: the network alone, what a caller in a loop wants.
+        ``svbrdf-models predict`` refines by default
+        (:data:`svbrdf_render.DEFAULT_REFINE_STEPS` steps, at most 1024 px): give
+        ``refine=100`` for the command line's maps.
+        """
+        batch = self._check_photo(photo)
+        from ..capture.refining import BACKEND, check_refine, check_refine_memory, refine_prediction
+
+        steps = check_refine(refine, seconds)
+        if steps == 0:
+            return self._network(batch)
+        side = min(batch.shape[-2:])
+        remedy = "resize the photo smaller first, or refine=0"
+        check_refine_memory(side, steps, str(self.source), count=batch.shape[0], remedy=remedy)
+        squares = torch.stack([square_photo(p.float(), None) for p in batch])
+        result = refine_prediction(
+            squares,
+            self._network(squares).to(self.device),
+            steps,
+            seconds=seconds,
+            scene=scene,
+            callback=callback,
+            backend=backend or BACKEND,
+        )
+        return result.svbrdf
+
+    def _check_photo(self, photo: Tensor) -> Tensor:
+        """``photo`` as a batch ``(N, 3, H, W)``; :class:`~svbrdf_models.errors.DataError` (one
+        line) for another shape, integer values or NaN/infinite values.
+
+        Integer photos (uint8 codes up to 255, 16-bit PNG codes) are refused, not converted:
+        their encoding (sRGB or linear) and scale are not in the tensor, and a guess would give
+        maps of the wrong brightness without a word. Read files with
+        :func:`svbrdf_models.capture.one.load_photo`, or convert 8-bit sRGB codes with
+        ``svbrdf_render.srgb_to_linear(photo / 255)``. NaN or infinite values would come out as
+        maps of NaN (a convolution spreads them to every pixel).
+        """
+        from ..errors import DataError
+
+        if not isinstance(photo, Tensor):
+            raise DataError(f"{self.source}: expected a photo tensor (3, H, W), got {type(photo).__name__}")
+        batch = photo[None] if photo.dim() == 3 else photo
+        if batch.dim() != 4 or batch.shape[1] != 3:
+            raise DataError(
+                f"{self.source}: expected a photo (3, H, W) or (N, 3, H, W), got {tuple(photo.shape)}"
+            )
+        if not batch.is_floating_point():
+            raise DataError(
+                f"{self.source}: the photo holds {str(batch.dtype).replace('torch.', '')} codes, not "
+                "linear values; convert 8-bit sRGB with svbrdf_render.srgb_to_linear(photo / 255), or "
+                "read the file with svbrdf_models.capture.one.load_photo"
+            )
+        if batch.numel() == 0:
+            raise DataError(
+                f"{self.source}: the photo is empty ({tuple(photo.shape)}); give a photo with pixels"
+            )
+        if min(batch.shape[-2:]) < _MIN_PHOTO_SIDE:
+            raise DataError(
+                f"{self.source}: the photo is {batch.shape[-1]}x{batch.shape[-2]} px, under "
+                f"{_MIN_PHOTO_SIDE} px on its "
+                "short side: too few pixels to read a material from (the command line takes 64 px and more)"
+            )
+        bad = int((~torch.isfinite(batch)).sum())
+        if not bad:
+            low, high = float(batch.min()), float(batch.max())
+            if high > _MAX_VALUE or low < -_VALUE_SLACK:
+                raise DataError(
+                    f"{self.source}: the photo's values run from {low:.3g} to {high:.3g}, not linear "
+                    "values in [0, 1]"
+                    + (
+                        "; a photo in 0-255 needs svbrdf_render.srgb_to_linear(photo / 255)"
+                        if high > _MAX_VALUE
+                        else ""
+                    )
+                    + "; or read the file with svbrdf_models.load_photo"
+                )
+        if bad:
+            raise DataError(
+                f"{self.source}: the photo holds {bad} NaN or infinite values of {batch.numel()}; "
+                "the maps would be NaN: fix or drop the photo"
+            )
+        return batch
+
+    @torch.no_grad()
+    def predict_batch(self, photos: Tensor) -> SVBRDF:
+        """The generator's maps of ``(N, 3, S, S)`` linear photos taken as they are (no crop, no
+        resize): ``S`` must be a size the generator takes, such as :attr:`resolution` (the tiles
+        of :func:`svbrdf_models.capture.one.tile_predict`). Checked as :meth:`predict` checks."""
+        batch = self._check_photo(photos)
+        return self.generator(batch.float().to(self.device)).detach().to("cpu")
+
+    def _network(self, batch: Tensor) -> SVBRDF:
+        """The generator's maps of ``(N, 3, H, W)`` photos' centre squares at :attr:`resolution`."""
+        return self.predict_batch(torch.stack([square_photo(p.float(), self.resolution) for p in batch]))
+
+    def describe(self) -> str:
+        """One line for people: generator, resolution, steps, precision, where from."""
+        hours = float(self.provenance.get("train_seconds", 0.0)) / 3600
+        return (
+            f"generator {self.name} ({self.resolution}x{self.resolution}, {self.steps} steps, "
+            f"{hours:.1f} h of training, {self.precision}) from {self.source}"
+        )
+
+
+def square_photo(photo: Tensor, size: int | None) -> Tensor:
+    """Centre-crop ``(C, H, W)`` to its shorter side, then resample to ``size`` if given.
+
+    Resampling is bilinear with antialiasing (a triangle filter: no overshoot, so values stay
+    in range) and happens on linear values, where averaging is physically meaningful.
+    """
+    _, h, w = photo.shape
+    s = min(h, w)
+    top, left = (h - s) // 2, (w - s) // 2
+    photo = photo[:, top : top + s, left : left + s]
+    if size is not None and s != size:
+        photo = F.interpolate(
+            photo[None], size=(size, size), mode="bilinear", align_corners=False, antialias=True
+        )[0]
+    return photo.contiguous()

@@ -1,0 +1,476 @@
+"""Material files that reference the map images: glTF 2.0 and MaterialX.
+
+A folder of map images becomes something an artist drops into Blender, Substance, a game engine
+or a web viewer by adding one small file beside the images that says what each one is:
+
+- :func:`write_gltf`: a glTF 2.0 asset (``.gltf``, JSON): a flat square patch carrying a
+  metallic-roughness material whose textures are the images, referenced by relative URI. The
+  geometry is embedded (a base64 data URI), so the asset is one file plus the images.
+- :func:`write_materialx`: a MaterialX document (``.mtlx``, XML): image nodes, a normal map
+  node, a ``gltf_pbr`` surface shader and a surface material.
+
+Neither writer reads or checks the images: they may be written before or after. Image names
+are file names relative to the material file's folder (``basecolor.png``, ``maps/a.png``,
+``../maps/a.png``), with ``/`` between folders, ending in ``.png``, ``.jpg`` or ``.jpeg`` (the
+formats core glTF 2.0 allows). Both files are written atomically
+(:func:`~svbrdf_render.formats.files.atomic_output`); the material file's folder must exist.
+
+The maps the writers expect (the names the command lines write):
+
+============================ =====================================================================
+``basecolor.png``            base colour, RGB, sRGB-encoded
+``metallic.png``             metalness, grey, linear
+``roughness.png``            perceptual roughness, grey, linear (GGX alpha = roughness^2)
+``metallic_roughness.png``   glTF packing, linear RGB: G = roughness, B = metallic (R unused)
+``normal_opengl.png``        tangent-space normal stored as (n + 1) / 2, linear; OpenGL
+                             convention: +X to the image's right, +Y to the image's top
+============================ =====================================================================
+
+:func:`validate_materialx` checks a MaterialX document against the MaterialX standard
+libraries (the ``materialx`` package, imported on first use). The glTF files are checked by
+the Khronos glTF validator in the repository's tests (``tools/gltf-validate``, a Node script).
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+import numbers
+import os
+import re
+import struct
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+from urllib.parse import quote
+
+from .._optional import require
+from ..errors import SVBRDFError
+from .files import write_text
+
+__all__ = [
+    "MATERIALX_VERSION",
+    "MATERIALX_SHADER",
+    "write_gltf",
+    "write_materialx",
+    "validate_materialx",
+]
+
+#: The MaterialX version the documents declare. 1.38 documents are read by 1.38 tools as they are
+#: and upgraded on load by 1.39 ones (the nodes used here did not change between the two).
+MATERIALX_VERSION = "1.38"
+#: The MaterialX surface shader: the glTF metallic-roughness model, defined in the MaterialX
+#: standard libraries since 1.38.4, so both files describe the same material.
+MATERIALX_SHADER = "gltf_pbr"
+
+_MIME_TYPES = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg"}
+# A URI scheme ("http:", "file:") or a Windows drive ("C:"): not a relative file name.
+_SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.\-]*:")
+# MaterialX element names: letters, digits and underscores, not starting with a digit.
+_MTLX_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+# glTF enumerations (the specification's numeric codes)
+_FLOAT, _UNSIGNED_SHORT = 5126, 5123
+_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
+_LINEAR, _LINEAR_MIPMAP_LINEAR, _REPEAT = 9729, 9987, 10497
+_TRIANGLES = 4
+
+
+# -- checks of the arguments ----------------------------------------------------------------------
+
+
+def _material_path(path: str | os.PathLike, suffix: str, writer: str) -> Path:
+    """``path`` as a Path, refused (one line) unless it ends in ``suffix`` and its folder exists."""
+    path = Path(path)
+    if path.suffix.lower() != suffix:
+        raise SVBRDFError(
+            f"{writer}: {path}: the file name must end in {suffix}; give a name like material{suffix}"
+        )
+    folder = path.parent
+    if not folder.is_dir():
+        what = "is not a folder" if folder.exists() else "does not exist"
+        raise SVBRDFError(
+            f"{writer}: {path}: its folder {folder} {what}; make the folder first or give another path"
+        )
+    return path
+
+
+def _image_names(writer: str, **names) -> dict[str, str]:
+    """Each image name checked by :func:`_image_name`, by role."""
+    return {role: _image_name(name, role, writer) for role, name in names.items()}
+
+
+def _image_name(name: Any, role: str, writer: str) -> str:
+    """``name`` checked as a relative file name of an image (see the module docstring)."""
+    if isinstance(name, os.PathLike):
+        name = os.fspath(name)
+    if not isinstance(name, str):
+        raise SVBRDFError(f"{writer}: {role}={name!r} is not a file name; give the image's file name as text")
+    problem = None
+    if not name.strip():
+        problem = "is empty"
+    elif any(ord(c) < 32 for c in name):
+        problem = "holds a control character"
+    elif "\\" in name:
+        problem = "holds a backslash"
+    elif name.startswith("/") or _SCHEME.match(name):
+        problem = "is an absolute path or a URL, not a relative file name"
+    elif any(part == "" for part in name.split("/")):
+        problem = "has an empty folder name (a '//' or a trailing '/')"
+    elif Path(name).suffix.lower() not in _MIME_TYPES:
+        problem = "is not a .png, .jpg or .jpeg file"
+    if problem:
+        raise SVBRDFError(
+            f"{writer}: {role}={name!r} {problem}; give the image's file name relative to the "
+            f"material file's folder, with '/' between folders (e.g. '{role}.png')"
+        )
+    return name
+
+
+def _generator() -> str:
+    try:
+        return f"svbrdf-render {metadata.version('svbrdf-render')}"
+    except metadata.PackageNotFoundError:  # run from a source tree without installing
+        return "svbrdf-render"
+
+
+# -- glTF -----------------------------------------------------------------------------------------
+
+
+def _float32(x: float) -> float:
+    """``x`` rounded to float32, as stored in the buffer (accessor min/max must match it)."""
+    return struct.unpack("<f", struct.pack("<f", x))[0]
+
+
+def _plane(size: float) -> tuple[bytes, list[dict], list[dict]]:
+    """The buffer, buffer views and accessors of the square (positions, normals, tangents,
+    texture coordinates, indices, in that order in the buffer)."""
+    s = _float32(size)
+    # corners: image top-left, top-right, bottom-right, bottom-left. glTF puts UV (0, 0) at the
+    # image's top-left and v grows downwards, so the image's top edge is at y = +s.
+    positions = [(-s, s, 0.0), (s, s, 0.0), (s, -s, 0.0), (-s, -s, 0.0)]
+    uvs = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)]
+    normals = [(0.0, 0.0, 1.0)] * 4
+    # tangent = +X (where u grows); w = +1 makes the bitangent cross(N, T) * w = +Y, the image's
+    # top: a normal map's green channel then points up the image (OpenGL convention, as glTF).
+    tangents = [(1.0, 0.0, 0.0, 1.0)] * 4
+    indices = [0, 3, 2, 0, 2, 1]  # counter-clockwise seen from +Z: the front faces +Z
+    parts = [
+        (b"".join(struct.pack("<3f", *p) for p in positions), "VEC3", _FLOAT, _ARRAY_BUFFER),
+        (b"".join(struct.pack("<3f", *n) for n in normals), "VEC3", _FLOAT, _ARRAY_BUFFER),
+        (b"".join(struct.pack("<4f", *t) for t in tangents), "VEC4", _FLOAT, _ARRAY_BUFFER),
+        (b"".join(struct.pack("<2f", *uv) for uv in uvs), "VEC2", _FLOAT, _ARRAY_BUFFER),
+        (struct.pack("<6H", *indices), "SCALAR", _UNSIGNED_SHORT, _ELEMENT_ARRAY_BUFFER),
+    ]
+    buffer, views, accessors = b"", [], []
+    for data, kind, component, target in parts:
+        views.append({"buffer": 0, "byteOffset": len(buffer), "byteLength": len(data), "target": target})
+        count = len(indices) if kind == "SCALAR" else len(positions)
+        accessors.append(
+            {"bufferView": len(views) - 1, "componentType": component, "count": count, "type": kind}
+        )
+        buffer += data  # every part is a multiple of 4 bytes long except the last: aligned
+    accessors[0]["min"] = [-s, -s, 0.0]
+    accessors[0]["max"] = [s, s, 0.0]
+    return buffer, views, accessors
+
+
+def _extras(extras: Any) -> dict | None:
+    if extras is None:
+        return None
+    if not isinstance(extras, Mapping):
+        raise SVBRDFError(
+            f"write_gltf: extras must be a mapping (a JSON object), got {type(extras).__name__}"
+        )
+    try:
+        return json.loads(json.dumps(dict(extras), allow_nan=False))
+    except (TypeError, ValueError) as e:
+        raise SVBRDFError(
+            f"write_gltf: extras cannot be written as JSON ({e}); give text, numbers, lists and mappings"
+        ) from None
+
+
+def _check_name_and_size(writer: str, name: Any, size: Any) -> None:
+    """The material's name is text; ``size`` (half the side, metres) a positive float32."""
+    if not isinstance(name, str):
+        raise SVBRDFError(f"{writer}: name={name!r} is not text; give the material's name as text")
+    if isinstance(size, bool) or not isinstance(size, numbers.Real) or not math.isfinite(size) or size <= 0:
+        raise SVBRDFError(f"{writer}: size={size!r} must be a positive finite number (half the side, metres)")
+    if not 1e-30 < size < 1e30:  # stored as float32: far from its underflow and overflow
+        raise SVBRDFError(f"{writer}: size={size!r} is out of float32 range; give a size in metres near 1")
+
+
+def _gltf_material(name: str, extras: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The metallic-roughness material: every factor 1, textures 0, 1, 2 (see :func:`write_gltf`)."""
+    material: dict[str, Any] = {
+        "name": name,
+        "pbrMetallicRoughness": {
+            "baseColorFactor": [1.0, 1.0, 1.0, 1.0],
+            "baseColorTexture": {"index": 0, "texCoord": 0},
+            "metallicFactor": 1.0,
+            "roughnessFactor": 1.0,
+            "metallicRoughnessTexture": {"index": 1, "texCoord": 0},
+        },
+        "normalTexture": {"index": 2, "texCoord": 0, "scale": 1.0},
+    }
+    if (extra := _extras(extras)) is not None:
+        material["extras"] = extra
+    return material
+
+
+def _gltf_document(
+    name: str, material: dict, images: dict[str, str], buffer: bytes, views: list, accessors: list
+) -> dict:
+    """The glTF JSON: one scene, node and mesh (the plane of :func:`_plane`), the material, its
+    images behind one sampler, and the buffer embedded as a data URI."""
+    return {
+        "asset": {"version": "2.0", "generator": _generator()},
+        "scene": 0,
+        "scenes": [{"name": name, "nodes": [0]}],
+        "nodes": [{"name": name, "mesh": 0}],
+        "meshes": [
+            {
+                "name": name,
+                "primitives": [
+                    {
+                        "attributes": {"POSITION": 0, "NORMAL": 1, "TANGENT": 2, "TEXCOORD_0": 3},
+                        "indices": 4,
+                        "material": 0,
+                        "mode": _TRIANGLES,
+                    }
+                ],
+            }
+        ],
+        "materials": [material],
+        "textures": [{"sampler": 0, "source": i} for i in range(len(images))],
+        "samplers": [
+            {"magFilter": _LINEAR, "minFilter": _LINEAR_MIPMAP_LINEAR, "wrapS": _REPEAT, "wrapT": _REPEAT}
+        ],
+        "images": [
+            {"name": role, "uri": quote(file, safe="/"), "mimeType": _MIME_TYPES[Path(file).suffix.lower()]}
+            for role, file in images.items()
+        ],
+        "accessors": accessors,
+        "bufferViews": views,
+        "buffers": [
+            {
+                "byteLength": len(buffer),
+                "uri": "data:application/octet-stream;base64," + base64.b64encode(buffer).decode("ascii"),
+            }
+        ],
+    }
+
+
+def write_gltf(
+    path: str | os.PathLike,
+    *,
+    basecolor: str = "basecolor.png",
+    metallic_roughness: str = "metallic_roughness.png",
+    normal: str = "normal_opengl.png",
+    name: str = "svbrdf material",
+    size: float = 1.0,
+    extras: Mapping[str, Any] | None = None,
+) -> Path:
+    """Write a glTF 2.0 asset (``.gltf``): a square patch with the maps as its material.
+
+    The scene holds one node with one mesh: a square of side ``2 * size`` centred at the
+    origin in the plane z = 0, facing +Z (glTF's "up" is +Y, so a viewer shows it standing,
+    facing the default camera). The image lies on it unflipped: its right edge is at x = +size,
+    its top edge at y = +size. Attributes: POSITION, NORMAL (+Z), TANGENT (+X, w = +1, so the
+    normal map's green channel points to the image's top: the OpenGL convention glTF uses)
+    and TEXCOORD_0 (glTF puts UV (0, 0) at the image's top-left corner, so the vertex at
+    (-size, +size) has UV (0, 0)), and 16-bit indices of two triangles. The buffer is embedded
+    as a base64 data URI: the asset is this one file plus the images.
+
+    The material is metallic-roughness PBR with every factor 1: ``baseColorTexture`` (sRGB, as
+    glTF requires), ``metallicRoughnessTexture`` (linear; G = roughness, B = metallic) and
+    ``normalTexture`` (scale 1). All three share one sampler: linear magnification, trilinear
+    minification (linear within and between mipmaps), repeat wrapping so that a tileable map
+    tiles when the UVs are scaled. Images are referenced by relative URI (percent-encoded where
+    a file name needs it) with their MIME type.
+
+    Args:
+        path: the file to write, ending in ``.gltf``; its folder must exist.
+        basecolor, metallic_roughness, normal: the images' file names relative to ``path``'s
+            folder (``.png``, ``.jpg`` or ``.jpeg``).
+        name: the material's, mesh's and node's name.
+        size: half the side of the square, in metres (glTF's unit); positive.
+        extras: JSON-compatible data stored as the material's ``extras`` (e.g. the model that
+            predicted the maps).
+
+    Returns:
+        ``path``. Raises :class:`~svbrdf_render.errors.SVBRDFError` on a bad argument and
+        :class:`~svbrdf_render.errors.OutputError` when the file cannot be written.
+    """
+    writer = "write_gltf"
+    path = _material_path(path, ".gltf", writer)
+    images = _image_names(writer, basecolor=basecolor, metallic_roughness=metallic_roughness, normal=normal)
+    _check_name_and_size(writer, name, size)
+    document = _gltf_document(name, _gltf_material(name, extras), images, *_plane(float(size)))
+    return write_text(path, json.dumps(document, indent=2) + "\n")
+
+
+# -- MaterialX ------------------------------------------------------------------------------------
+
+
+def _sub(parent: ET.Element, tag: str, **attributes: str) -> ET.Element:
+    return ET.SubElement(parent, tag, attributes)
+
+
+def _materialx_graph(root: ET.Element, graph_name: str, files: dict[str, str]) -> dict[str, tuple[str, str]]:
+    """The node graph reading the four images (see :func:`write_materialx`); returns its
+    outputs, ``shader input -> (graph output, type)``."""
+    graph = _sub(root, "nodegraph", name=graph_name)
+    # (image node, its type, the file's colour space or None for raw data, shader input)
+    images = [
+        ("basecolor", "color3", "srgb_texture", "base_color"),
+        ("metallic", "float", None, "metallic"),
+        ("roughness", "float", None, "roughness"),
+        ("normal", "vector3", None, None),
+    ]
+    outputs: dict[str, tuple[str, str]] = {}  # shader input -> (graph output, type)
+    for role, kind, colorspace, shader_input in images:
+        node = _sub(graph, "image", name=f"{role}_image", type=kind)
+        file_input = _sub(node, "input", name="file", type="filename", value=files[role])
+        if colorspace:
+            file_input.set("colorspace", colorspace)
+        for address in ("uaddressmode", "vaddressmode"):
+            _sub(node, "input", name=address, type="string", value="periodic")
+        if shader_input:
+            outputs[shader_input] = (f"{shader_input}_output", kind)
+    normalmap = _sub(graph, "normalmap", name="normalmap", type="vector3")
+    _sub(normalmap, "input", name="in", type="vector3", nodename="normal_image")
+    _sub(normalmap, "input", name="scale", type="float", value="1.0")
+    outputs["normal"] = ("normal_output", "vector3")
+    nodes = {"base_color": "basecolor_image", "metallic": "metallic_image",
+             "roughness": "roughness_image", "normal": "normalmap"}  # fmt: skip
+    for shader_input, (output, kind) in outputs.items():
+        _sub(graph, "output", name=output, type=kind, nodename=nodes[shader_input])
+    return outputs
+
+
+def _materialx_material(
+    root: ET.Element, name: str, graph_name: str, outputs: dict[str, tuple[str, str]]
+) -> None:
+    """The shader ``SR_<name>`` fed by the graph's outputs, and the material ``<name>`` using it."""
+    shader_name = f"SR_{name}"
+    shader = _sub(root, MATERIALX_SHADER, name=shader_name, type="surfaceshader")
+    for shader_input, (output, kind) in outputs.items():
+        _sub(shader, "input", name=shader_input, type=kind, nodegraph=graph_name, output=output)
+    material = _sub(root, "surfacematerial", name=name, type="material")
+    _sub(material, "input", name="surfaceshader", type="surfaceshader", nodename=shader_name)
+
+
+def write_materialx(
+    path: str | os.PathLike,
+    *,
+    basecolor: str = "basecolor.png",
+    metallic: str = "metallic.png",
+    roughness: str = "roughness.png",
+    normal: str = "normal_opengl.png",
+    name: str = "svbrdf_material",
+) -> Path:
+    """Write a MaterialX document (``.mtlx``) whose surface material reads the maps.
+
+    Layout: a node graph ``NG_<name>`` holds four ``image`` nodes (base colour as ``color3``
+    with ``colorspace="srgb_texture"``; metallic and roughness as ``float``; the normal map as
+    ``vector3``: MaterialX applies colour transforms to colour types only, so those three are
+    read raw) and a ``normalmap`` node (tangent space, (n + 1) / 2, OpenGL convention as
+    MaterialX expects), with one output per shader input. The document's working colour space
+    is ``lin_rec709``. A ``gltf_pbr`` shader ``SR_<name>`` takes base colour, metallic,
+    roughness and normal from the graph; the ``surfacematerial`` ``<name>`` takes the shader.
+
+    Why ``gltf_pbr`` (:data:`MATERIALX_SHADER`) and not ``standard_surface``: the maps are
+    glTF metallic-roughness maps (base colour, metalness, perceptual roughness with GGX
+    alpha = roughness^2, dielectric F0 = 0.04), which is exactly what ``gltf_pbr`` defines;
+    ``standard_surface`` has its own specular layer, weights and roughness meaning, so the same
+    maps would give a somewhat different material. The document declares MaterialX
+    :data:`MATERIALX_VERSION`; ``gltf_pbr`` needs a MaterialX library of 1.38.4 or later.
+
+    Texture coordinates are the host's UV set 0; MaterialX puts UV (0, 0) at the image's
+    bottom-left corner (unlike glTF), addressing is periodic (the maps tile) and filtering linear.
+    File names are resolved relative to the document's folder.
+
+    Args:
+        path: the file to write, ending in ``.mtlx``; its folder must exist.
+        basecolor, metallic, roughness, normal: the images' file names relative to ``path``'s
+            folder (``.png``, ``.jpg`` or ``.jpeg``).
+        name: the material's name: letters, digits and ``_``, not starting with a digit.
+
+    Returns:
+        ``path``. Raises :class:`~svbrdf_render.errors.SVBRDFError` on a bad argument and
+        :class:`~svbrdf_render.errors.OutputError` when the file cannot be written.
+    """
+    writer = "write_materialx"
+    path = _material_path(path, ".mtlx", writer)
+    files = _image_names(writer, basecolor=basecolor, metallic=metallic, roughness=roughness, normal=normal)
+    if not isinstance(name, str) or not _MTLX_NAME.match(name):
+        raise SVBRDFError(
+            f"{writer}: name={name!r} is not a MaterialX name; use letters, digits and '_', "
+            "not starting with a digit (e.g. 'svbrdf_material')"
+        )
+    root = ET.Element("materialx", {"version": MATERIALX_VERSION, "colorspace": "lin_rec709"})
+    outputs = _materialx_graph(root, f"NG_{name}", files)
+    _materialx_material(root, name, f"NG_{name}", outputs)
+
+    ET.indent(root, space="  ")
+    text = ET.tostring(root, encoding="unicode", xml_declaration=False)
+    return write_text(path, '<?xml version="1.0" encoding="UTF-8"?>\n' + text + "\n")
+
+
+def validate_materialx(path: str | os.PathLike) -> list[str]:
+    """The problems MaterialX finds in the document at ``path``; an empty list when it is valid.
+
+    Three checks, with the MaterialX standard data libraries shipped with the ``materialx``
+    package (import name ``MaterialX``, imported on first use) loaded into the document:
+
+    - the document's own ``validate`` (names, types, connections, and each node's inputs
+      against its definition);
+    - every node has a definition in the libraries (``validate`` passes a node of an unknown
+      kind, which no renderer could draw);
+    - every image file the document names exists (relative names resolve against the
+      document's folder, after any ``fileprefix``), as the glTF validator checks for glTF.
+
+    A document of an older version is upgraded on reading, as every MaterialX reader does. A
+    file that is not MaterialX XML gives one problem, not an exception. Raises
+    :class:`ImportError` saying how to install the package when it is missing.
+    """
+    mx = require("MaterialX", "materialx", "validating a MaterialX document", extra="materialx")
+    path = Path(path)
+    if not path.is_file():
+        raise SVBRDFError(f"validate_materialx: {path}: no such file; give the path of a .mtlx file")
+    document = mx.createDocument()
+    try:
+        mx.readFromXmlFile(document, str(path))
+    except Exception as e:  # MaterialX raises its own ExceptionParseError, ExceptionFileMissing...
+        return [f"{path}: cannot read it as MaterialX: {str(e).strip() or type(e).__name__}"]
+    # the document's own elements, listed before the libraries join it
+    own = list(document.traverseTree())
+    nodes = [e.getNamePath() for e in own if isinstance(e, mx.Node)]
+    files = [e for e in own if isinstance(e, mx.Input) and e.getType() == "filename"]
+    libraries = mx.createDocument()
+    mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), libraries)
+    document.importLibrary(libraries)
+
+    valid, message = document.validate()
+    problems = [line.strip() for line in message.splitlines() if line.strip()]
+    if not valid and not problems:
+        problems.append(f"{path}: MaterialX says the document is not valid (no message)")
+    for name_path in nodes:
+        node = document.getDescendant(name_path)
+        if node.getNodeDef() is None:
+            problems.append(
+                f"node {name_path}: no definition of a '{node.getCategory()}' node of type "
+                f"'{node.getType()}' in the MaterialX {mx.getVersionString()} libraries"
+            )
+    for file_input in files:
+        value = file_input.getResolvedValueString()
+        where = f"{file_input.getParent().getNamePath()}/{file_input.getName()}"
+        if not value:
+            problems.append(f"{where}: names no file")
+        elif not (path.parent / value).is_file():
+            problems.append(f"{where}: image {value!r} not found in {path.resolve().parent}")
+    return problems

@@ -1,0 +1,10 @@
+"""Refinement: maps optimised through the renderer until they explain a photo.
+
+- :mod:`~svbrdf_render.refinement.refine`: :func:`refine_maps`, its settings, priors and loss;
+- :mod:`~svbrdf_render.refinement.rings`: the flash's rings (the highlight found on a photo, the
+  ring penalty, de-ringing);
+- :mod:`~svbrdf_render.refinement.fit`: the flash found from maps and a photo (``axis_flash``,
+  ``fit_flash``) and the Adam both step.
+
+The public names are importable from :mod:`svbrdf_render` itself.
+"""

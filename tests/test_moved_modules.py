@@ -1,0 +1,40 @@
+"""Modules moved into subpackages (issue 38) keep their old names for one release: the old name
+imports the very module under its new name, with a DeprecationWarning that says where it went;
+and no file stands at an old name (the old names are listed once, in each package's _MOVED)."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from pathlib import Path
+
+import pytest
+
+import svbrdf_models
+import svbrdf_render
+import svbrdf_train
+
+MOVED = {**svbrdf_render._MOVED, **svbrdf_models._MOVED, **svbrdf_train._MOVED}
+
+
+@pytest.mark.parametrize(("old", "new"), sorted(MOVED.items()))
+def test_an_old_module_name_is_the_new_module_with_a_warning(old, new):
+    module = importlib.import_module(new)
+    sys.modules.pop(old, None)
+    with pytest.warns(DeprecationWarning, match=f"{old} moved to {new}"):
+        assert importlib.import_module(old) is module
+    top, _, leaf = old.rpartition(".")
+    assert getattr(importlib.import_module(top), leaf) is module  # `import pkg.old` then `pkg.old.x` works
+
+
+@pytest.mark.parametrize("old", sorted(MOVED))
+def test_no_file_stands_at_an_old_name(old):
+    top = importlib.import_module(old.split(".")[0])
+    root = Path(top.__file__).parent.parent
+    assert not (root / (old.replace(".", "/") + ".py")).exists()
+
+
+def test_the_new_names_import_without_warnings(recwarn):
+    for new in MOVED.values():
+        importlib.import_module(new)
+    assert not [w for w in recwarn if issubclass(w.category, DeprecationWarning) and "moved to" in str(w.message)]
