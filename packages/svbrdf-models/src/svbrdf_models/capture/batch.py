@@ -227,14 +227,20 @@ def check_material_folders(photos, out: Path) -> None:
             check_material_folder(Path(out) / name, path)
 
 
-def capture_batch(predictor, photos, out: Path, options, *, prog: str, summary: dict) -> int:
+def capture_batch(
+    predictor, photos, out: Path, options, *, prog: str, summary: dict, checked: bool = False
+) -> int:
     """Capture each photo into ``out/NAME``, write ``out/summary.json`` (with ``summary``'s
-    fields), print the table; the exit status (see the module)."""
+    fields), print the table; the exit status (see the module). The photos' folders are checked
+    once (:func:`check_material_folders`), here unless ``checked`` (the commands check them
+    before the model loads)."""
     from svbrdf_render.formats.files import sigterm_as_interrupt
 
     from .one import write_summary
 
     out = Path(out)
+    if not checked:
+        check_material_folders(photos, out)
     with sigterm_as_interrupt():  # SIGTERM (kill, a scheduler) stops the batch as Ctrl-C does
         entries, stopped = _capture_all(predictor, photos, out, options, prog)
     if stopped == INTERRUPTED:
@@ -291,7 +297,7 @@ def _capture_each(predictor, photos, out: Path, options, prog: str, entries: lis
         _announce_cost(path, options, prog)
         bar = now["bar"] = ProgressBar(path.name)
         try:
-            entry = capture_one(predictor, path, out / name, options, progress=bar)
+            entry = capture_one(predictor, path, out / name, options, progress=bar, checked=True)
         except OutputError as e:  # the disk, not the photo: the photos after it would fail alike
             bar.close()
             print(f"{prog}: error: {e}", file=sys.stderr)

@@ -13,8 +13,9 @@ It needs svbrdf-render and this package only (Pillow through ``svbrdf-models[pho
 ``svbrdf-render[io]``): no training code, no tracking.
 
 The steps live in modules of their own, re-exported here: reading and judging photos
-(:mod:`svbrdf_models.capture.photos`: what is refused, what is noted), tiles and their memory cost
-(:mod:`svbrdf_models.capture.tiles`), the flash fit and the relit preview (:mod:`svbrdf_models.capture.relight`).
+(:mod:`svbrdf_models.capture.photos`: what is refused, what is noted), tiles and their memory
+cost (:mod:`svbrdf_models.capture.tiles`), the flash fit and the relit preview
+(:mod:`svbrdf_models.capture.relight`).
 This module runs them for one photo (:func:`capture_one`: with refinement, maps asked smaller
 than :data:`svbrdf_render.MIN_REFINE_SIDE` are refused; a square smaller than the model's
 resolution is noted, upsampled) and writes the batch's ``summary.json`` (:func:`write_summary`).
@@ -29,13 +30,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
 from svbrdf_render import MAP_NAMES, MIN_REFINE_SIDE, SVBRDF, Refinement, Scene, linear_to_srgb
 from svbrdf_render.formats.files import locked, write_text
 
 from ..errors import DataError
+from ..modelfile.trained import square_photo
 from .figures import HEAT_MAX, error_heatmap, image_grid
 from .material import to_directx
 from .photos import MAX_PIXELS, MIN_SIDE, PhotoError, load_photo, orient, square
@@ -113,14 +114,6 @@ NORMAL_ALIASES = {"gl": "opengl", "dx": "directx"}
 RELIT_FORMATS = ("gif", "png", "none")
 #: How diffuse.png and specular.png store the albedos: linear (Des18) or sRGB (texture tools).
 ALBEDO_ENCODINGS = ("linear", "srgb")
-
-
-def _resample(photo: Tensor, size: int) -> Tensor:
-    if photo.shape[-1] == size:
-        return photo
-    return F.interpolate(
-        photo[None], size=(size, size), mode="bilinear", align_corners=False, antialias=True
-    )[0]
 
 
 def _finite(x: float) -> float | None:
@@ -222,7 +215,8 @@ class _Judged:
     entry: dict
 
 
-def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None, *, progress=None) -> dict:
+def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None, *, progress=None,
+                checked: bool = False) -> dict:  # fmt: skip
     """Capture one photo into the material folder ``out_dir``; returns its summary entry
     (``status`` ``"ok"``).
 
@@ -233,14 +227,17 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None,
     | re-rendering | error heat map; with refinement the network's and the refined maps side by
     side) and relit.gif or relit.png: see :mod:`svbrdf_models.capture.material`. ``progress(step, total,
     loss)`` follows the refinement. A photo that cannot be used, or a folder that holds another
-    material, raises before any work; an interrupt or an error leaves ``out_dir`` as it was (the
-    folder is staged and moved in whole).
+    material, raises before any work (``checked``: the caller checked it already, as
+    :func:`~svbrdf_models.capture.batch.capture_batch` does for every photo before the model
+    loads; the move into ``out_dir`` checks again under the folder's lock); an interrupt or an
+    error leaves ``out_dir`` as it was (the folder is staged and moved in whole).
     """
     from .material import MaterialContent, check_material_folder, write_material
 
     options = options or CaptureOptions()
     path, out_dir = Path(path), Path(out_dir)
-    check_material_folder(out_dir, path)
+    if not checked:
+        check_material_folder(out_dir, path)
     photo, notes = load_photo(path, linear=options.linear, crop=options.crop)
     side = photo.shape[-1]
     if options.tileable and side < MIN_TILEABLE_PHOTO:
@@ -394,7 +391,7 @@ def _predict_square(predictor, photo: Tensor, options: CaptureOptions, notes: li
         if side < res:
             soft = "the network sees it softened" if options.refine else "the maps will be soft"
             notes.append(f"the square ({side} px) is upsampled to the model's {res} px: {soft}")
-        svbrdf = predictor.predict(_resample(photo, res))
+        svbrdf = predictor.predict(photo)  # the predictor brings the square to its resolution
         size = refine_map_size(side, options.map_size) if options.refine else res
         _check_refine_size(size, options, path)
         if options.refine and options.map_size is None and size < side:
@@ -402,13 +399,13 @@ def _predict_square(predictor, photo: Tensor, options: CaptureOptions, notes: li
                 f"refined at {size} px, the default bound, of the {side} px square (--map-size full "
                 f"refines all of it: about {refine_cost(side, options.refine)[1] / 2**30:.1f} GB)"
             )
-        return _resample(photo, size), svbrdf, 0
+        return square_photo(photo, size), svbrdf, 0
     size = side if options.map_size in (None, FULL) else options.map_size
     if size < res:
         notes.append(f"the square ({size} px) is smaller than a tile ({res} px): predicted as one tile")
         size = res
     check_tiled_memory(size, f"{path}: --tiles")
-    photo = _resample(photo, size)
+    photo = square_photo(photo, size)
     tiles = tile_count(size, res)
     batch_fn = getattr(predictor, "predict_batch", predictor.predict)
     svbrdf = tile_predict(batch_fn, photo, res) if tiles > 1 else predictor.predict(photo)

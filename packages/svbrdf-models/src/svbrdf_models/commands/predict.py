@@ -213,7 +213,9 @@ def run(args, registry: Registry, out) -> int:
     set_threads(args.threads)  # after every refusal, so that a refusal stays one line
     summary = {"model": model.source, "step": model.steps, "resolution": model.resolution,
                "refine": args.refine, "refine_seconds": args.refine_seconds}  # fmt: skip
-    return capture_batch(model, args.photos, args.out, options, prog="svbrdf-models", summary=summary)
+    return capture_batch(
+        model, args.photos, args.out, options, prog="svbrdf-models", summary=summary, checked=True
+    )
 
 
 def _capture_options(args):

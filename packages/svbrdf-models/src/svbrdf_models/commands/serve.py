@@ -31,7 +31,7 @@ Ctrl-C ends the server and its work. Needs svbrdf-models[mlflow] (starlette and 
 
 def add_parser(sub) -> None:
     """The ``serve`` sub-command and its options."""
-    d = ServeLimits()
+    d = ServeLimits  # the defaults, read off the class
     p = sub.add_parser(
         "serve",
         help="serve a model over HTTP (MLflow's protocol), with limits a client cannot break",
@@ -42,10 +42,10 @@ def add_parser(sub) -> None:
     p.add_argument("source", nargs="?", default="pretrained",
                    help="a model file, models:/NAME/VERSION, runs:/ID/PATH or pretrained[:NAME] (default: "
                    "the model shipped with this package)")  # fmt: skip
-    p.add_argument("--host", default="127.0.0.1", help="address to listen on [127.0.0.1: this machine only]")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on [127.0.0.1: this machine]")
     p.add_argument("--port", type=int_range(1, 65535), default=5001, help="port [5001]")
     p.add_argument("--max-body-mb", type=float_range(0, above=True), default=d.body_mb, metavar="MB",
-                   help=f"largest request body [{d.body_mb:g}]; a 2048x2048 photo is 60-120 MB of JSON")  # fmt: skip
+                   help=f"largest request body [{d.body_mb:g}]; a 2048 px photo is 60-120 MB of JSON")  # fmt: skip
     p.add_argument("--max-pixels", type=int_range(1), default=d.pixels, metavar="N",
                    help=f"pixels of all the photos of one request [{d.pixels:,}]")  # fmt: skip
     p.add_argument("--max-refine", type=int_range(0), default=d.refine, metavar="STEPS",
@@ -65,5 +65,7 @@ def run(args, registry: Registry, out) -> None:
     choice = choose_threads(args.threads)
     model = load_model(args.source)
     limits = ServeLimits(args.max_body_mb, args.max_pixels, args.max_refine, args.timeout)
-    serve(model, args.host, args.port, limits, say=lambda line: print(f"{line}; {choice.describe()}", file=out,
-                                                                       flush=True))  # fmt: skip
+    def say(line: str) -> None:
+        print(f"{line}; {choice.describe()}", file=out, flush=True)
+
+    serve(model, args.host, args.port, limits, say=say)

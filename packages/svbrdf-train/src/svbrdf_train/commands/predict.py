@@ -188,7 +188,9 @@ def predict(photos, model_source, checkpoint, run_id, out, device, threads, **fl
     set_threads(threads)  # after every refusal, so that a refusal stays one line
     summary = {"model": model.source, "step": model.step, "resolution": model.resolution,
                "refine": options.refine, "refine_seconds": options.refine_seconds}  # fmt: skip
-    status = capture_batch(model, photos, out, options, prog="svbrdf-train", summary=summary)
+    status = capture_batch(
+        model, photos, out, options, prog="svbrdf-train", summary=summary, checked=True
+    )
     if status:
         sys.exit(status)
 
