@@ -47,7 +47,8 @@ process, DataLoader worker, thread count and batch (``batch([3, 4])`` equals
 compute each sample alike whatever the batch (see :mod:`.procedural_noise`). Across
 machines the bytes agree where torch runs the same CPU kernels (AVX2 and AVX512 builds
 agree; torch's scalar fallback rounds ``grid_sample`` differently in the last bit).
-:data:`GENERATOR_VERSION` changes whenever the output on one machine does.
+:data:`GENERATOR_VERSION` changes whenever the output on one machine does: by hand for a change
+of code, by itself for a change of the family table (see :func:`generator_version`).
 
 On a training device (``batch(indices, device="cuda")``, what ``data.generate: device``
 uses): the per-sample draws are made on the CPU as above and copied over, the pixel grid,
@@ -74,6 +75,7 @@ from svbrdf_render import Scene
 
 from ..errors import DataError
 from .capture import CAPTURE_PRESETS, PhotoSettings, photo_jpeg_quality, photo_scene, photographs
+from .families import family_fingerprint
 from .procedural_maps import (
     FAMILIES,
     FAMILY_WEIGHTS,
@@ -94,14 +96,34 @@ __all__ = [
     "FAMILY_WEIGHTS",
     "PhotoSettings",
     "ProceduralMaterials",
+    "generator_version",
     "material",
     "materials",
     "photo_jpeg_quality",
     "photo_scene",
 ]
 
+#: The version of the generator's code: bumped by hand when a change to the code (the recipes,
+#: mixing, tone and relief, the capture, a family's ``draw`` or ``fields``) changes the output.
+_CODE_VERSION = "3"
+#: :func:`~.families.family_fingerprint` of the family table :data:`_CODE_VERSION` was released
+#: with (its families, drawing order and weights); set it anew when bumping the code version.
+_CODE_VERSION_FAMILIES = "b925ab6a"
+
+
+def generator_version(fingerprint: str | None = None) -> str:
+    """The generator's version for the family table of ``fingerprint`` (default the registered
+    one): the code version, followed by ``+`` and the fingerprint when the table is not the one
+    that version was released with. Adding, removing, reordering or reweighting a family changes
+    the output, so it changes the version, with no edit here."""
+    fingerprint = family_fingerprint() if fingerprint is None else fingerprint
+    if fingerprint == _CODE_VERSION_FAMILIES:
+        return _CODE_VERSION
+    return f"{_CODE_VERSION}+{fingerprint}"
+
+
 #: Changes whenever the output for a given (seed, index, resolution) changes; recorded in shards.
-GENERATOR_VERSION = "3"
+GENERATOR_VERSION = generator_version()
 
 
 class ProceduralMaterials(Dataset):

@@ -33,26 +33,16 @@ from .seeds import COMPONENT, MASK, MATERIAL, key
 
 __all__ = ["FAMILIES", "FAMILY_WEIGHTS", "material", "materials"]
 
-#: The material families, in the order they are drawn from.
+#: The material families, in the order they are drawn from (their declared ``order``).
 FAMILIES: tuple[str, ...] = tuple(FAMILY_TABLE)
-#: How often each family is drawn, relatively. The families of the Des18 materials (stone,
-#: tiles, cells, metal) keep the bulk (about 55%), metals a little more (often dark, often
-#: coloured); the surfaces Des18 lacks share the rest: painted and rusted metal most of them
-#: (metal and dielectric in one material, as Des18's bumpy metal is too), plaster and rock
-#: (common, and the low and the strong relief of rough near-grey surfaces), wood and fabric,
-#: and bark least (the narrowest look).
-FAMILY_WEIGHTS: dict[str, float] = {
-    "stone": 1.0,
-    "tiles": 1.0,
-    "cells": 1.0,
-    "wood": 0.6,
-    "metal": 1.2,
-    "fabric": 0.5,
-    "plaster": 0.6,
-    "rusted": 0.7,
-    "bark": 0.4,
-    "rock": 0.6,
-}
+#: How often each family is drawn, relatively: each family's ``weight``, declared in its own
+#: module (:mod:`.families`), read here. The families of the Des18 materials (stone, tiles,
+#: cells, metal) keep the bulk (about 55%), metals a little more (often dark, often coloured);
+#: the surfaces Des18 lacks share the rest: painted and rusted metal most of them (metal and
+#: dielectric in one material, as Des18's bumpy metal is too), plaster and rock (common, and
+#: the low and the strong relief of rough near-grey surfaces), wood and fabric, and bark least
+#: (the narrowest look).
+FAMILY_WEIGHTS: dict[str, float] = {name: family.weight for name, family in FAMILY_TABLE.items()}
 
 #: Pixels generated together (see :func:`materials`).
 _CHUNK_PIXELS = 2 * 256 * 256

@@ -1,7 +1,8 @@
 """The material families of the procedural generator: one module each, what it draws and computes.
 
 A family is two functions (see :class:`~.base.Family`), written in its own module, which ends
-by registering them into :data:`FAMILY_TABLE` (:func:`~.base.register`):
+by registering them into :data:`FAMILY_TABLE` (:func:`~.base.register`) with the family's place
+in the drawing order (``order``) and how often it is drawn (``weight``):
 
 - ``draw(d)`` makes the random choices of *one* material from its own :class:`Draw`
   (variant, scale, rotation, palette, finish, random tables) and returns them as a dict
@@ -30,24 +31,25 @@ metals) are in :mod:`.drawing`.
 Only the ops listed in :mod:`..procedural_noise` touch batched tensors, so that a batch
 computes what its members compute alone, bit for bit.
 
-Adding a family: a module here that defines ``draw`` and ``fields`` and ends with
-``register(Family(...))``, its import below, and its weight in
-:data:`svbrdf_train.data.procedural.FAMILY_WEIGHTS`. The modules are imported in the order
-families are drawn from, which is part of the generator's output (a sample picks its family
-by position in that order): a new family goes last, and changes ``GENERATOR_VERSION``.
+Adding a family is adding one module here: it defines ``draw`` and ``fields`` and ends with
+``register(Family(name, description, draw, fields, order=..., weight=...))``. Nothing else
+names it: this package imports every module in it (:func:`_import_modules`; a module that
+registers nothing, as :mod:`.base` and :mod:`.drawing`, is a helper), the table lists the
+families by their declared ``order`` (the drawing order: a sample picks its family by
+position in it, so it is part of the generator's output; a new family usually goes last),
+and :data:`svbrdf_train.data.procedural_maps.FAMILY_WEIGHTS` and the family part of
+:data:`svbrdf_train.data.procedural.GENERATOR_VERSION` are read from the table.
 """
 
 from __future__ import annotations
 
-# isort: off
-# The drawing order (see above): the table lists the families as these imports register them.
-from . import stone, tiles, cells, wood, metal, fabric, plaster, rusted, bark, rock  # noqa: F401
+import importlib
+import pkgutil
 
-# isort: on
 import torch
 
 from ..procedural_noise import Draw
-from .base import FAMILY_TABLE, Family, Fields, pixel_grid, register, stack_choices
+from .base import FAMILY_TABLE, Family, Fields, family_fingerprint, pixel_grid, register, stack_choices
 from .drawing import COLOURED_METALS, METALS, draw_metal_specular, grey
 
 __all__ = [
@@ -58,11 +60,23 @@ __all__ = [
     "Fields",
     "draw_metal_specular",
     "family_fields",
+    "family_fingerprint",
     "grey",
     "pixel_grid",
     "register",
     "stack_choices",
 ]
+
+
+def _import_modules() -> None:
+    """Import every module of this package (in any order: :func:`register` keeps the table in
+    the declared order), so that each family module registers its family."""
+    for module in pkgutil.iter_modules(__path__):
+        if not module.name.startswith("_"):
+            importlib.import_module(f"{__name__}.{module.name}")
+
+
+_import_modules()
 
 
 def family_fields(

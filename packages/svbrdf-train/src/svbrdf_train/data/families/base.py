@@ -1,14 +1,19 @@
 """What a procedural family is, the table of families, and the batching its ``fields`` relies on.
 
 A family module defines ``draw(d)`` and ``fields(p, x, y)`` (see :mod:`svbrdf_train.data.families`)
-and ends by registering them: ``register(Family(name, description, draw, fields))``. The table
-keeps the order of registration, which is the order families are drawn from.
+and ends by registering them with its place in the drawing order and its weight:
+``register(Family(name, description, draw, fields, order=..., weight=...))``. The table lists
+the families by their declared ``order`` whatever order they register in, so the drawing order
+is written in the family modules alone, and :func:`family_fingerprint` names the table for the
+generator's version.
 """
 
 from __future__ import annotations
 
+import hashlib
+import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 from typing import Any, NamedTuple
 
 import torch
@@ -17,7 +22,15 @@ from torch import Tensor
 from ...errors import DataError
 from ..procedural_noise import Draw
 
-__all__ = ["Fields", "Family", "FAMILY_TABLE", "register", "stack_choices", "pixel_grid"]
+__all__ = [
+    "Fields",
+    "Family",
+    "FAMILY_TABLE",
+    "family_fingerprint",
+    "register",
+    "stack_choices",
+    "pixel_grid",
+]
 
 
 class Fields(NamedTuple):
@@ -32,24 +45,60 @@ class Fields(NamedTuple):
 
 @dataclass(frozen=True)
 class Family:
-    """One family of materials: its description and its two functions."""
+    """One family of materials: its description, its two functions, and how it is drawn.
+
+    ``order``: its place in the drawing order, an integer; families are listed and drawn from
+    in increasing order (a sample picks its family by position in that list, so the order is
+    part of the generator's output), and no two families declare the same. ``weight``: how
+    often it is drawn, relative to the other families' weights (a finite number > 0).
+    """
 
     name: str
     description: str
     draw: Callable[[Draw], dict[str, Any]]
     fields: Callable[[dict[str, Tensor], Tensor, Tensor], Fields]
+    _: KW_ONLY
+    order: int
+    weight: float
+
+    def __post_init__(self) -> None:
+        if isinstance(self.order, bool) or not isinstance(self.order, int):
+            raise DataError(f"material family {self.name!r}: order must be an integer, got {self.order!r}")
+        weight = self.weight
+        if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not math.isfinite(weight):
+            raise DataError(f"material family {self.name!r}: weight must be a finite number, got {weight!r}")
+        if weight <= 0:
+            raise DataError(f"material family {self.name!r}: weight must be > 0, got {weight!r}")
 
 
-#: Every registered family by name, in the order they registered (the drawing order).
+#: Every registered family by name, in their declared ``order`` (the drawing order).
 FAMILY_TABLE: dict[str, Family] = {}
 
 
 def register(family: Family) -> Family:
-    """Add ``family`` to :data:`FAMILY_TABLE`, last; a name registers once."""
+    """Add ``family`` to :data:`FAMILY_TABLE` at its declared place in the drawing order; a name
+    and an order register once."""
     if family.name in FAMILY_TABLE:
         raise DataError(f"material family {family.name!r} is registered twice; give the new one another name")
-    FAMILY_TABLE[family.name] = family
+    for other in FAMILY_TABLE.values():
+        if other.order == family.order:
+            raise DataError(
+                f"material families {other.name!r} and {family.name!r} both declare order {family.order}; "
+                "give the new one another place in the drawing order"
+            )
+    ordered = sorted([*FAMILY_TABLE.values(), family], key=lambda f: f.order)
+    FAMILY_TABLE.clear()
+    FAMILY_TABLE.update((f.name, f) for f in ordered)
     return family
+
+
+def family_fingerprint(table: dict[str, Family] | None = None) -> str:
+    """A short hash of what the generator draws its families by: their names and weights in the
+    drawing order (of ``table``, default :data:`FAMILY_TABLE`). Another family, another
+    weight or another order gives another fingerprint; the order's numbers alone do not."""
+    table = FAMILY_TABLE if table is None else table
+    text = repr([(name, float(family.weight)) for name, family in table.items()])
+    return hashlib.sha256(text.encode()).hexdigest()[:8]
 
 
 def stack_choices(

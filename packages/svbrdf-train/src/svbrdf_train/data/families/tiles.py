@@ -4,7 +4,8 @@ Tiles, bricks, mosaics; grout recessed, rougher, another colour; some with metal
 tiles meet.
 
 ``draw`` makes the choices of one material, ``fields`` computes a batch of them (see
-:mod:`svbrdf_train.data.families`); the module ends by registering the two.
+:mod:`svbrdf_train.data.families`); the module ends by registering the two, with the family's
+place in the drawing order and its weight.
 """
 
 from __future__ import annotations
@@ -146,4 +147,13 @@ def fields(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
     return Fields(height, diffuse, roughness, specular, {"grout": grout * (1 - stud), "stud": stud})
 
 
-register(Family("tiles", "tiles, bricks and mosaics with recessed, rougher grout; metal studs", draw, fields))
+register(
+    Family(
+        name="tiles",
+        description="tiles, bricks and mosaics with recessed, rougher grout; metal studs",
+        draw=draw,
+        fields=fields,
+        order=20,
+        weight=1.0,  # a family of the Des18 materials: they keep the bulk of the draws
+    )
+)

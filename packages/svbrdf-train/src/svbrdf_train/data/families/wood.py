@@ -3,7 +3,8 @@
 Rings, fibres, pores; optionally planks with seams.
 
 ``draw`` makes the choices of one material, ``fields`` computes a batch of them (see
-:mod:`svbrdf_train.data.families`); the module ends by registering the two.
+:mod:`svbrdf_train.data.families`); the module ends by registering the two, with the family's
+place in the drawing order and its weight.
 """
 
 from __future__ import annotations
@@ -102,4 +103,13 @@ def fields(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
     return Fields(height, diffuse, roughness, p["specular"].expand_as(diffuse), {"seam": seam})
 
 
-register(Family("wood", "rings, fibres and pores, optionally planks with seams", draw, fields))
+register(
+    Family(
+        name="wood",
+        description="rings, fibres and pores, optionally planks with seams",
+        draw=draw,
+        fields=fields,
+        order=40,
+        weight=0.6,  # a surface Des18 lacks
+    )
+)
