@@ -53,7 +53,6 @@ from svbrdf_render import (
     BACKENDS,
     DES18_EFFECTS,
     EFFECTS,
-    PHOTO_EFFECTS,
     SVBRDF,
     render,
     training_scene,
@@ -121,9 +120,7 @@ def effect_variants() -> list[tuple[str, tuple[str, ...]]]:
         # an effect that requires another (fresnel, masking: the specular lobe) goes with it
         drop = {e} | {x for x in DES18_EFFECTS if e in EFFECTS[x].requires}
         variants.append((f"-{e}", tuple(x for x in DES18_EFFECTS if x not in drop)))
-    extra = [e for e in PHOTO_EFFECTS if e not in DES18_EFFECTS]
-    extra += [e for e in ("gamma",) if e in EFFECTS and e not in extra]
-    for e in extra:
+    for e in (name for name, spec in EFFECTS.items() if spec.phase == "image"):
         variants.append((f"+{e}", tuple(DES18_EFFECTS) + (e,)))
     return variants
 
@@ -208,7 +205,7 @@ def measure(
     size: int = 256,
     materials: int = 8,
     repeats: int = 5,
-    backends: Sequence[str] = ("eager", "compiled"),
+    backends: Sequence[str] = BACKENDS,
     dtypes: Sequence[str] = ("float64", "float32", "bfloat16"),
     effects: str | Sequence[str] = "each",
     *,

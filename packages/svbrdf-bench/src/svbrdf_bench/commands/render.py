@@ -10,6 +10,7 @@ from pathlib import Path
 
 import click
 
+from svbrdf_render.renderer import BACKENDS
 from svbrdf_train import experiment_option
 
 EPILOG = """\b
@@ -117,7 +118,7 @@ def _write(out: Path, header: str, table: str, records: list[dict], meta: dict) 
 )
 @click.option(
     "--backend",
-    type=click.Choice(["eager", "compiled", "both"]),
+    type=click.Choice([*BACKENDS, "both"]),
     help="Backends to time; compiling takes seconds per effect set.  [default: both; --quick eager]",
 )
 @click.option(
@@ -191,7 +192,7 @@ def _settings(size, materials, repeats, backend, quick) -> dict:
     for name, value in (("--size", size), ("--materials", materials), ("--repeats", repeats)):
         if value < 1:
             raise BenchError(f"{name} must be at least 1, got {value}")
-    backends = ["eager", "compiled"] if backend == "both" else [backend]
+    backends = list(BACKENDS) if backend == "both" else [backend]
     return {"size": size, "materials": materials, "repeats": repeats, "backends": backends}
 
 

@@ -217,8 +217,7 @@ class _Judged:
 
 def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None, *, progress=None,
                 checked: bool = False) -> dict:  # fmt: skip
-    """Capture one photo into the material folder ``out_dir``; returns its summary entry
-    (``status`` ``"ok"``).
+    """Capture one photo into the material folder ``out_dir``; its summary entry (status ``ok``).
 
     ``predictor`` has ``resolution`` and ``predict(photo)`` (a :class:`~svbrdf_models.TrainedModel`,
     or svbrdf-train's ``Predictor``; its ``predict_batch(photos)`` is used for tiles when it has
@@ -227,10 +226,8 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None,
     | re-rendering | error heat map; with refinement the network's and the refined maps side by
     side) and relit.gif or relit.png: see :mod:`svbrdf_models.capture.material`. ``progress(step, total,
     loss)`` follows the refinement. A photo that cannot be used, or a folder that holds another
-    material, raises before any work (``checked``: the caller checked it already, as
-    :func:`~svbrdf_models.capture.batch.capture_batch` does for every photo before the model
-    loads; the move into ``out_dir`` checks again under the folder's lock); an interrupt or an
-    error leaves ``out_dir`` as it was (the folder is staged and moved in whole).
+    material, raises before any work (unless ``checked``: ``capture_batch`` checks every photo's
+    folder once); an interrupt or an error leaves ``out_dir`` as it was (staged, moved in whole).
     """
     from .material import MaterialContent, check_material_folder, write_material
 

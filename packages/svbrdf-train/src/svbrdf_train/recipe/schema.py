@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from svbrdf_models import param
+from svbrdf_render.renderer import BACKENDS
 
 from ..training.paper_weights import MAP_WEIGHTS
 
@@ -394,7 +395,7 @@ class TrainSection:
         "compiled",
         "renderer of the loss and discriminator renderings: compiled (torch.compile, 2-3x faster "
         "forward+backward after a compile of seconds) or eager",
-        choices=("compiled", "eager"),
+        choices=tuple(sorted(BACKENDS)),  # the renderer's backends (svbrdf_render), named once
     )
     clock: str = param(
         "auto",
