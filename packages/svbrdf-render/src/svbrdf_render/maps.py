@@ -19,6 +19,7 @@ that is symmetric about the camera axis.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -310,13 +311,16 @@ class SVBRDF:
                 t, size=(height, width), mode=mode, align_corners=align, antialias=antialias
             )
 
-        from .geometry import safe_normalize
+        return self.filtered(rs)
 
+    def filtered(self, fn: Callable[[Tensor], Tensor]) -> SVBRDF:
+        """``fn`` (a filter or resampling of ``(B, C, H, W)``) applied to every map; normals
+        re-normalised, the other maps clamped to [0, 1]."""
         return SVBRDF(
-            safe_normalize(rs(self.normal), dim=1),
-            rs(self.diffuse).clamp(0, 1),
-            rs(self.roughness).clamp(0, 1),
-            rs(self.specular).clamp(0, 1),
+            safe_normalize(fn(self.normal), dim=1),
+            fn(self.diffuse).clamp(0, 1),
+            fn(self.roughness).clamp(0, 1),
+            fn(self.specular).clamp(0, 1),
             validate=False,
         )
 

@@ -147,8 +147,6 @@ def without_checkerboard(maps: SVBRDF) -> SVBRDF:
     network maps, which would otherwise pull the refined maps back toward the pattern."""
     import torch.nn.functional as F
 
-    from svbrdf_render import safe_normalize
-
     k = torch.tensor([0.25, 0.5, 0.25], dtype=maps.dtype, device=maps.device)
     kernel = (k[:, None] * k[None, :])[None, None]
 
@@ -157,13 +155,7 @@ def without_checkerboard(maps: SVBRDF) -> SVBRDF:
         padded = F.pad(t, (1, 1, 1, 1), mode="replicate")
         return F.conv2d(padded, kernel.expand(c, 1, 3, 3), groups=c)
 
-    return SVBRDF(
-        safe_normalize(smooth(maps.normal), dim=1),
-        smooth(maps.diffuse).clamp(0, 1),
-        smooth(maps.roughness).clamp(0, 1),
-        smooth(maps.specular).clamp(0, 1),
-        validate=False,
-    )
+    return maps.filtered(smooth)
 
 
 def refine_prediction(
