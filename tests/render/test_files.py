@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import errno
+import os
 import subprocess
 import sys
 
@@ -10,8 +11,10 @@ import pytest
 
 from svbrdf_render.errors import OutputError, SVBRDFError, exit_status
 from svbrdf_render.formats.files import (
+    LockHeld,
     atomic_output,
     check_output_folder,
+    locked,
     remove_stale_temporaries,
     temporary_path,
     write_failure,
@@ -92,3 +95,79 @@ def test_an_output_folder_is_checked_without_being_made(tmp_path):
     with pytest.raises(SVBRDFError, match=r"-o .*file/out: cannot write there: .* is a file") as e:
         check_output_folder(tmp_path / "file" / "out", "-o")
     assert exit_status(e.value) == 2
+
+
+# -- locked: the one inter-process lock ------------------------------------------------------------
+
+
+def _hold(path, ready, release, **options):
+    """In a child process: hold ``locked(path, **options)`` until ``release`` is set."""
+    with locked(path, **options):
+        ready.set()
+        release.wait(10)
+
+
+def test_a_lock_not_waited_for_is_refused_naming_the_holders_pid(tmp_path):
+    """``wait=False`` raises LockHeld at once; with ``pid=True`` the holder's PID is in the lock
+    file for the refused process to read, and the file goes with the holder."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("fork")
+    path = tmp_path / "run" / ".fit.lock"
+    ready, release = ctx.Event(), ctx.Event()
+    holder = ctx.Process(target=_hold, args=(path, ready, release), kwargs={"pid": True})
+    holder.start()
+    try:
+        assert ready.wait(10)
+        assert path.read_text() == f"{holder.pid}\n"
+        with pytest.raises(LockHeld) as refused, locked(path, wait=False, pid=True):
+            pass
+        assert refused.value.holder == str(holder.pid) and f"PID {holder.pid}" in str(refused.value)
+        with pytest.raises(LockHeld) as refused, locked(path, wait=False):
+            pass
+        assert refused.value.holder is None  # without pid=True the file is not read
+    finally:
+        release.set()
+        holder.join(10)
+    assert not path.exists()  # removed by its holder
+    with locked(path, wait=False, pid=True):
+        assert path.read_text().strip() == str(os.getpid())
+
+
+def test_a_process_waiting_on_a_lock_file_its_holder_removes_locks_the_new_one(tmp_path):
+    """The waiter blocked on the file the holder removes on release must not hold the removed
+    file (a third process would lock a new one beside it): it locks what is at the path now."""
+    import multiprocessing
+    import time
+
+    ctx = multiprocessing.get_context("fork")
+    path = tmp_path / "x.lock"
+    ready, release = ctx.Event(), ctx.Event()
+    first = ctx.Process(target=_hold, args=(path, ready, release), kwargs={"pid": True})
+    first.start()
+    assert ready.wait(10)
+    ready2, release2 = ctx.Event(), ctx.Event()
+    second = ctx.Process(target=_hold, args=(path, ready2, release2), kwargs={"pid": True})
+    second.start()
+    try:
+        time.sleep(0.3)  # the second has opened the file and waits on it
+        assert not ready2.is_set()
+        release.set()
+        first.join(10)
+        assert ready2.wait(10)
+        assert path.read_text() == f"{second.pid}\n"
+        with pytest.raises(LockHeld):
+            with locked(path, wait=False):
+                pass
+    finally:
+        release.set()
+        release2.set()
+        first.join(10)
+        second.join(10)
+
+
+def test_a_pid_is_written_in_a_lock_file_not_a_folder(tmp_path):
+    with pytest.raises(ValueError, match="not a folder"), locked(tmp_path, pid=True):
+        pass
+    with locked(tmp_path, wait=False):  # a folder is locked as it is: nothing written in it
+        assert list(tmp_path.iterdir()) == []

@@ -184,8 +184,9 @@ def test_every_listed_recipe_loads_at_every_size():
 
 
 def test_a_new_sqlite_store_is_locked_against_other_openers_and_released(tmp_path):
-    """``_store_lock`` (filelock) holds ``<db>.lock`` exclusively: an ``fcntl.flock`` on the same
-    file, as the hand-written lock took it, cannot take it meanwhile, and can once it is released.
+    """``_store_lock`` (svbrdf_render's ``locked``) holds ``<db>.lock`` exclusively: an
+    ``fcntl.flock`` on the same file, as earlier versions took it (by hand, then through filelock),
+    cannot take it meanwhile, and can once it is released.
     Stores that are not SQLite files get no lock file."""
     fcntl = pytest.importorskip("fcntl")
     from svbrdf_train.tracking import _store_lock

@@ -37,6 +37,7 @@ __all__ = [
     "INTERRUPTED",
     "sigterm_as_interrupt",
     "locked",
+    "LockHeld",
 ]
 
 #: The exit status of a command stopped by Ctrl-C or SIGTERM (128 + SIGINT).
@@ -286,31 +287,98 @@ def sigterm_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-@contextlib.contextmanager
-def locked(path: str | os.PathLike) -> Iterator[None]:
-    """Hold an exclusive lock on ``path`` for the block; waits for another holder to leave.
+class LockHeld(Exception):
+    """:func:`locked` without waiting found the lock held by another process. ``holder`` is what
+    the holder wrote in the lock file (its PID, with ``pid=True``; ``""`` when it wrote nothing
+    yet), None where it cannot be read (``pid=False``, or Windows). The caller words the refusal.
+    """
 
-    ``path`` is a folder (locked as it is: nothing is written in it) or a file (created if
-    missing and left in place, so that every process locks the same file).
+    def __init__(self, path: Path, holder: str | None):
+        super().__init__(f"{path}: locked by {f'PID {holder}' if holder else 'another process'}")
+        self.path, self.holder = path, holder
+
+
+@contextlib.contextmanager
+def locked(path: str | os.PathLike, *, wait: bool = True, pid: bool = False) -> Iterator[None]:
+    """Hold an exclusive lock on ``path`` for the block: the project's one inter-process lock.
+
+    ``path`` is where the lock lives: a folder (locked as it is: nothing is written in it) or a
+    lock file (created if missing, its folder too). ``wait``: wait for another holder to leave;
+    False raises :class:`LockHeld` at once instead. ``pid``: write this process's PID in the lock
+    file while holding it, so that a refused process can name the holder (``LockHeld.holder``),
+    and remove the file on release (a file naming a PID never outlives its holder but by
+    SIGKILL); without it the file stays in place, so that every process locks the same file.
 
     The lock is the operating system's (``flock`` on POSIX; ``filelock``, which torch installs,
-    elsewhere): a process that dies, even by SIGKILL, drops it. Used where a check and the
-    write it guards must be one step across processes: two captures into one folder.
+    on Windows, without the PID): a process that dies, even by SIGKILL, drops it, so a lock file
+    left behind is simply taken over. Used where a check and the write it guards must be one step
+    across processes: two captures into one folder (waiting), two fits on one ``--out``
+    (refused, naming the PID), two processes creating one new SQLite MLflow store (waiting).
     """
     path = Path(path)
     if not path.is_dir():
         path.parent.mkdir(parents=True, exist_ok=True)
+    elif pid:
+        raise ValueError(f"locked({path}, pid=True): the PID is written in a lock file, not a folder")
     try:
         import fcntl
     except ImportError:  # pragma: no cover - Windows
-        from filelock import FileLock
-
-        with FileLock(str(path / ".lock" if path.is_dir() else path)):
+        with _filelock(path, wait):
             yield
         return
-    fd = os.open(path, os.O_RDONLY) if path.is_dir() else os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    fd = _flock(fcntl, path, wait, pid)
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX)
+        if pid:
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()}\n".encode())
         yield
     finally:
+        if pid:
+            with contextlib.suppress(OSError):
+                path.unlink()
         os.close(fd)  # closing the descriptor drops the lock
+
+
+def _flock(fcntl, path: Path, wait: bool, pid: bool) -> int:
+    """A descriptor of ``path`` that holds its exclusive ``flock`` (see :func:`locked`).
+
+    A holder that removes the lock file on release leaves a process that waited on it holding
+    a removed file: it then opens and locks the file now at ``path`` (or the new one) instead.
+    """
+    while True:
+        fd = os.open(path, os.O_RDONLY) if path.is_dir() else os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+        except BlockingIOError:
+            holder = os.read(fd, 32).decode("ascii", "replace").strip() if pid else None
+            os.close(fd)
+            raise LockHeld(path, holder) from None
+        except BaseException:  # interrupted while waiting
+            os.close(fd)
+            raise
+        try:
+            now = os.stat(path)
+            held = os.fstat(fd)
+            same = (now.st_dev, now.st_ino) == (held.st_dev, held.st_ino)
+        except FileNotFoundError:  # removed by the holder that just released it
+            same = False
+        if same:
+            return fd
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def _filelock(path: Path, wait: bool) -> Iterator[None]:  # pragma: no cover - Windows
+    """:func:`locked` where there is no ``flock``: ``filelock`` on the file (a folder's
+    ``.lock``), without a PID."""
+    from filelock import FileLock, Timeout
+
+    lock = FileLock(str(path / ".lock" if path.is_dir() else path), timeout=-1 if wait else 0)
+    try:
+        lock.acquire()
+    except Timeout:
+        raise LockHeld(path, None) from None
+    try:
+        yield
+    finally:
+        lock.release()

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import os
 import re
 import sys
 from pathlib import Path
@@ -321,58 +320,35 @@ def _output_lock(out: Path):
     """Hold ``out/.fit.lock`` for the fit's lifetime: a second fit on ``out`` (new or --resume) is
     refused with one line naming the PID of the fit that holds it.
 
-    The lock is the operating system's (``flock`` on POSIX): a fit that dies, even by SIGKILL,
-    releases it, so a lock file left by a dead process is simply taken over. The file is removed
-    when the fit ends, and so is ``out`` if the fit made it and left it empty (refused early).
-    Where ``flock`` is missing (Windows) ``filelock`` locks the same file, without the PID.
+    The lock is :func:`svbrdf_render.formats.files.locked`, not waiting, the PID written in the
+    lock file: a fit that dies, even by SIGKILL, releases it, so a lock file left by a dead
+    process is simply taken over. The file is removed when the fit ends, and so is ``out`` if the
+    fit made it and left it empty (refused early). Where ``flock`` is missing (Windows)
+    ``filelock`` locks the same file, without the PID.
     """
-    from svbrdf_render.formats.files import check_output_folder
+    from svbrdf_render.formats.files import LockHeld, check_output_folder, locked
 
     from ..errors import TrainingError
 
     check_output_folder(out, "--out")
     made = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
-    path = out / LOCK_NAME
+    held = contextlib.ExitStack()
     try:
-        import fcntl
-    except ImportError:  # pragma: no cover - Windows
-        from filelock import FileLock, Timeout
-
-        try:
-            with FileLock(path, timeout=0):
-                yield
-        except Timeout:
+        held.enter_context(locked(out / LOCK_NAME, wait=False, pid=True))
+    except LockHeld as busy:
+        if busy.holder is None:  # pragma: no cover - Windows: no PID to name
             raise TrainingError(
                 f"--out {out}: another fit is writing there; wait for it to end or choose another --out"
             ) from None
-        return
-    while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.read(fd, 32).decode("ascii", "replace").strip() or "unknown"
-            os.close(fd)
-            raise TrainingError(
-                f"--out {out}: another fit (PID {holder}) is writing there; wait for it to end, "
-                "or choose another --out"
-            ) from None
-        try:
-            same = os.fstat(fd).st_ino == os.stat(path).st_ino
-        except FileNotFoundError:  # removed by the fit that just released it: lock the new one
-            same = False
-        if same:
-            break
-        os.close(fd)
+        raise TrainingError(
+            f"--out {out}: another fit (PID {busy.holder or 'unknown'}) is writing there; wait for it "
+            "to end, or choose another --out"
+        ) from None
     try:
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())
-        yield
+        with held:
+            yield
     finally:
-        with contextlib.suppress(OSError):
-            path.unlink()
-        os.close(fd)
         if made:
             with contextlib.suppress(OSError):
                 out.rmdir()  # only when empty: a fit refused before it wrote anything
