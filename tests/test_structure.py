@@ -2,7 +2,7 @@
 packages): no import circle, no long function, no long file and no crowded folder in any of the
 four packages, no private module imported across packages, docs/architecture.md naming every
 subpackage, and the knowledge that was once copied from place to place (the Des18 effect set,
-the stored normal encoding) written in one place."""
+the photo effect set, the stored normal encoding, the file lock) written in one place."""
 
 from __future__ import annotations
 
@@ -277,6 +277,22 @@ def test_the_des18_effect_set_is_spelled_once():
     """The Des18 effect set is one constant (effects.DES18_EFFECTS); nothing lists it again."""
     found = [f for f in _string_lines("cosine") if f in _string_lines("falloff")]
     assert len(found) == 1 and found[0].startswith("packages/svbrdf-render/src/svbrdf_render/effects.py:"), found
+
+
+def test_the_photo_effect_set_is_spelled_once():
+    """The generator's phone photo is one constant (effects.PHOTO_EFFECTS), which the data
+    generator declares and the renderer registers: no other module names its image stages."""
+    files = [{line.rsplit(":", 1)[0] for line in _string_lines(w)} for w in ("exposure", "noise", "clip")]
+    assert set.intersection(*files) == {"packages/svbrdf-render/src/svbrdf_render/effects.py"}, files
+
+
+def test_the_file_lock_is_written_once():
+    """One inter-process lock, svbrdf_render.formats.files.locked: the photo tool's folder lock,
+    the fit's ``--out`` lock and the tracking store's lock call it; none takes ``flock`` or
+    ``filelock`` by itself."""
+    taken = re.compile(r"\bfcntl \. flock\b|\bFileLock \(|\b(from|import) filelock\b")
+    found = {line.rsplit(":", 1)[0] for line in _code_lines(taken)}
+    assert found == {"packages/svbrdf-render/src/svbrdf_render/formats/files.py"}, found
 
 
 # -- rooms: subpackages ----------------------------------------------------------------------------

@@ -161,6 +161,35 @@ def test_batched_render_takes_each_flash_colour():
     assert torch.allclose(photos, batch["input"], atol=1e-5)
 
 
+def test_the_generators_photo_is_photo_effects():
+    """svbrdf_render.PHOTO_EFFECTS is the one spelling of the photo the training data is made
+    of: every photo_scene declares exactly those effects, and gamma for its share."""
+    from svbrdf_render import PHOTO_EFFECTS
+
+    settings = PhotoSettings(gamma_probability=0.5)
+    declared = [tuple(photo_scene(0, i, settings).effects) for i in range(20)]
+    assert set(declared) == {PHOTO_EFFECTS, (*PHOTO_EFFECTS, "gamma")}
+
+
+def test_a_batch_with_vignetting_renders_as_one_by_one():
+    """_photos runs the registry's image stages per photo but vignetting, which reads the camera
+    and runs in the batched render: the very bytes of render(), whatever the fields of view."""
+    from svbrdf_render import EFFECTS
+    from svbrdf_train.data.capture import _IMAGE_STAGES
+
+    data = ProceduralMaterials(3, 24, seed=2)
+    batch = data.batch(range(3))
+    scenes = [data.scene(i).with_effects({**data.scene(i).effects, "vignetting": {}}) for i in range(3)]
+    assert len({s.camera.fov for s in scenes}) == 3
+    image = [name for name, e in EFFECTS.items() if e.phase == "image"]
+    assert _IMAGE_STAGES == ("exposure", "noise", "clip", "gamma") == tuple(image[1:])
+    assert EFFECTS[image[0]].needs_camera  # vignetting, run first in the batch as render() runs it
+    one_by_one = torch.cat(
+        [render(SVBRDF.unpack(batch["maps"][k : k + 1], validate=False), s) for k, s in enumerate(scenes)]
+    )
+    assert torch.equal(_photos(batch["maps"], scenes), one_by_one)
+
+
 # -- the JPEG round trip ----------------------------------------------------------------------
 
 

@@ -315,8 +315,11 @@ _register("gamma", "image", "display encoding x**(1/gamma)", stage=_gamma, check
 #: The Deschaintre 2018 rendering: what reproduces the Des18 data set inputs. The one
 #: spelling of this set; the renderer and its hand-derived backward import it.
 DES18_EFFECTS = ("diffuse", "specular", "fresnel", "masking", "cosine", "falloff")
-#: A simulated phone photo: Des18 shading plus exposure, vignetting, noise and clipping.
-PHOTO_EFFECTS = DES18_EFFECTS + ("vignetting", "exposure", "noise", "clip")
+#: A simulated phone photo: Des18 shading plus exposure, noise and clipping. The one spelling
+#: of the photo the data generator makes (``svbrdf_train.data.capture.photo_scene`` declares
+#: these, with drawn parameters, and gamma for a share of the photos): no vignetting, which the
+#: training photos never had.
+PHOTO_EFFECTS = DES18_EFFECTS + ("exposure", "noise", "clip")
 
 
 def effect_names() -> tuple[str, ...]:

@@ -18,7 +18,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from svbrdf_render import DES18_EFFECTS, SVBRDF, Camera, Flash, Scene, apply_image_effects, render
+from svbrdf_render import EFFECTS, PHOTO_EFFECTS, SVBRDF, Camera, Flash, Scene, apply_image_effects, render
 
 from ..errors import DataError
 from .jpeg import jpeg_roundtrip
@@ -181,9 +181,9 @@ def photo_scene(seed: int, index: int, settings: PhotoSettings | None = None) ->
     off the patch's axis by ``settings.camera_shift`` (the image still covers the patch), a
     flash of intensity ``pi * distance^2`` (or drawn from ``settings.intensity``) offset a
     little from the lens, white or coloured by ``settings.white_balance``, and exactly these
-    effects: the Des18 shading (diffuse, specular, fresnel, masking, cosine, falloff),
-    exposure, noise (seeded from ``(seed, index)``, so the photo reproduces), clip, and
-    gamma only for the ``settings.gamma_probability`` share of photos. The JPEG round trip
+    effects: :data:`svbrdf_render.PHOTO_EFFECTS` (the Des18 shading, exposure, noise seeded
+    from ``(seed, index)`` so that the photo reproduces, clip), and gamma only for the
+    ``settings.gamma_probability`` share of photos. The JPEG round trip
     is no effect of the renderer: :func:`photo_jpeg_quality` says which photos get it.
 
     Tilt is not drawn: the renderer's image is the patch itself (pixel ``p`` shows surface
@@ -206,12 +206,8 @@ def photo_scene(seed: int, index: int, settings: PhotoSettings | None = None) ->
     gamma = d.chance(s.gamma_probability)
     shift = d.uniform(*s.camera_shift)
     shift_cos, shift_sin = d.angle()
-    effects: list[Any] = [
-        *DES18_EFFECTS,
-        {"exposure": {"ev": ev}},
-        {"noise": {"sigma": sigma, "shot": shot, "seed": noise_seed}},
-        "clip",
-    ]
+    drawn = {"exposure": {"ev": ev}, "noise": {"sigma": sigma, "shot": shot, "seed": noise_seed}}
+    effects: list[Any] = [{name: drawn[name]} if name in drawn else name for name in PHOTO_EFFECTS]
     if gamma:
         effects.append({"gamma": {"gamma": s.gamma}})
     camera = Camera(torch.tensor([shift * shift_cos, shift * shift_sin, distance]), fov)
@@ -229,16 +225,23 @@ def photo_jpeg_quality(seed: int, index: int, settings: PhotoSettings | None = N
     return _capture_draws(seed, index, settings or PhotoSettings())[2]
 
 
-#: The image stages of a photo scene that :func:`_photos` applies per sample, in the order
-#: the renderer runs them (the rest of a photo scene's effects is the shading).
-_IMAGE_STAGES = ("exposure", "noise", "clip", "gamma")
+#: The image stages :func:`_photos` runs per photo, read from the renderer's registry: its
+#: ``image`` phase, in its order, but for the stages that read the camera (vignetting, the first
+#: of the phase), which run in the batched render with the shading.
+_IMAGE_STAGES = tuple(name for name, e in EFFECTS.items() if e.phase == "image" and not e.needs_camera)
+#: The image stages every photo scene declares (exposure, noise, clip).
+_PHOTO_IMAGE_STAGES = frozenset(name for name in PHOTO_EFFECTS if name in _IMAGE_STAGES)
+
+
+def _shading(effects: dict) -> dict:
+    """What :func:`_photos` renders in one batch: ``effects`` but its per-photo image stages."""
+    return {name: params for name, params in effects.items() if name not in _IMAGE_STAGES}
 
 
 def _batchable(scenes: Sequence[Scene]) -> bool:
     """Whether :func:`_photos` can render ``scenes`` together: photo scenes (one flash, a
     camera at a finite position) with the same shading and no image stage but its own."""
-    fx = scenes[0].effects
-    shading = {k: v for k, v in fx.items() if k not in _IMAGE_STAGES}
+    shading = _shading(scenes[0].effects)
     return all(
         len(s.lights) == 1
         and isinstance(s.lights[0], Flash)
@@ -246,8 +249,8 @@ def _batchable(scenes: Sequence[Scene]) -> bool:
         and s.camera.position.shape == (3,)
         and s.lights[0].intensity.dim() == 0
         and s.lights[0].color.shape == (3,)
-        and {"exposure", "noise", "clip"} <= set(s.effects)
-        and {k: v for k, v in s.effects.items() if k not in _IMAGE_STAGES} == shading
+        and _PHOTO_IMAGE_STAGES <= set(s.effects)
+        and _shading(s.effects) == shading
         for s in scenes
     )
 
@@ -281,8 +284,7 @@ def _photos(packed: Tensor, scenes: Sequence[Scene]) -> Tensor:
         torch.stack([f.offset for f in flashes]).view(b, 1, 3),
         flashes[0].color if one_color else torch.ones(3),
     )
-    shading = {k: v for k, v in scenes[0].effects.items() if k not in _IMAGE_STAGES}
-    x = render(svbrdf, Scene(camera, (flash,), shading))
+    x = render(svbrdf, Scene(camera, (flash,), _shading(scenes[0].effects)))
     if not one_color:  # the renderer takes one colour per light; radiance is linear in it
         x = x * colors.to(x.device, x.dtype).view(b, 1, 3, 1, 1)
     # Each photo's own image stages, by the renderer's own code (they need no geometry).
