@@ -226,7 +226,7 @@ def _bad_scene(tmp_path):
         (["--refine", "many"], "--refine: expected an integer"),
         (["--refine", "2.5"], "--refine: expected an integer"),
         (["--refine-seconds", "0"], "--refine-seconds: expected a finite number > 0"),
-        (["--refine", "0", "--refine-seconds", "3"], "--refine-seconds go(es) with --refine STEPS > 0"),
+        (["--refine", "0", "--refine-seconds", "3"], "--refine-seconds goes with --refine STEPS > 0, not --refine 0"),
         (["--refine", "3", "--map-size", str(MIN_REFINE_SIDE - 1)], f"smaller than {MIN_REFINE_SIDE} px"),
         (["--refine", "0", "--map-size", "64"], "--map-size goes with --tiles or --refine"),
         (["--scene", "TWO_VIEWS"], "the scene has configurations of shape"),

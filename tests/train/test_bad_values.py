@@ -94,8 +94,8 @@ FLAG_ROWS = [
     (["data", "compare", ".", "--rows", "4"], ["--rows 4", "give -o"]),
     (["data", "sheet", "--mix", "inf", "-o", "s.png"], ["'--mix'", "inf"]),
     (["data", "sheet", "--seed", "99999999999", "-o", "s.png"], ["'--seed'", "99999999999"]),
-    (["predict", "p.jpg", "--checkpoint", "c.pt", "-o", "o", "--tiles", "--map-size", "100000"], ["'--map-size'", "100000 is not in the range 1<=x<=8192"]),
-    (["predict", "p.jpg", "--checkpoint", "c.pt", "-o", "o", "--tiles", "--map-size", "0"], ["'--map-size'", "0"]),
+    (["predict", "p.jpg", "--checkpoint", "c.pt", "-o", "o", "--tiles", "--map-size", "100000"], ["argument --map-size", "expected an integer from 1 to 8192, got 100000"]),
+    (["predict", "p.jpg", "--checkpoint", "c.pt", "-o", "o", "--tiles", "--map-size", "0"], ["argument --map-size", "expected an integer from 1 to 8192, got 0"]),
     (["predict", "p.jpg", "--checkpoint", "c.pt", "-o", "o", "--device", "gpu"], ["--device 'gpu'", "cpu, cuda or cuda:K"]),
 ]
 

@@ -1,4 +1,8 @@
-"""``svbrdf-models predict``: maps from flash photos, with the shipped model or another one."""
+"""``svbrdf-models predict``: maps from flash photos, with the shipped model or another one.
+
+The predict options are declared once, here (:func:`add_options`), and run once
+(:func:`run_predict`): ``svbrdf-train predict`` builds its parser from them, with its own two
+model options (--checkpoint, --run) and its own default (--refine 0)."""
 
 from __future__ import annotations
 
@@ -6,14 +10,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from svbrdf_render import DEFAULT_REFINE_STEPS
+from svbrdf_render import BACKENDS, DEFAULT_REFINE_STEPS
 from svbrdf_render.cli import float_range, int_range
 from svbrdf_render.machine import THREADS_HELP
 
 from .._registry import Registry
 from ..capture.refining import DEFAULT_MAP_SIZE, FULL
 
-__all__ = ["MAX_MAP_SIZE", "add_parser", "run"]
+__all__ = ["MAX_MAP_SIZE", "add_options", "add_parser", "run", "run_predict"]
 
 #: Largest --map-size: photos are refused over 50 megapixels (about 7071 px on a side).
 MAX_MAP_SIZE = 8192
@@ -38,8 +42,7 @@ Training checkpoints and MLflow runs of fits: `svbrdf-train predict --checkpoint
 
 
 def add_parser(sub) -> None:
-    """The ``predict`` sub-command and its options: the photos, the model and refinement here,
-    the square and the files written in :func:`_add_output_options`."""
+    """The ``predict`` sub-command: the options of :func:`add_options`, refining by default."""
     from ..capture.batch import help_text
 
     p = sub.add_parser(
@@ -50,6 +53,20 @@ def add_parser(sub) -> None:
         epilog=EPILOG_PREDICT.format(refine=DEFAULT_REFINE_STEPS) + help_text(DEFAULT_REFINE_STEPS),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    add_options(
+        p,
+        refine=DEFAULT_REFINE_STEPS,
+        refine_note="svbrdf-train predict's is 0; Python's TrainedModel.predict refines only when "
+        "asked, refine=0 by default",
+    )
+
+
+def add_options(p, *, refine: int, refine_note: str, sources=None):
+    """Every option of ``predict``, the one declaration ``svbrdf-models predict`` and
+    ``svbrdf-train predict`` share: the photos, the model and refinement here, the square and the
+    files written in :func:`_add_output_options`. ``refine`` is the command's --refine default
+    and ``refine_note`` what its help says of the other command's; ``sources(p)``, when given,
+    adds a command's own model options after --model. Returns the group "more options"."""
     more = p.add_argument_group("more options (the ones above are what most captures need)")
     p.add_argument("photos", nargs="+", type=Path, metavar="PHOTO")
     p.add_argument("-o", "--out", type=Path, required=True, help="output folder")
@@ -59,13 +76,14 @@ def add_parser(sub) -> None:
         help="model file, URL, MLflow URI or pretrained[:NAME] "
         "(default: pretrained, the model shipped with svbrdf-models)",
     )
+    if sources is not None:
+        sources(p)
     p.add_argument(
         "--refine",
         type=int_range(0),
-        default=DEFAULT_REFINE_STEPS,
+        default=refine,
         metavar="STEPS",
-        help=f"refinement steps per photo, 0 for the network's maps only (default: {DEFAULT_REFINE_STEPS}; "
-        "Python's TrainedModel.predict refines only when asked, refine=0 by default)",
+        help=f"refinement steps per photo, 0 for the network's maps only (default: {refine}; {refine_note})",
     )
     more.add_argument(
         "--reference",
@@ -89,12 +107,13 @@ def add_parser(sub) -> None:
     )
     more.add_argument(
         "--backend",
-        choices=["auto", "eager", "compiled"],
+        choices=["auto", *BACKENDS],
         default="auto",
         help="the renderer's backend for refinement (default: auto, compiled from 512x512 up, where "
         "it is faster than its compile time costs)",
     )
     _add_output_options(p, more)
+    return more
 
 
 def _add_output_options(p, more) -> None:
@@ -194,7 +213,14 @@ def _crop(text: str) -> tuple[int, int, int]:
 
 
 def run(args, registry: Registry, out) -> int:
-    """``predict``: the options checked, the model loaded and announced, the photos captured."""
+    """``svbrdf-models predict``: :func:`run_predict` with the model of --model."""
+    return run_predict(args, _load_predict_model, prog="svbrdf-models")
+
+
+def run_predict(args, load, *, prog: str) -> int:
+    """A parsed ``predict`` (the options of :func:`add_options`): the options checked, the model
+    loaded and announced, the photos captured; the batch's exit status. ``load(args, device)``
+    gives the model and the line naming it; ``prog`` starts the messages."""
     from svbrdf_render.formats.files import check_output_folder
 
     from ..capture.batch import capture_batch, check_material_folders, pick_device, set_threads
@@ -207,15 +233,12 @@ def run(args, registry: Registry, out) -> int:
         from ..capture.tiles import check_tiled_memory
 
         check_tiled_memory(args.map_size, f"--tiles --map-size {args.map_size}")
-    model = _load_predict_model(
-        args.model, device, args.map_size if args.tiles and args.map_size != FULL else None
-    )
+    model, line = load(args, device)
+    _announce(model, line, args.map_size if args.tiles and args.map_size != FULL else None)
     set_threads(args.threads)  # after every refusal, so that a refusal stays one line
     summary = {"model": model.source, "step": model.steps, "resolution": model.resolution,
                "refine": args.refine, "refine_seconds": args.refine_seconds}  # fmt: skip
-    return capture_batch(
-        model, args.photos, args.out, options, prog="svbrdf-models", summary=summary, checked=True
-    )
+    return capture_batch(model, args.photos, args.out, options, prog=prog, summary=summary, checked=True)
 
 
 def _capture_options(args):
@@ -231,7 +254,8 @@ def _capture_options(args):
         f for f, v in (("--refine-seconds", args.refine_seconds), ("--scene", args.scene)) if v is not None
     ]
     if alone and not args.refine:
-        raise DataError(f"{' and '.join(alone)} go(es) with --refine STEPS > 0, not --refine 0")
+        verb = "goes" if len(alone) == 1 else "go"
+        raise DataError(f"{' and '.join(alone)} {verb} with --refine STEPS > 0, not --refine 0")
     return CaptureOptions(
         linear=args.linear,
         crop=args.crop,
@@ -251,21 +275,28 @@ def _capture_options(args):
     )
 
 
-def _load_predict_model(source, device, tile_size):
-    """The model of --model (the shipped one when None), announced on stderr."""
-    from ..errors import DataError
+def _load_predict_model(args, device):
+    """The model of --model (the shipped one when None, said on stderr) and the line naming it."""
     from ..modelfile.files import PRETRAINED, card_path, load_model
 
-    if source is None:
+    if args.model is None:
         print(
             f"no --model: using the model shipped with svbrdf-models (pretrained:{PRETRAINED}; "
             f"its card: {card_path()})",
             file=sys.stderr,
         )
-    model = load_model(source or "pretrained", device)
+    model = load_model(args.model or "pretrained", device)
+    return model, model.describe()
+
+
+def _announce(model, line: str, tile_size: int | None) -> None:
+    """``line`` (the model) on stderr, and with --tiles --map-size what the tiles will cost; a
+    --map-size under the model's resolution is refused first."""
+    from ..errors import DataError
+
     if tile_size is not None and tile_size < model.resolution:
         raise DataError(f"--map-size {tile_size} is smaller than the model's resolution ({model.resolution})")
-    print(model.describe(), file=sys.stderr)
+    print(line, file=sys.stderr)
     if tile_size is not None:
         from ..capture.tiles import available_memory, tile_count, tiled_capture_bytes
 
@@ -276,4 +307,3 @@ def _load_predict_model(source, device, tile_size):
             f"of memory" + (f" ({have / 2**30:.1f} GiB available)" if have is not None else ""),
             file=sys.stderr,
         )
-    return model
