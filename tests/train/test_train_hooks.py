@@ -1,21 +1,28 @@
 """The hooks a fit runs between its steps, and the one runner that applies their cadences.
 
 A fit that ends early (its time budget, a stop request) still logs its last window of
-``train/`` metrics: the hooks run after the last step whatever ended the fit.
+``train/`` metrics: the hooks run after the last step whatever ended the fit. A hook sees a
+narrow, read-only view of the run and returns what it changes, which the runner applies.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import signal
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
+import torch
 
 from svbrdf_train.recipe import load_recipe
 from svbrdf_train.training import step
+from svbrdf_train.training.clock import Stopwatch, TrainClock
+from svbrdf_train.training.distributed import Dist
 from svbrdf_train.training.hooks import Cadence, HookRunner, StepEnd
+from svbrdf_train.training.run import Run, RunChange
 from svbrdf_train.training.trainer import FitOptions, fit
 
 
@@ -83,26 +90,41 @@ def test_a_fit_stopped_by_a_request_logs_the_mean_of_its_last_window(tmp_path, s
 # -- the runner, on its own ------------------------------------------------------------------------
 
 
+def _run(tmp_path=Path("unused"), *, main: bool = True) -> Run:
+    """A real run around stand-ins for what a fit builds (no networks, no data): what the runner
+    and the view read of it."""
+    gan = SimpleNamespace(
+        step=0,
+        g_opt=SimpleNamespace(param_groups=[{"lr": 2e-5}]),
+        schedule=None,
+        generator=torch.nn.Identity(),
+        rng_state=lambda: {},
+    )
+    order = SimpleNamespace(total_steps=10, steps_per_epoch=5)
+    watch = Stopwatch(TrainClock("wall", torch.device("cpu")))
+    return Run(None, Dist(rank=0 if main else 1), gan, order, None, tmp_path, watch, None)
+
+
 class _Recorder:
     """A hook that records the steps it observed and the steps it ran after."""
 
     def __init__(self, cadence: Cadence, *, observes: bool = False):
         self.cadence, self.ran, self.seen = cadence, [], []
         if observes:
-            self.observe = lambda run, end: self.seen.append(end.step)
+            self.observe = lambda view: self.seen.append(view.step)
 
-    def after_step(self, run, end):
-        self.ran.append(end.step)
+    def on_step(self, view):
+        self.ran.append(view.step)
 
 
-def _drive(hooks, steps: int, *, main: bool = True, last_at: int | None = None, passed_at=()):
+def _drive(hooks, steps: int, *, main: bool = True, last_at: int | None = None, passed_at=(), run=None):
     """Steps 1..steps through a runner, as the loop does; ``passed_at``: steps whose time cadences
     have passed on another process (OR-ed in as Dist.any would)."""
-    run = SimpleNamespace(dist=SimpleNamespace(main=main))
+    run = run or _run(main=main)
     runner = HookRunner(hooks)
     for s in range(1, steps + 1):
         passed = [p or s in passed_at for p in runner.minutes_passed()]
-        runner.after_step(run, StepEnd(s, {}, 1, last=s == (last_at or steps)), passed)
+        runner.after_step(run, StepEnd(s, {"loss": 0.5}, 1, last=s == (last_at or steps)), passed)
     return runner
 
 
@@ -138,6 +160,77 @@ def test_the_runner_asks_time_of_the_hooks_in_order_and_checks_the_answers_count
     runner = HookRunner(hooks)
     assert runner.minutes_passed() == [False, True]  # no minutes: never by time
     with pytest.raises(ValueError):
-        runner.after_step(
-            SimpleNamespace(dist=SimpleNamespace(main=True)), StepEnd(1, {}, 1, last=False), [True]
-        )
+        runner.after_step(_run(), StepEnd(1, {}, 1, last=False), [True])
+
+
+# -- what a hook sees of the run, and what it changes ------------------------------------------------
+
+
+class _Assigns:
+    """A hook of the earlier design's habits: it writes the run's fields itself."""
+
+    cadence = Cadence(steps=1)
+
+    def on_step(self, view):
+        view.saved_at = view.step
+
+
+def test_a_hook_sees_a_narrow_read_only_view_and_cannot_assign_the_run():
+    run = _run()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        _drive([_Assigns()], 1, run=run)
+    assert run.saved_at == 0
+    view = run.view(StepEnd(3, {"loss": 0.5}, 4, last=False))
+    assert (view.step, view.samples, view.last, view.lr, view.total_steps) == (3, 4, False, 2e-5, 10)
+    with pytest.raises(TypeError):
+        view.terms["loss"] = 0.0  # the step's terms are read-only too
+    for field in ("gan", "dist", "order", "watch", "run_id", "made_with"):
+        assert not hasattr(view, field), f"the view hands hooks the run's {field}"
+
+
+class _Saves:
+    """A hook that says it wrote a checkpoint at each step it runs after."""
+
+    def __init__(self, steps: int):
+        self.cadence = Cadence(steps=steps, at_end=False)
+
+    def on_step(self, view):
+        return RunChange(saved_at=view.step)
+
+
+def test_what_a_hook_returns_is_applied_to_the_run_before_the_next_hook_runs():
+    run, later = _run(), _Recorder(Cadence(steps=1))
+    later.on_step = lambda view: later.ran.append((view.step, view.saved_at))
+    _drive([_Saves(2), later], 5, run=run)
+    assert run.saved_at == 4  # the last step it ran after
+    assert later.ran == [(1, 0), (2, 2), (3, 2), (4, 4), (5, 4)]
+    wrong = _Recorder(Cadence(steps=1))
+    wrong.on_step = lambda view: {"saved_at": view.step}  # a change must be a RunChange
+    with pytest.raises(TypeError, match="RunChange"):
+        _drive([wrong], 1)
+
+
+class _Legacy:
+    """A hook of the earlier design: ``after_step(run, end)`` and ``observe(run, end)``."""
+
+    cadence = Cadence(steps=2)
+
+    def __init__(self):
+        self.seen = []
+
+    def observe(self, run, end):
+        self.seen.append(end.step)
+
+    def after_step(self, run, end):
+        run.saved_at = end.step
+
+
+def test_a_hook_of_the_earlier_design_still_runs_with_a_deprecation_warning():
+    run, hook, later = _run(), _Legacy(), _Recorder(Cadence(steps=1))
+    later.on_step = lambda view: later.ran.append(view.saved_at)
+    with pytest.warns(DeprecationWarning, match="_Legacy has after_step"):
+        _drive([hook, later], 3, run=run)
+    assert hook.seen == [1, 2, 3] and run.saved_at == 3
+    assert later.ran == [0, 2, 3]
+    with pytest.raises(TypeError, match="no on_step"):
+        HookRunner([SimpleNamespace(cadence=Cadence())])

@@ -164,6 +164,7 @@ def test_non_finite_loss_stops_names_step_and_term_and_keeps_last_good_checkpoin
     )
     assert r.returncode == 1, r.stderr
     assert "non-finite loss at step 2: term '" in r.stderr
+    assert "the checkpoint of step 1 (" in r.stderr  # the step its hook returned (RunChange)
     assert "Traceback" not in r.stderr
     state = load_checkpoint(tmp_path / "nan" / "last.pt")
     assert state["step"] == 1

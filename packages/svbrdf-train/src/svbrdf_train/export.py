@@ -177,7 +177,7 @@ def export_contents(
 
 def log_fit_model(run, metrics: dict[str, float]) -> str | None:
     """A finished fit's generator as the MLflow model ``model`` of its run (``run``: a
-    :class:`svbrdf_train.training.hooks.Run`), made as ``svbrdf-train export`` makes a model file, with
+    :class:`svbrdf_train.training.run.Run`), made as ``svbrdf-train export`` makes a model file, with
     the last validation ``metrics``; its URI (``models:/MODEL_ID``).
 
     A failure (the store, the disk) does not fail the finished fit: it is said on the terminal

@@ -6,7 +6,8 @@
 - :mod:`~svbrdf_train.training.clock`, :mod:`~svbrdf_train.training.checkpoint`,
   :mod:`~svbrdf_train.training.resume`, :mod:`~svbrdf_train.training.order` (budgets, saving and
   resuming bit for bit), :mod:`~svbrdf_train.training.init` (fine-tuning);
-- :mod:`~svbrdf_train.training.hooks` (what runs between steps), :mod:`~svbrdf_train.training.validation`,
+- :mod:`~svbrdf_train.training.run` (a fit's run, and the read-only view its hooks get),
+  :mod:`~svbrdf_train.training.hooks` (what runs between steps), :mod:`~svbrdf_train.training.validation`,
   :mod:`~svbrdf_train.training.fitlog`, :mod:`~svbrdf_train.training.progress`,
   :mod:`~svbrdf_train.training.flops`, :mod:`~svbrdf_train.training.distributed`.
 

@@ -16,31 +16,31 @@ Checkpoints        every ``train.checkpoint_every``       the full state to ``OU
                                                           ``train.upload_minutes``
 =================  =====================================  ======================================
 
-Every hook also runs after the last step (``StepEnd.last``: the step budget, the time budget
+Every hook also runs after the last step (``RunView.last``: the step budget, the time budget
 or a stop request), so a fit that ends early still logs its last window. A hook is any object
-with a ``cadence`` and ``after_step(run, end)`` (and, if it must see every step, ``observe(run,
-end)``); :class:`HookRunner` is the one place that decides, after each step, which hooks run.
+with a ``cadence`` and ``on_step(view)`` (and, if it must see every step, ``observe(view)``);
+it is made with the view before the first step. The view (:class:`~svbrdf_train.training.run.RunView`)
+is narrow and read-only: what hooks read of the run, never the run itself. ``on_step`` returns
+what it changes, a :class:`~svbrdf_train.training.run.RunChange` (or None), and
+:class:`HookRunner`, the one place that decides after each step which hooks run, applies it to
+the run. A hook with the earlier ``after_step(run, end)`` (and ``observe(run, end)``) instead of
+``on_step`` still runs, given the whole run, with a ``DeprecationWarning``; it goes in the next
+release.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
-from pathlib import Path
+import warnings
+from dataclasses import dataclass
 from typing import Any, Protocol
 
-from ..recipe import Recipe
-from ..tracking import Tracker
-from . import distributed
-from .checkpoint import CHECKPOINT_NAME, WEIGHTS_NAME, save_checkpoint
-from .clock import Stopwatch
-from .order import BatchOrder
-from .progress import Progress, format_duration
-from .step import GanStep
-from .validation import Validator
+from .checkpoint import WEIGHTS_NAME, save_checkpoint
+from .progress import format_duration
+from .run import Run, RunChange, RunView, StepEnd
 
 __all__ = [
-    "Run", "StepEnd", "Cadence", "Timer", "Hook", "HookRunner",
+    "Run", "RunView", "RunChange", "StepEnd", "Cadence", "Timer", "Hook", "HookRunner",
     "BudgetWarning", "Logging", "Validation", "Checkpoints",
 ]  # fmt: skip
 #: Checkpoint fields a user of the weights needs (predict, --init); the rest is for resuming.
@@ -48,55 +48,6 @@ WEIGHT_FIELDS = (
     "recipe", "step", "epoch", "generator", "discriminator", "run_id", "init",
     "train_seconds", "wall_seconds", "world_size", "made_with",
 )  # fmt: skip
-
-
-@dataclass
-class Run:
-    """Everything one fit has: what it trains, with what, where it writes, how it reports."""
-
-    recipe: Recipe
-    dist: distributed.Dist
-    gan: GanStep
-    order: BatchOrder
-    validator: Validator
-    out: Path
-    watch: Stopwatch
-    progress: Progress
-    tracker: Tracker = field(default_factory=Tracker)
-    run_id: str | None = None
-    init: dict[str, str] | None = None  # where the starting weights came from (MLflow tags)
-    start_step: int = 0
-    saved_at: int = 0  # the step of the last checkpoint written
-    made_with: dict[str, str] = field(default_factory=dict)  # code revision and machine (tracking.made_with)
-
-    @property
-    def ckpt_path(self) -> Path:
-        return self.out / CHECKPOINT_NAME
-
-    def state(self, rngs: list) -> dict[str, Any]:
-        """The checkpoint: the step's state, every process's random state, the run's bookkeeping."""
-        return {
-            "recipe": self.recipe.to_dict(),
-            **self.gan.state_dict(),
-            "epoch": self.gan.step // self.order.steps_per_epoch,
-            "rng": rngs,
-            "run_id": self.run_id,
-            "init": self.init,
-            "train_seconds": self.watch.seconds,
-            "wall_seconds": self.watch.wall_seconds,
-            "world_size": self.dist.world,
-            "made_with": self.made_with,
-        }
-
-
-@dataclass
-class StepEnd:
-    """One step as the hooks see it; the flags are the same on every process."""
-
-    step: int
-    terms: dict[str, float]
-    samples: int  # of all processes
-    last: bool  # the fit stops after this step
 
 
 @dataclass(frozen=True)
@@ -133,17 +84,28 @@ class Timer:
 
 
 class Hook(Protocol):
-    """What the runner needs of a hook: when it runs, and what it does then. A hook that must
-    see every step (to sum a window) also has ``observe(run, end)``, called after every step
-    before the hook's own ``after_step``."""
+    """What the runner needs of a hook: when it runs, and what it does then, given the read-only
+    view of the run, returning what it changes (None: nothing). A hook that must see every step
+    (to sum a window) also has ``observe(view)``, called after every step before the hook's
+    own ``on_step``; it changes nothing."""
 
     cadence: Cadence
 
-    def after_step(self, run: Run, end: StepEnd) -> None: ...
+    def on_step(self, view: RunView) -> RunChange | None: ...
+
+
+def _is_legacy(hook: Any) -> bool:
+    """Whether ``hook`` has the earlier ``after_step(run, end)`` instead of ``on_step(view)``."""
+    if hasattr(hook, "on_step"):
+        return False
+    if not hasattr(hook, "after_step"):
+        raise TypeError(f"hook {type(hook).__name__} has no on_step(view): a hook is a cadence and on_step")
+    return True
 
 
 class HookRunner:
-    """The hooks of a fit, in order, each run when its :class:`Cadence` says.
+    """The hooks of a fit, in order, each run when its :class:`Cadence` says, with the view of
+    the run after the step; what a hook returns is applied to the run before the next hook.
 
     Time cadences must agree on every process (a checkpoint gathers from all of them), so the
     loop asks :meth:`minutes_passed` on each process, OR-s the answers over processes with its
@@ -153,20 +115,45 @@ class HookRunner:
     def __init__(self, hooks: list):
         self.hooks = list(hooks)
         self._timers = [Timer(hook.cadence.minutes) for hook in self.hooks]
+        self._legacy = [_is_legacy(hook) for hook in self.hooks]
+        for hook in [h for h, legacy in zip(self.hooks, self._legacy, strict=True) if legacy]:
+            warnings.warn(
+                f"hook {type(hook).__name__} has after_step(run, end), which gets the whole run and "
+                "goes in the next release: define on_step(view) (and observe(view)) on the read-only "
+                "RunView, and return a RunChange for what it changes (svbrdf_train.training.hooks)",
+                DeprecationWarning,
+                stacklevel=2,
+            )
 
     def minutes_passed(self) -> list[bool]:
         """Per hook, whether its ``cadence.minutes`` have passed on this process."""
         return [timer.passed() for timer in self._timers]
 
     def after_step(self, run: Run, end: StepEnd, minutes_passed: list[bool]) -> None:
-        """Each hook in order: ``observe`` (if it has one), then ``after_step`` when it is due."""
-        for hook, timer, passed in zip(self.hooks, self._timers, minutes_passed, strict=True):
+        """Each hook in order: ``observe`` (if it has one), then ``on_step`` when it is due."""
+        view = run.view(end)
+        hooks = zip(self.hooks, self._timers, minutes_passed, self._legacy, strict=True)
+        for hook, timer, passed, legacy in hooks:
             observe = getattr(hook, "observe", None)
             if observe is not None:
-                observe(run, end)
-            if hook.cadence.due(end, passed) and (run.dist.main or not hook.cadence.main_only):
+                observe(run, end) if legacy else observe(view)
+            if not hook.cadence.due(end, passed) or (hook.cadence.main_only and not view.main):
+                continue
+            if legacy:
                 hook.after_step(run, end)
-                timer.reset()
+                view = run.view(end)  # it may have changed the run
+            elif (change := hook.on_step(view)) is not None:
+                _apply(run, hook, change)
+                view = run.view(end)  # the next hooks see the run as it is now
+            timer.reset()
+
+
+def _apply(run: Run, hook: Hook, change: Any) -> None:
+    """What a hook returned, applied to the run."""
+    if not isinstance(change, RunChange):
+        raise TypeError(f"{type(hook).__name__}.on_step returned {change!r}: a RunChange or None")
+    if change.saved_at is not None:
+        run.saved_at = change.saved_at
 
 
 class BudgetWarning:
@@ -184,56 +171,55 @@ class BudgetWarning:
 
     cadence = Cadence(steps=1)
 
-    def __init__(self, run: Run):
-        self.done = run.recipe.train.max_minutes is None  # a step budget is known now
+    def __init__(self, view: RunView):
+        self.done = view.recipe.train.max_minutes is None  # a step budget is known now
         self.time_checked = self.done
         if self.done:
-            self._warn(run, run.order.total_steps, "the step budget")
+            self._warn(view, view.total_steps, "the step budget")
 
-    def after_step(self, run: Run, end: StepEnd) -> None:
+    def on_step(self, view: RunView) -> None:
         if not self.time_checked:
-            self._time_budget(run, end)
-        pace = run.watch.pace()
+            self._time_budget(view)
+        pace = view.pace
         if self.done or pace is None or pace <= 0:
             return
-        minutes = run.recipe.train.max_minutes
-        steps = min(run.order.total_steps, end.step + int((minutes * 60 - run.watch.seconds) / pace))
-        self._warn(run, steps, f"{minutes:g} min at {pace * 1000:.0f} ms/step")
+        minutes = view.recipe.train.max_minutes
+        steps = min(view.total_steps, view.step + int((minutes * 60 - view.seconds) / pace))
+        self._warn(view, steps, f"{minutes:g} min at {pace * 1000:.0f} ms/step")
         self.done = True
 
-    def _time_budget(self, run: Run, end: StepEnd) -> None:
+    def _time_budget(self, view: RunView) -> None:
         """Warn when the step budget ends the fit in under half of ``train.max_minutes``."""
-        t, watch = run.recipe.train, run.watch
-        pace = watch.pace()
-        per_step = pace if pace is not None else watch.seconds / max(1, end.step)
-        self.time_checked = pace is not None or end.last
-        left = run.order.total_steps - end.step
-        if end.last or per_step <= 0 or watch.seconds + left * per_step >= 0.5 * t.max_minutes * 60:
+        t, pace, seconds = view.recipe.train, view.pace, view.seconds
+        per_step = pace if pace is not None else seconds / max(1, view.step)
+        self.time_checked = pace is not None or view.last
+        left = view.total_steps - view.step
+        if view.last or per_step <= 0 or seconds + left * per_step >= 0.5 * t.max_minutes * 60:
             return
         self.time_checked = True
-        if run.order.total_steps == t.max_steps:
+        if view.total_steps == t.max_steps:
             steps, fix = f"train.max_steps={t.max_steps}", "raise --max-steps (or leave it out)"
         else:
-            steps = f"train.epochs={t.epochs} of {run.order.steps_per_epoch} steps"
+            steps = f"train.epochs={t.epochs} of {view.steps_per_epoch} steps"
             fix = "raise train.epochs (--set train.epochs=N)"
         text = (
             f"warning: the time budget (train.max_minutes={t.max_minutes:g}) will not be reached: the "
-            f"step budget of {run.order.total_steps} steps ({steps}) ends the fit after about "
-            f"{format_duration(watch.seconds + left * per_step)} of training; {fix} to train for "
+            f"step budget of {view.total_steps} steps ({steps}) ends the fit after about "
+            f"{format_duration(seconds + left * per_step)} of training; {fix} to train for "
             "the whole time"
         )
-        if run.dist.main:
-            run.progress.message(text)
-            run.tracker.set_tags({"svbrdf.warning.time_budget": text[:5000]})
+        if view.main:
+            view.progress.message(text)
+            view.tracker.set_tags({"svbrdf.warning.time_budget": text[:5000]})
 
     @staticmethod
-    def _warn(run: Run, steps: int, what: str) -> bool:
-        text = run.gan.schedule.warning(steps, what)
+    def _warn(view: RunView, steps: int, what: str) -> bool:
+        text = view.schedule.warning(steps, what)
         if text is None:
             return False
-        if run.dist.main:
-            run.progress.message(text)
-            run.tracker.set_tags({"svbrdf.warning": text[:5000]})
+        if view.main:
+            view.progress.message(text)
+            view.tracker.set_tags({"svbrdf.warning": text[:5000]})
         return True
 
 
@@ -243,35 +229,35 @@ class Logging:
 
     SHOWN = ("loss", "adv", "render", "svbrdf", "d_loss")
 
-    def __init__(self, run: Run):
-        self.cadence = Cadence(steps=run.recipe.train.log_every)
+    def __init__(self, view: RunView):
+        self.cadence = Cadence(steps=view.recipe.train.log_every)
         self.sums: dict[str, float] = {}
         self.count = 0
-        self.window = (run.watch.seconds, 0)  # (training seconds, samples) since the last log
+        self.window = (view.seconds, 0)  # (training seconds, samples) since the last log
         self.rate = 0.0  # samples per second of training time in the window
 
-    def observe(self, run: Run, end: StepEnd) -> None:
-        for k, v in end.terms.items():
+    def observe(self, view: RunView) -> None:
+        for k, v in view.terms.items():
             self.sums[k] = self.sums.get(k, 0.0) + v
         self.count += 1
-        seconds = run.watch.seconds
-        self.window = (self.window[0], self.window[1] + end.samples)
+        seconds = view.seconds
+        self.window = (self.window[0], self.window[1] + view.samples)
         self.rate = self.window[1] / max(seconds - self.window[0], 1e-9)
-        shown = {k: end.terms[k] for k in self.SHOWN if k in end.terms}
-        run.progress.update(end.step, shown, self.rate, seconds)
+        shown = {k: view.terms[k] for k in self.SHOWN if k in view.terms}
+        view.progress.update(view.step, shown, self.rate, seconds)
 
-    def after_step(self, run: Run, end: StepEnd) -> None:
-        seconds = run.watch.seconds
+    def on_step(self, view: RunView) -> None:
+        seconds = view.seconds
         metrics = {f"train/{k}": v / self.count for k, v in self.sums.items()}
         metrics.update(
             {
-                "train/lr": run.gan.g_opt.param_groups[0]["lr"],
+                "train/lr": view.lr,
                 "train/samples_per_s": self.rate,
-                "train/epoch": end.step / run.order.steps_per_epoch,
+                "train/epoch": view.step / view.steps_per_epoch,
                 "train/seconds": seconds,
             }
         )
-        run.tracker.log_metrics(metrics, end.step)
+        view.tracker.log_metrics(metrics, view.step)
         self.sums, self.count, self.window = {}, 0, (seconds, 0)
 
 
@@ -279,26 +265,27 @@ class Validation:
     """``val/`` (and ``val_real/``) metrics, with the training time so far so that curves can be
     drawn against time, and the sample grid as ``samples/step_N.png`` (main process)."""
 
-    def __init__(self, run: Run):
-        self.cadence = Cadence(steps=run.recipe.train.validate_every, main_only=True)
+    def __init__(self, view: RunView):
+        self.cadence = Cadence(steps=view.recipe.train.validate_every, main_only=True)
         self.metrics: dict[str, float] = {}  # the last validation's
 
-    def after_step(self, run: Run, end: StepEnd) -> None:
-        metrics, grid = run.validator(run.gan.generator)
+    def on_step(self, view: RunView) -> None:
+        metrics, grid = view.validator(view.generator)
         if metrics:
-            run.tracker.log_metrics({**metrics, "val/train_seconds": run.watch.seconds}, end.step)
+            view.tracker.log_metrics({**metrics, "val/train_seconds": view.seconds}, view.step)
         if grid is not None:
             from svbrdf_render import write_image
 
-            path = write_image(run.out / "samples" / f"step_{end.step:07d}.png", grid)
-            run.tracker.log_artifact(path, "samples")
-            run.tracker.log_image(path, "samples", end.step)  # the same grid, with a step slider
+            path = write_image(view.out / "samples" / f"step_{view.step:07d}.png", grid)
+            view.tracker.log_artifact(path, "samples")
+            view.tracker.log_image(path, "samples", view.step)  # the same grid, with a step slider
         self.metrics = metrics
 
 
 class Checkpoints:
     """The full state to ``OUT/last.pt`` (every process's random state gathered to the main
-    one), and the weights alone to ``OUT/weights.pt`` and the MLflow run, less often.
+    one), and the weights alone to ``OUT/weights.pt`` and the MLflow run, less often; it
+    returns the step saved (:attr:`RunChange.saved_at`).
 
     A checkpoint is written every ``train.checkpoint_every`` steps, when
     ``train.checkpoint_minutes`` of wall time have passed since the last one, and after the last
@@ -308,22 +295,21 @@ class Checkpoints:
     until the run is deleted.
     """
 
-    def __init__(self, run: Run):
-        t = run.recipe.train
+    def __init__(self, view: RunView):
+        t = view.recipe.train
         self.cadence = Cadence(steps=t.checkpoint_every, minutes=t.checkpoint_minutes)
         self.upload = Timer(t.upload_minutes)  # checked when a checkpoint is written (main process)
 
-    def after_step(self, run: Run, end: StepEnd) -> None:
-        rngs = run.dist.gather(run.gan.rng_state())
-        if run.dist.main:
-            state = run.state(rngs)
-            save_checkpoint(run.ckpt_path, state)
-            if end.last or self.upload.passed():
-                self._upload(run, state)
-        run.dist.barrier()
-        run.saved_at = end.step
+    def on_step(self, view: RunView) -> RunChange:
+        state = view.checkpoint_state()  # every process; None but on the main one
+        if state is not None:
+            save_checkpoint(view.ckpt_path, state)
+            if view.last or self.upload.passed():
+                self._upload(view, state)
+        view.barrier()
+        return RunChange(saved_at=view.step)
 
-    def _upload(self, run: Run, state: dict[str, Any]) -> None:
-        weights = save_checkpoint(run.out / WEIGHTS_NAME, {k: state[k] for k in WEIGHT_FIELDS})
-        run.tracker.log_artifact(weights, "checkpoints")
+    def _upload(self, view: RunView, state: dict[str, Any]) -> None:
+        weights = save_checkpoint(view.out / WEIGHTS_NAME, {k: state[k] for k in WEIGHT_FIELDS})
+        view.tracker.log_artifact(weights, "checkpoints")
         self.upload.reset()

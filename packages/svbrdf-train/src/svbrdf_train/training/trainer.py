@@ -2,10 +2,11 @@
 
 A fit puts together the step (:class:`~svbrdf_train.training.step.GanStep`: G, D, optimisers,
 schedule), the batch order (:class:`~svbrdf_train.training.order.BatchOrder`) and the hooks that log,
-validate and write checkpoints between steps (:mod:`svbrdf_train.training.hooks`); :func:`fit` runs
-the loop. Learning rates follow the paper's step decay counted in samples seen
-(:mod:`svbrdf_train.training.schedule`). Training time is counted without validation and checkpoint
-writing, so ``max_minutes`` budgets compare models fairly.
+validate and write checkpoints between steps (:mod:`svbrdf_train.training.hooks`, each given a
+read-only view of the run: :mod:`svbrdf_train.training.run`); :func:`fit` runs the loop. Learning
+rates follow the paper's step decay counted in samples seen (:mod:`svbrdf_train.training.schedule`).
+Training time is counted without validation and checkpoint writing, so ``max_minutes`` budgets
+compare models fairly.
 
 Stopping: at the step budget (``epochs``, ``max_steps``) or the time budget; on a non-finite
 loss (FAILED: nothing is stepped with it and the last checkpoint stays as it was); on Ctrl-C
@@ -32,10 +33,11 @@ from ..recipe import Recipe, check_recipe
 from . import distributed
 from .checkpoint import CHECKPOINT_NAME, check_resumable, check_run_kept
 from .clock import WARMUP_STEPS, Stopwatch, TrainClock
-from .hooks import BudgetWarning, Checkpoints, HookRunner, Logging, Run, StepEnd, Validation
+from .hooks import BudgetWarning, Checkpoints, HookRunner, Logging, Validation
 from .order import BatchOrder
 from .progress import Interrupt, Progress, format_duration
 from .resume import RESUMABLE_CHANGES, check_out, check_world, resolve_resume
+from .run import Run, StepEnd
 from .step import GanStep
 from .validation import Validator
 
@@ -131,8 +133,9 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
     del state  # a paper-size checkpoint: over 1 GB
     if dist.main:
         _start_tracking(run, options, real_name)
-    validation = Validation(run)
-    hooks = HookRunner([BudgetWarning(run), Logging(run), validation, Checkpoints(run)])
+    view = run.view()  # the hooks see the run through read-only views; the runner applies their changes
+    validation = Validation(view)
+    hooks = HookRunner([BudgetWarning(view), Logging(view), validation, Checkpoints(view)])
     status, message = _loop(run, hooks)
     run.progress.close()
     if status == "FINISHED" and not message:
