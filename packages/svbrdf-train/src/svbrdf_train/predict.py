@@ -40,11 +40,6 @@ class Predictor(TrainedModel):
 
     card: str | None = None
 
-    @property
-    def step(self) -> int:
-        """The training steps behind the weights (:attr:`steps`)."""
-        return self.steps
-
     @classmethod
     def from_state(cls, checkpoint: dict, device: str | torch.device = "cpu", source: str = "checkpoint"):
         """From a training checkpoint's state (``last.pt`` or ``weights.pt`` loaded)."""

@@ -53,19 +53,8 @@ from .refining import (
     rerender,
     rerender_rmse,
 )
-from .relight import (  # noqa: F401 - RELIT_*, _relight_raw: re-exported, where they were
-    FLASH_FIT,
-    RELIT_FRAMES,
-    RELIT_SIZE,
-    _relight_raw,
-    _relit_grid,
-    _relit_versions,
-    flash_consistency,
-    relight_frames,
-)
-from .tiles import (  # noqa: F401 - TILED_*: re-exported, where they were
-    TILED_BYTES_PER_PIXEL,
-    TILED_FIXED_BYTES,
+from .relight import FLASH_FIT, flash_consistency, relight_frames, relit_grid, relit_versions
+from .tiles import (
     available_memory,
     check_tiled_memory,
     tile_count,
@@ -254,10 +243,10 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None,
     if options.tileable:
         svbrdf, tileable = _tileable(svbrdf)
         if options.relit != "none":  # the preview shows the maps written
-            frames = torch.cat([frames[:-1], _relit_versions([svbrdf])])
+            frames = torch.cat([frames[:-1], relit_versions([svbrdf])])
     relit = None
     if options.relit == "png":
-        relit = _relit_grid(frames, judged.versions if len(judged.versions) > 1 else None)
+        relit = relit_grid(frames, judged.versions if len(judged.versions) > 1 else None)
     elif options.relit == "gif":
         relit = frames[-1]
     entry = {
@@ -328,7 +317,7 @@ def _judge_network(photo: Tensor, svbrdf: SVBRDF, options: CaptureOptions) -> _J
     fit = flash_consistency(svbrdf, photo)
     rmse = float(fit.rmse[0])
     figure = _rerender_figure(photo, [fit.rendering[0]], [rmse], ["re-rendering"])
-    frames = _relit_versions([svbrdf]) if options.relit != "none" else None
+    frames = relit_versions([svbrdf]) if options.relit != "none" else None
     entry = {
         "rmse": _finite(rmse),
         "flash": {
@@ -357,7 +346,7 @@ def _judge_refined(photo: Tensor, network: SVBRDF, options: CaptureOptions, prog
     rmse = [float(rerender_rmse(r[None], photo)[0]) for r in renderings]
     versions = ["network", "refined"]
     figure = _rerender_figure(photo, renderings, rmse, versions)
-    frames = _relit_versions([network, result.svbrdf]) if options.relit != "none" else None
+    frames = relit_versions([network, result.svbrdf]) if options.relit != "none" else None
     light = result.scene.point_lights[0]
     entry = {
         "rmse": _finite(rmse[1]),

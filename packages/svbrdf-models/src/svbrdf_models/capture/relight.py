@@ -26,7 +26,7 @@ from svbrdf_render import (
 
 from .figures import image_grid
 
-__all__ = ["FLASH_FIT", "RELIT_FRAMES", "RELIT_SIZE", "flash_consistency", "relight_frames"]
+__all__ = ["FLASH_FIT", "RELIT_FRAMES", "RELIT_SIZE", "flash_consistency", "relight_frames", "relit_grid", "relit_versions"]
 
 #: Frames of the relit preview, and the largest side it is rendered at.
 RELIT_FRAMES = 24
@@ -86,7 +86,7 @@ def relight_frames(
     return _expose(_relight_raw(svbrdf, n, radius, height), intensity)
 
 
-def _relit_versions(versions: list[SVBRDF]) -> Tensor:
+def relit_versions(versions: list[SVBRDF]) -> Tensor:
     """``(V, RELIT_FRAMES, 3, S, S)``: the relit frames of each version, at the last version's size
     (at most :data:`RELIT_SIZE`), all exposed alike."""
     side = min(RELIT_SIZE, max(versions[-1].size))
@@ -95,7 +95,7 @@ def _relit_versions(versions: list[SVBRDF]) -> Tensor:
     return _expose(torch.stack(raw))
 
 
-def _relit_grid(frames: Tensor, names: list[str] | None = None, cols: int = 6) -> Tensor:
+def relit_grid(frames: Tensor, names: list[str] | None = None, cols: int = 6) -> Tensor:
     """The relit frames ``(V, n, 3, H, W)`` as a grid: rows of ``cols`` frames; with several
     versions (``names``), one row per version for each group of angles."""
     n = frames.shape[1]

@@ -135,7 +135,7 @@ def _load_model(args, device):
             )
         model = Predictor.from_model(args.model or "pretrained", device)
     size = f"{model.resolution}x{model.resolution}"
-    return model, model.card or f"generator {model.name} from {model.source} (step {model.step}), {size}"
+    return model, model.card or f"generator {model.name} from {model.source} (step {model.steps}), {size}"
 
 
 COMMANDS = [predict]
