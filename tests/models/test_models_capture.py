@@ -17,7 +17,6 @@ import torch
 
 import svbrdf_models as sm
 from svbrdf_models.capture import one as capture
-from svbrdf_models.capture import tiles
 from svbrdf_models.capture.batch import ProgressBar
 from svbrdf_models.capture.refining import rerender, rerender_rmse
 from svbrdf_models.cli import main
@@ -29,6 +28,7 @@ from svbrdf_render import (
     Camera,
     PointLight,
     Scene,
+    machine,
     read_image,
     render,
     write_image,
@@ -474,7 +474,7 @@ def test_tiles_the_memory_cannot_hold_are_refused_before_the_model_loads(tmp_pat
     def no_model(*args, **kwargs):
         raise AssertionError("the model was loaded before the size was judged")
 
-    monkeypatch.setattr(tiles, "available_memory", lambda: 2**30)
+    monkeypatch.setattr(machine, "available_memory", lambda: 2**30)
     monkeypatch.setattr(sm.modelfile, "load_model", no_model)
     code, out = _run(photo_file, "--tiles", "--map-size", "8192", "--refine", "0", "-o", tmp_path / "maps",
                      capsys=capsys)  # fmt: skip
@@ -493,7 +493,7 @@ def test_a_tiled_capture_says_its_cost_and_checks_each_photo(tmp_path, photo_fil
     assert f"--tiles --map-size 256: {capture.tile_count(256, model.resolution)} tiles" in out.err
     assert f"about {cost:.1f} GiB of memory" in out.err
     # without --map-size the size is each photo's own: judged per photo, before its tiles run
-    monkeypatch.setattr(tiles, "available_memory", lambda: 2**20)
+    monkeypatch.setattr(machine, "available_memory", lambda: 2**20)
     with pytest.raises(DataError) as e:
         capture.capture_one(model, photo_file, tmp_path / "one", capture.CaptureOptions(tiles=True))
     assert str(e.value).startswith(f"{photo_file}: --tiles: a tiled capture of ")

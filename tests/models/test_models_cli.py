@@ -117,3 +117,22 @@ def test_bad_flags_exit_2_with_one_line_naming_them(argv, fragments, capsys):
     assert "Traceback" not in err and captured.out == ""  # refused before the table starts
     for fragment in fragments:
         assert fragment in err, (fragment, err)
+
+
+def test_a_command_builds_only_its_own_parser_and_the_list_still_names_them_all(monkeypatch, capsys):
+    from svbrdf_models import cli
+
+    def must_not_build(sub):
+        raise AssertionError("another command's parser was built")
+
+    for name in ("list", "describe", "show", "serve"):
+        monkeypatch.setitem(cli.PARSERS, name, must_not_build)
+    assert main(["predict", "--help"]) == 0  # only predict's options are built
+    assert "--refine" in capsys.readouterr().out
+    monkeypatch.undo()
+    assert main(["--help"]) == 0  # the whole list for the top level
+    listed = capsys.readouterr().out
+    assert all(name in listed for name in cli.PARSERS)
+    assert main(["nosuch"]) == 2  # a bad name: every command offered
+    err = capsys.readouterr().err
+    assert all(repr(name) in err for name in cli.PARSERS)

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from svbrdf_models.capture.batch import folder_name
-from svbrdf_models.capture.one import write_summary
+from svbrdf_models.capture.batch import write_summary
 from svbrdf_models.cli import main
 from svbrdf_render import render, write_image
 from svbrdf_render.examples import example_material
@@ -181,9 +181,9 @@ def test_refined_maps_are_bounded_by_default_and_full_on_request(tmp_path, monke
 
 
 def test_a_refinement_the_memory_cannot_hold_is_refused_before_it_starts(tmp_path, monkeypatch, capsys):
-    from svbrdf_models.capture import tiles
+    from svbrdf_render import machine
 
-    monkeypatch.setattr(tiles, "available_memory", lambda: 2**20)
+    monkeypatch.setattr(machine, "available_memory", lambda: 2**20)
     photo = _photo_file(tmp_path / "shot.png")
     assert main(["predict", str(photo), "-o", str(tmp_path / "out"), "--refine", "5", "--relit", "none"]) == 2
     err = capsys.readouterr().err

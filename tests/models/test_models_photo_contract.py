@@ -47,12 +47,12 @@ def test_load_photo_is_public_and_gives_what_predict_takes(model, tmp_path):
 def test_the_api_takes_a_numpy_integer_budget_and_refuses_what_memory_cannot_hold(model, monkeypatch):
     import numpy as np
 
-    from svbrdf_models.capture import tiles
+    from svbrdf_render import machine
 
     photo = torch.rand(3, 32, 32) * 0.5
     maps = model.predict(photo, refine=np.int64(1), backend="eager")
     assert maps.size == (32, 32)
-    monkeypatch.setattr(tiles, "available_memory", lambda: 2**20)
+    monkeypatch.setattr(machine, "available_memory", lambda: 2**20)
     with pytest.raises(DataError, match="needs about .* GB.*resize the photo smaller"):
         model.predict(photo, refine=1)
 

@@ -58,3 +58,22 @@ def test_the_tasks_running_now_count_not_the_lagging_load_average(monkeypatch, t
     assert (choice.threads, choice.busy) == (2, True) and "2 other tasks running" in choice.describe()
     loadavg.unlink()  # no such file (not Linux): the load average it is
     assert machine.choose_threads().threads == 2
+
+
+def test_available_memory_is_the_kernels_lowered_to_the_cgroups_room(monkeypatch, tmp_path):
+    meminfo = tmp_path / "meminfo"
+    meminfo.write_text("MemTotal:       16000000 kB\nMemAvailable:    8000000 kB\n")
+    monkeypatch.setattr(machine, "_MEMINFO", str(meminfo))
+    monkeypatch.setattr(machine, "_CGROUP", tmp_path / "no-cgroup")
+    assert machine.available_memory() == 8000000 * 1024
+    cgroup = tmp_path / "cgroup"
+    cgroup.mkdir()
+    (cgroup / "memory.max").write_text("6000000000\n")
+    (cgroup / "memory.current").write_text("2000000000\n")
+    monkeypatch.setattr(machine, "_CGROUP", cgroup)
+    assert machine.available_memory() == 4000000000  # the group's limit less what it uses
+    (cgroup / "memory.max").write_text("max\n")  # no limit: the kernel's figure
+    assert machine.available_memory() == 8000000 * 1024
+    (cgroup / "memory.max").write_text("1000\n")
+    (cgroup / "memory.current").write_text("5000\n")  # over its limit: nothing left, not negative
+    assert machine.available_memory() == 0

@@ -29,9 +29,20 @@ COMMANDS = {
     "serve": serve.run,
 }
 
+#: Each command's ``add(subparsers)``, in the order ``--help`` lists them.
+PARSERS = {
+    "list": names.add_list,
+    "describe": names.add_describe,
+    "show": show.add_parser,
+    "predict": predict.add_parser,
+    "serve": serve.add_parser,
+}
 
-def build_parser() -> OneLineParser:
-    """The parser of every command (usage errors are one line, exit status 2)."""
+
+def build_parser(command: str | None = None) -> OneLineParser:
+    """The parser (usage errors are one line, exit status 2) of every command, or of ``command``
+    alone: a run of one command builds only its own options (``main`` does so when the first
+    argument names a command; ``--help`` and a bad name get the whole list)."""
     parser = OneLineParser(
         prog="svbrdf-models",
         description="List and describe the registered generators, attention modules and discriminators "
@@ -42,17 +53,17 @@ def build_parser() -> OneLineParser:
     )
     parser.add_argument("--version", action="version", version=f"svbrdf-models {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    names.add_list(sub)
-    names.add_describe(sub)
-    show.add_parser(sub)
-    predict.add_parser(sub)
-    serve.add_parser(sub)
+    for name, add in PARSERS.items():
+        if command in (None, name):
+            add(sub)
     return parser
 
 
 def main(argv: list[str] | None = None, registry: Registry | None = None) -> int:
+    given = sys.argv[1:] if argv is None else list(argv)
+    command = given[0] if given and given[0] in PARSERS else None
     try:
-        args = build_parser().parse_args(argv)
+        args = build_parser(command).parse_args(given)
     except SystemExit as e:  # a usage error (one line, exit 2) or --help (exit 0)
         return int(e.code or 0)
     try:

@@ -1,7 +1,7 @@
 """The toolkit's one progress display: a status line on a stream, and messages above it.
 
 A fit's step line (``svbrdf_train.training.progress.Progress``) and the photo tool's refinement bar
-(:class:`svbrdf_models.capture.batch.ProgressBar`) both draw through :class:`StatusLine`, so they behave
+(:class:`ProgressBar`, here) both draw through :class:`StatusLine`, so they behave
 alike: on a terminal the line is redrawn in place with ``\\r`` (at most ``tty_every_s`` apart,
 blanks over the end of a longer previous line); into a file or a pipe (CI logs, ``nohup``) a
 whole line is printed every ``file_every_s`` seconds, or nothing when that is None, so logs hold
@@ -19,7 +19,7 @@ import time
 from collections.abc import Callable
 from typing import TextIO
 
-__all__ = ["StatusLine"]
+__all__ = ["ProgressBar", "StatusLine"]
 
 
 class StatusLine:
@@ -87,3 +87,44 @@ class StatusLine:
             self.stream.write("\n")
             self.stream.flush()
             self._width = 0
+
+
+class ProgressBar:
+    """``callback(step, total, loss)`` drawing one line on ``stream`` with ``\\r`` updates:
+    ``NAME: refining  37/100 [#######.............] 1.2 s loss 0.0812``.
+
+    Silent when ``enabled`` is false (by default: when ``stream`` is not a terminal, so logs and
+    pipes get no control characters; ``enabled=True`` there prints whole lines). :meth:`close`
+    ends the line. At most ~10 redraws a second,
+    and always the last step. Drawn by :class:`StatusLine`, the display a fit's progress
+    uses too.
+    """
+
+    #: Said at the end of every progress line when the machine is busy (set by ``predict``
+    #: from :func:`svbrdf_render.machine.choose_threads`): why the refinement is slower.
+    busy_note = ""
+
+    def __init__(self, name: str, stream=None, enabled: bool | None = None, width: int = 20):
+        # enabled=True off a terminal: a whole line per redraw (no \r in a file)
+        self.line = StatusLine(stream, enabled=enabled is not False, file_every_s=0.1 if enabled else None)
+        self.stream = self.line.stream
+        self.enabled = self.line.enabled
+        self.name = name
+        self.width = width
+        self.start = time.perf_counter()
+
+    def __call__(self, step: int, total: int, loss: float) -> None:
+        if not self.line.due(force=step >= total):
+            return
+        filled = round(self.width * step / max(total, 1))
+        bar = "#" * filled + "." * (self.width - filled)
+        digits = len(str(total))
+        seconds = time.perf_counter() - self.start
+        self.line.show(
+            f"{self.name}: refining {step:>{digits}}/{total} [{bar}] {seconds:.1f} s loss {loss:.4f}"
+            + self.busy_note,
+            force=True,
+        )
+
+    def close(self) -> None:
+        self.line.close()

@@ -1,4 +1,6 @@
-"""How many torch threads a command computes with: the cores the machine has free.
+"""What this machine has free for a command: cores (how many torch threads to compute with)
+and memory (:func:`available_memory`, which the photo tool checks a refinement or a tiled
+capture against before it starts).
 
 torch starts one thread per core, and its threads spin while they wait for each other. When
 other programs keep the cores busy, those threads wait for cores that never come free: on a
@@ -22,8 +24,9 @@ import os
 import statistics
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
-__all__ = ["THREADS_HELP", "ThreadChoice", "choose_threads", "usable_cores"]
+__all__ = ["THREADS_HELP", "ThreadChoice", "available_memory", "choose_threads", "usable_cores"]
 
 #: The ``--threads`` help of every command that computes.
 THREADS_HELP = (
@@ -120,3 +123,36 @@ def choose_threads(requested: int | None = None, *, apply: bool = True) -> Threa
 
         torch.set_num_threads(choice.threads)
     return choice
+
+
+#: Where Linux says how much memory is available, and the cgroup (v2) this process runs in.
+_MEMINFO = "/proc/meminfo"
+_CGROUP = Path("/sys/fs/cgroup")
+
+
+def available_memory() -> int | None:
+    """Bytes of memory this process may still take: the kernel's ``MemAvailable`` (what can be
+    had without swapping), lowered to a cgroup's limit when the process runs under one; None
+    where neither can be read."""
+    found = []
+    try:
+        with open(_MEMINFO) as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    found.append(int(line.split()[1]) * 1024)
+                    break
+    except (OSError, ValueError, IndexError):
+        pass
+    if not found:
+        try:
+            found.append(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+        except (OSError, ValueError, AttributeError):
+            pass
+    try:  # cgroup v2: the limit minus what the group uses
+        limit = (_CGROUP / "memory.max").read_text().strip()
+        if limit.isdigit():
+            used = int((_CGROUP / "memory.current").read_text().strip())
+            found.append(max(0, int(limit) - used))
+    except (OSError, ValueError):
+        pass
+    return min(found) if found else None

@@ -54,11 +54,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ._optional import require
 from .effects import DES18_EFFECTS, EFFECTS
 from .errors import MapError, SceneError, SVBRDFError
 from .formats.files import write_text
-from .formats.mapfiles import _encode_maps, linear_to_srgb
+from .formats.mapfiles import _encode_maps, _pil, linear_to_srgb
 from .maps import MAP_NAMES, SVBRDF
 from .scene import DES18_DISTANCE, Camera, PointLight, Scene
 
@@ -118,7 +117,7 @@ def _light_position(light) -> list[float]:
 
 def _png_data_uri(values: Tensor) -> str:
     """``(C, H, W)`` values in [0, 1] as an 8-bit RGB (C = 3) or grey (C = 1) PNG data URI."""
-    Image = require("PIL.Image", "Pillow", "the viewer's embedded maps")
+    Image = _pil()
     arr = values.nan_to_num(0.0).clamp(0, 1).permute(1, 2, 0).numpy()
     q = np.round(arr * 255).astype(np.uint8)
     buf = io.BytesIO()

@@ -3,7 +3,8 @@
 The public API (:data:`__all__`) is that of :mod:`~svbrdf_models.capture.one` (one photo end to
 end); beneath it:
 
-- :mod:`~svbrdf_models.capture.batch`: many photos into one folder, the ``predict`` command's work;
+- :mod:`~svbrdf_models.capture.batch`: many photos into one folder and its ``summary.json``, the
+  ``predict`` command's work;
 - :mod:`~svbrdf_models.capture.photos`: reading and judging photos;
 - :mod:`~svbrdf_models.capture.tiles`: tiled prediction and its memory cost;
 - :mod:`~svbrdf_models.capture.refining`: the network's maps refined against the photo;
@@ -15,5 +16,8 @@ end); beneath it:
 Needs the ``photo`` extra (``pip install svbrdf-models[photo]``).
 """
 
+from .batch import write_summary
 from .one import *  # noqa: F403
-from .one import __all__  # noqa: F401
+from .one import __all__ as _one_all
+
+__all__ = [*_one_all, "write_summary"]

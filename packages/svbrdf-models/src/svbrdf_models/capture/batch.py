@@ -16,14 +16,17 @@ the photos done before it, marked ``"interrupted": true``).
 
 from __future__ import annotations
 
+import json
 import re
 import sys
-import time
 from pathlib import Path
 
 import torch
 
+from svbrdf_render.formats.files import locked, write_text
+
 from ..errors import DataError
+from ..progress import ProgressBar
 
 __all__ = [
     "HELP_SECTIONS",
@@ -31,6 +34,8 @@ __all__ = [
     "capture_batch",
     "check_material_folders",
     "set_threads",
+    "write_summary",
+    "write_summary",
     "folder_name",
     "help_text",
     "load_scene",
@@ -130,49 +135,6 @@ def pick_device(name: str, local_rank: int = 0) -> torch.device:
     return torch.device(name)
 
 
-class ProgressBar:
-    """``callback(step, total, loss)`` drawing one line on ``stream`` with ``\\r`` updates:
-    ``NAME: refining  37/100 [#######.............] 1.2 s loss 0.0812``.
-
-    Silent when ``enabled`` is false (by default: when ``stream`` is not a terminal, so logs and
-    pipes get no control characters; ``enabled=True`` there prints whole lines). :meth:`close`
-    ends the line. At most ~10 redraws a second,
-    and always the last step. Drawn by :class:`svbrdf_models.progress.StatusLine`, the display a
-    fit's progress uses too.
-    """
-
-    #: Said at the end of every progress line when the machine is busy (set by ``predict``
-    #: from :func:`svbrdf_render.machine.choose_threads`): why the refinement is slower.
-    busy_note = ""
-
-    def __init__(self, name: str, stream=None, enabled: bool | None = None, width: int = 20):
-        from ..progress import StatusLine
-
-        # enabled=True off a terminal: a whole line per redraw (no \r in a file)
-        self.line = StatusLine(stream, enabled=enabled is not False, file_every_s=0.1 if enabled else None)
-        self.stream = self.line.stream
-        self.enabled = self.line.enabled
-        self.name = name
-        self.width = width
-        self.start = time.perf_counter()
-
-    def __call__(self, step: int, total: int, loss: float) -> None:
-        if not self.line.due(force=step >= total):
-            return
-        filled = round(self.width * step / max(total, 1))
-        bar = "#" * filled + "." * (self.width - filled)
-        digits = len(str(total))
-        seconds = time.perf_counter() - self.start
-        self.line.show(
-            f"{self.name}: refining {step:>{digits}}/{total} [{bar}] {seconds:.1f} s loss {loss:.4f}"
-            + self.busy_note,
-            force=True,
-        )
-
-    def close(self) -> None:
-        self.line.close()
-
-
 def set_threads(requested: int | None):
     """Choose and set the torch threads (:func:`svbrdf_render.machine.choose_threads`: one per
     free core unless ``requested``); say so on stderr, and at the end of every progress line
@@ -235,8 +197,6 @@ def capture_batch(
     once (:func:`check_material_folders`), here unless ``checked`` (the commands check them
     before the model loads)."""
     from svbrdf_render.formats.files import sigterm_as_interrupt
-
-    from .one import write_summary
 
     out = Path(out)
     if not checked:
@@ -377,3 +337,60 @@ def _table(entries: list[dict], summary: dict) -> str:
 
 def _number(value, spec: str) -> str:
     return "nan" if value is None else format(value, spec)
+
+
+def write_summary(path, entries: list[dict], **extra) -> dict:
+    """``summary.json``: the entries, the median RMSE over the photos captured, and ``extra``.
+
+    An earlier ``summary.json`` in the folder (another run into the same ``-o``, or a run
+    stopped by Ctrl-C) keeps its entries of other photos: entries are merged by material folder
+    (by photo for failed ones), this run's replacing the earlier run's of the same photo. The
+    read and the write are one step under a lock of the folder, so two runs lose no entry."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with locked(path.parent):
+        return _write_summary(path, _merged(_earlier_entries(path), entries), extra)
+
+
+def _entry_key(entry: dict) -> str:
+    return f"folder:{entry['name']}" if entry.get("name") else f"photo:{entry.get('photo')}"
+
+
+def _earlier_entries(path: Path) -> list[dict]:
+    """The entries of an earlier summary.json at ``path`` (none when missing or unreadable)."""
+    try:
+        earlier = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return []
+    entries = earlier.get("entries") if isinstance(earlier, dict) else None
+    return [e for e in entries if isinstance(e, dict)] if isinstance(entries, list) else []
+
+
+def _merged(earlier: list[dict], entries: list[dict]) -> list[dict]:
+    new = {_entry_key(e) for e in entries}
+    return [e for e in earlier if _entry_key(e) not in new] + list(entries)
+
+
+#: What the re-rendering RMSE of summary.json and of the printed table says, and what not.
+RMSE_MEANS = (
+    "how well the maps explain this one photo under the flash found for it, not how right they "
+    "are: maps that bake the photo into the diffuse score near 0 and look wrong under any other "
+    "light; a highlight stamped into the maps is measured by benchmarks/real_photos.py"
+)
+
+
+def _write_summary(path: Path, entries: list[dict], extra: dict) -> dict:
+    import statistics
+
+    values = [e["rmse"] for e in entries if e.get("status") == "ok" and e.get("rmse") is not None]
+    summary = {
+        **extra,
+        "photos": len(entries),
+        "captured": sum(e.get("status") == "ok" for e in entries),
+        "failed": sum(e.get("status") != "ok" for e in entries),
+        "median_rmse": statistics.median(values) if values else None,
+        "rmse_means": RMSE_MEANS,
+        "entries": entries,
+    }
+    write_text(path, json.dumps(summary, indent=2) + "\n")  # atomic: never a 0-byte summary
+    return summary

@@ -18,13 +18,13 @@ cost (:mod:`svbrdf_models.capture.tiles`), the flash fit and the relit preview
 (:mod:`svbrdf_models.capture.relight`).
 This module runs them for one photo (:func:`capture_one`: with refinement, maps asked smaller
 than :data:`svbrdf_render.MIN_REFINE_SIDE` are refused; a square smaller than the model's
-resolution is noted, upsampled) and writes the batch's ``summary.json`` (:func:`write_summary`).
+resolution is noted, upsampled); a batch's ``summary.json`` is written by
+:mod:`svbrdf_models.capture.batch`.
 """
 
 from __future__ import annotations
 
 import importlib.util
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,7 +33,6 @@ import torch
 from torch import Tensor
 
 from svbrdf_render import MAP_NAMES, MIN_REFINE_SIDE, SVBRDF, Refinement, Scene, linear_to_srgb
-from svbrdf_render.formats.files import locked, write_text
 
 from ..errors import DataError
 from ..modelfile.trained import square_photo
@@ -87,7 +86,6 @@ __all__ = [
     "tile_count",
     "tile_predict",
     "to_directx",
-    "write_summary",
 ]
 
 #: ``--normal-convention`` values: OpenGL (y up, the project's own) or DirectX (y down).
@@ -421,60 +419,3 @@ def _rerender_figure(photo: Tensor, renderings: list[Tensor], rmse: list[float],
         columns = ["photo", *(f"{n} re-rendering" for n in names), *(f"{n} {scale}" for n in names)]
     label = "RMSE " + " -> ".join(f"{r:.4f}" for r in rmse)
     return image_grid([shown], columns, [label])
-
-
-def write_summary(path, entries: list[dict], **extra) -> dict:
-    """``summary.json``: the entries, the median RMSE over the photos captured, and ``extra``.
-
-    An earlier ``summary.json`` in the folder (another run into the same ``-o``, or a run
-    stopped by Ctrl-C) keeps its entries of other photos: entries are merged by material folder
-    (by photo for failed ones), this run's replacing the earlier run's of the same photo. The
-    read and the write are one step under a lock of the folder, so two runs lose no entry."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with locked(path.parent):
-        return _write_summary(path, _merged(_earlier_entries(path), entries), extra)
-
-
-def _entry_key(entry: dict) -> str:
-    return f"folder:{entry['name']}" if entry.get("name") else f"photo:{entry.get('photo')}"
-
-
-def _earlier_entries(path: Path) -> list[dict]:
-    """The entries of an earlier summary.json at ``path`` (none when missing or unreadable)."""
-    try:
-        earlier = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return []
-    entries = earlier.get("entries") if isinstance(earlier, dict) else None
-    return [e for e in entries if isinstance(e, dict)] if isinstance(entries, list) else []
-
-
-def _merged(earlier: list[dict], entries: list[dict]) -> list[dict]:
-    new = {_entry_key(e) for e in entries}
-    return [e for e in earlier if _entry_key(e) not in new] + list(entries)
-
-
-#: What the re-rendering RMSE of summary.json and of the printed table says, and what not.
-RMSE_MEANS = (
-    "how well the maps explain this one photo under the flash found for it, not how right they "
-    "are: maps that bake the photo into the diffuse score near 0 and look wrong under any other "
-    "light; a highlight stamped into the maps is measured by benchmarks/real_photos.py"
-)
-
-
-def _write_summary(path: Path, entries: list[dict], extra: dict) -> dict:
-    import statistics
-
-    values = [e["rmse"] for e in entries if e.get("status") == "ok" and e.get("rmse") is not None]
-    summary = {
-        **extra,
-        "photos": len(entries),
-        "captured": sum(e.get("status") == "ok" for e in entries),
-        "failed": sum(e.get("status") != "ok" for e in entries),
-        "median_rmse": statistics.median(values) if values else None,
-        "rmse_means": RMSE_MEANS,
-        "entries": entries,
-    }
-    write_text(path, json.dumps(summary, indent=2) + "\n")  # atomic: never a 0-byte summary
-    return summary

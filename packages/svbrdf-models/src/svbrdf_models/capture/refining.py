@@ -92,10 +92,10 @@ def check_refine_memory(size: int, steps: int, where: str, *, count: int = 1, re
     """Refuse (:class:`DataError`, one line naming ``where``) refining ``count`` maps of ``size``
     px at once when this machine's free memory cannot hold it; ``remedy`` says what to do (the
     command line's by default)."""
-    from .tiles import available_memory
+    from svbrdf_render import machine
 
     need = refine_cost(size, steps)[1] * count
-    free = available_memory()
+    free = machine.available_memory()
     if free is not None and need > free:
         default = refine_cost(DEFAULT_MAP_SIZE, steps)[1] / 2**30
         what = f"{count} x {size} px maps" if count > 1 else f"{size} px maps"

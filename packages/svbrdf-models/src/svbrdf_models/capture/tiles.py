@@ -9,14 +9,13 @@ memory cannot hold.
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Callable
-from pathlib import Path
 
 import torch
 from torch import Tensor
 
-from svbrdf_render import SVBRDF, safe_normalize
+from svbrdf_render import SVBRDF, machine, safe_normalize
+from svbrdf_render.machine import available_memory
 
 from ..errors import DataError
 
@@ -111,39 +110,11 @@ def tiled_capture_bytes(size: int) -> int:
     return TILED_BYTES_PER_PIXEL * size * size + TILED_FIXED_BYTES
 
 
-def available_memory() -> int | None:
-    """Bytes of memory this process may still take: the kernel's ``MemAvailable`` (what can be
-    had without swapping), lowered to a cgroup's limit when the process runs under one; None
-    where neither can be read."""
-    found = []
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    found.append(int(line.split()[1]) * 1024)
-                    break
-    except (OSError, ValueError, IndexError):
-        pass
-    if not found:
-        try:
-            found.append(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-        except (OSError, ValueError, AttributeError):
-            pass
-    try:  # cgroup v2: the limit minus what the group uses
-        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
-        if limit.isdigit():
-            used = int(Path("/sys/fs/cgroup/memory.current").read_text().strip())
-            found.append(max(0, int(limit) - used))
-    except (OSError, ValueError):
-        pass
-    return min(found) if found else None
-
-
 def check_tiled_memory(size: int, what: str) -> None:
     """Refuse (:class:`DataError`, one line starting with ``what``) a tiled capture of ``size x
     size`` maps that needs more memory than :func:`available_memory` says there is; a tiled
     capture past it would be killed by the system, or swap for hours, after minutes of work."""
-    need, have = tiled_capture_bytes(size), available_memory()
+    need, have = tiled_capture_bytes(size), machine.available_memory()
     if have is None or need <= have:
         return
     largest = math.isqrt(max(0, have - TILED_FIXED_BYTES) // TILED_BYTES_PER_PIXEL)

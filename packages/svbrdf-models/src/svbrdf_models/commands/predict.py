@@ -298,9 +298,11 @@ def _announce(model, line: str, tile_size: int | None) -> None:
         raise DataError(f"--map-size {tile_size} is smaller than the model's resolution ({model.resolution})")
     print(line, file=sys.stderr)
     if tile_size is not None:
-        from ..capture.tiles import available_memory, tile_count, tiled_capture_bytes
+        from svbrdf_render import machine
 
-        have = available_memory()
+        from ..capture.tiles import tile_count, tiled_capture_bytes
+
+        have = machine.available_memory()
         print(
             f"--tiles --map-size {tile_size}: {tile_count(tile_size, model.resolution)} tiles of "
             f"{model.resolution} px per photo, about {tiled_capture_bytes(tile_size) / 2**30:.1f} GiB "

@@ -26,6 +26,7 @@ count, non-square tiles, translucent alpha) is a :class:`MapFileError` naming th
 
 from __future__ import annotations
 
+import functools
 import struct
 import zlib
 from pathlib import Path
@@ -71,7 +72,9 @@ _COLOUR_CHUNKS = {
 }
 
 
+@functools.cache
 def _pil():
+    """Pillow's Image module (the viewer's embedded maps use it too), found once."""
     return require("PIL.Image", "Pillow", "reading and writing images")
 
 
