@@ -14,7 +14,7 @@ import torch
 from svbrdf_render import SVBRDF, render
 from svbrdf_train.data.capture import _photos
 from svbrdf_train.data.fitdata import build_datasets
-from svbrdf_train.data.jpeg import LUMINANCE_TABLE, jpeg_roundtrip, quantisation_table
+from svbrdf_train.data.jpeg import CHROMINANCE_TABLE, LUMINANCE_TABLE, jpeg_roundtrip, quantisation_table
 from svbrdf_train.data.procedural import (
     CAPTURE_PRESETS,
     PhotoSettings,
@@ -236,6 +236,28 @@ def test_jpeg_is_deterministic_batches_as_one_by_one_and_takes_odd_sizes():
     assert torch.equal(a, torch.cat([jpeg_roundtrip(x[k : k + 1], q) for k, q in enumerate(qualities)]))
     # values outside [0, 1] are clipped first, as a sensor clips them
     assert torch.equal(jpeg_roundtrip(x * 3 - 1, 80), jpeg_roundtrip((x * 3 - 1).clamp(0, 1), 80))
+
+
+#: ITU T.81 Annex K.1, as the standard prints them (quality 50, row major): the luminance table
+#: (K.1) on the left of each row, the chrominance table (K.2) on the right.
+_ANNEX_K1 = """
+    16  11  10  16  24  40  51  61    17  18  24  47  99  99  99  99
+    12  12  14  19  26  58  60  55    18  21  26  66  99  99  99  99
+    14  13  16  24  40  57  69  56    24  26  56  99  99  99  99  99
+    14  17  22  29  51  87  80  62    47  66  99  99  99  99  99  99
+    18  22  37  56  68 109 103  77    99  99  99  99  99  99  99  99
+    24  35  55  64  81 104 113  92    99  99  99  99  99  99  99  99
+    49  64  78  87 103 121 120 101    99  99  99  99  99  99  99  99
+    72  92  95  98 112 100 103  99    99  99  99  99  99  99  99  99
+"""
+
+
+def test_quantisation_tables_are_the_standard_ones_as_tuples_of_ints():
+    rows = [tuple(int(v) for v in line.split()) for line in _ANNEX_K1.strip().splitlines()]
+    for table, expected in ((LUMINANCE_TABLE, [r[:8] for r in rows]), (CHROMINANCE_TABLE, [r[8:] for r in rows])):
+        assert len(table) == 8 and all(type(row) is tuple and len(row) == 8 for row in table)
+        assert all(type(v) is int for row in table for v in row)
+        assert table == tuple(expected)
 
 
 def test_quantisation_tables_scale_as_libjpeg():

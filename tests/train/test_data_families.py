@@ -7,6 +7,7 @@ import importlib
 import json
 import math
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -39,13 +40,25 @@ def test_each_family_declares_its_order_and_weight_in_its_own_module():
         module = importlib.import_module(f"svbrdf_train.data.families.{name}")
         source = Path(module.__file__).read_text()
         family = families.FAMILY_TABLE[name]
-        assert f"order={family.order}," in source and f"weight={family.weight}," in source, name
+        assert re.search(rf"\border={family.order}\b", source), name
+        assert re.search(rf"\bweight={re.escape(str(family.weight))}\b", source), name
     orders = [families.FAMILY_TABLE[name].order for name in FAMILIES]
     assert orders == sorted(orders) and len(set(orders)) == len(orders)
     assert FAMILY_WEIGHTS == {name: f.weight for name, f in families.FAMILY_TABLE.items()}
     # Generator 3's table, bit for bit: the same families, order and weights, the same version.
     assert list(FAMILY_WEIGHTS.items()) == list(V3_WEIGHTS.items())
     assert GENERATOR_VERSION == generator_version() == "3"
+
+
+def test_the_family_modules_share_no_paragraph_of_their_docstrings():
+    # How a family module looks is said once, in the package's docstring; each family's own says
+    # what that family draws.
+    seen: dict[str, str] = {}
+    for name in FAMILIES:
+        doc = importlib.import_module(f"svbrdf_train.data.families.{name}").__doc__
+        for paragraph in (" ".join(p.split()) for p in doc.split("\n\n")):
+            assert seen.setdefault(paragraph, name) == name, (name, seen[paragraph], paragraph)
+    assert "register(Family(" in families.__doc__
 
 
 def test_the_table_keeps_the_declared_order_whatever_the_registration_order():
@@ -100,7 +113,7 @@ _NEW_FAMILY = '''"""A family dropped into the package: the stone family's maps u
 from .base import Family, register
 from .stone import draw, fields
 
-register(Family(name="zinc", description="a probe", draw=draw, fields=fields, order=35, weight=0.8))
+register(Family("zinc", "a probe", draw, fields, order=35, weight=0.8))
 '''
 
 _PROBE = """import json

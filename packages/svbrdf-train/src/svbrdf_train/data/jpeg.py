@@ -39,16 +39,11 @@ LUMINANCE_TABLE = (
     (49, 64, 78, 87, 103, 121, 120, 101),
     (72, 92, 95, 98, 112, 100, 103, 99),
 )
-#: ITU T.81 Annex K.1: the standard chrominance quantisation table (quality 50).
-CHROMINANCE_TABLE = (
-    (17, 18, 24, 47, 99, 99, 99, 99),
-    (18, 21, 26, 66, 99, 99, 99, 99),
-    (24, 26, 56, 99, 99, 99, 99, 99),
-    (47, 66, 99, 99, 99, 99, 99, 99),
-    (99, 99, 99, 99, 99, 99, 99, 99),
-    (99, 99, 99, 99, 99, 99, 99, 99),
-    (99, 99, 99, 99, 99, 99, 99, 99),
-    (99, 99, 99, 99, 99, 99, 99, 99),
+#: ITU T.81 Annex K.1: the standard chrominance quantisation table (quality 50), row major:
+#: finer steps for the lowest frequencies (the upper left corner), 99 for all the others.
+CHROMINANCE_TABLE = tuple(
+    corner + (99,) * (8 - len(corner))
+    for corner in ((17, 18, 24, 47), (18, 21, 26, 66), (24, 26, 56), (47, 66), (), (), (), ())
 )
 
 

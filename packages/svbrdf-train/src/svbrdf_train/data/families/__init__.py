@@ -31,13 +31,22 @@ metals) are in :mod:`.drawing`.
 Only the ops listed in :mod:`..procedural_noise` touch batched tensors, so that a batch
 computes what its members compute alone, bit for bit.
 
-Adding a family is adding one module here: it defines ``draw`` and ``fields`` and ends with
-``register(Family(name, description, draw, fields, order=..., weight=...))``. Nothing else
-names it: this package imports every module in it (:func:`_import_modules`; a module that
-registers nothing, as :mod:`.base` and :mod:`.drawing`, is a helper), the table lists the
-families by their declared ``order`` (the drawing order: a sample picks its family by
-position in it, so it is part of the generator's output; a new family usually goes last),
-and :data:`svbrdf_train.data.procedural_maps.FAMILY_WEIGHTS` and the family part of
+Every family module has the same form: its docstring names the family and describes the
+materials it draws; it defines ``draw`` and ``fields`` (and private helpers of its own),
+importing only what it uses; and it ends with one statement that registers the two, with the
+family's name, a one-line description, its ``order`` and its ``weight``, and the reasons for
+them in a comment above it::
+
+    # weight: a surface Des18 lacks
+    register(Family("wood", "rings, fibres and pores, optionally planks with seams", draw, fields,
+                    order=40, weight=0.6))
+
+Adding a family is adding one such module here, and nothing else names it: this package
+imports every module in it (:func:`_import_modules`; a module that registers nothing, as
+:mod:`.base` and :mod:`.drawing`, is a helper), the table lists the families by their
+declared ``order`` (the drawing order: a sample picks its family by position in it, so it is
+part of the generator's output; a new family usually goes last), and
+:data:`svbrdf_train.data.procedural_maps.FAMILY_WEIGHTS` and the family part of
 :data:`svbrdf_train.data.procedural.GENERATOR_VERSION` are read from the table.
 """
 

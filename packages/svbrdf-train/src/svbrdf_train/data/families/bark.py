@@ -2,13 +2,7 @@
 
 Plates between deep furrows along the trunk (darker, rougher), cracks across the plates,
 weathered tops, lichen.
-
-``draw`` makes the choices of one material, ``fields`` computes a batch of them (see
-:mod:`svbrdf_train.data.families`); the module ends by registering the two, with the family's
-place in the drawing order and its weight.
 """
-
-from __future__ import annotations
 
 from typing import Any
 
@@ -75,13 +69,6 @@ def fields(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
     return Fields(height, diffuse, roughness, p["specular"].expand_as(diffuse), {"furrow": furrow})
 
 
-register(
-    Family(
-        name="bark",
-        description="bark: plates between deep furrows, cracks, lichen",
-        draw=draw,
-        fields=fields,
-        order=90,
-        weight=0.4,  # the least: the narrowest look
-    )
-)
+# weight: the least: the narrowest look
+register(Family("bark", "bark: plates between deep furrows, cracks, lichen", draw, fields,
+                order=90, weight=0.4))

@@ -1,11 +1,11 @@
 """What a procedural family is, the table of families, and the batching its ``fields`` relies on.
 
-A family module defines ``draw(d)`` and ``fields(p, x, y)`` (see :mod:`svbrdf_train.data.families`)
-and ends by registering them with its place in the drawing order and its weight:
-``register(Family(name, description, draw, fields, order=..., weight=...))``. The table lists
-the families by their declared ``order`` whatever order they register in, so the drawing order
-is written in the family modules alone, and :func:`family_fingerprint` names the table for the
-generator's version.
+A family module defines ``draw(d)`` and ``fields(p, x, y)`` and ends by registering them with
+its place in the drawing order and its weight (:mod:`svbrdf_train.data.families` says how such
+a module looks): ``register(Family(name, description, draw, fields, order=..., weight=...))``.
+The table lists the families by their declared ``order`` whatever order they register in, so
+the drawing order is written in the family modules alone, and :func:`family_fingerprint` names
+the table for the generator's version.
 """
 
 from __future__ import annotations

@@ -1,13 +1,7 @@
 """The cells family of procedural materials.
 
 Leather, cobbles, cracked earth and paint: Worley cells with gaps between them.
-
-``draw`` makes the choices of one material, ``fields`` computes a batch of them (see
-:mod:`svbrdf_train.data.families`); the module ends by registering the two, with the family's
-place in the drawing order and its weight.
 """
-
-from __future__ import annotations
 
 from typing import Any
 
@@ -94,13 +88,6 @@ def fields(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
     return Fields(height, diffuse, roughness, p["specular"].expand_as(diffuse), {"gap": gap})
 
 
-register(
-    Family(
-        name="cells",
-        description="leather, cobbles, cracked earth and paint (Worley cells)",
-        draw=draw,
-        fields=fields,
-        order=30,
-        weight=1.0,  # a family of the Des18 materials: they keep the bulk of the draws
-    )
-)
+# weight: a family of the Des18 materials: they keep the bulk of the draws
+register(Family("cells", "leather, cobbles, cracked earth and paint (Worley cells)", draw, fields,
+                order=30, weight=1.0))

@@ -1,13 +1,7 @@
 """The fabric family of procedural materials.
 
 Plain, twill and satin weaves of round threads; stripes and checks.
-
-``draw`` makes the choices of one material, ``fields`` computes a batch of them (see
-:mod:`svbrdf_train.data.families`); the module ends by registering the two, with the family's
-place in the drawing order and its weight.
 """
-
-from __future__ import annotations
 
 from typing import Any
 
@@ -91,13 +85,6 @@ def fields(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
     return Fields(height, diffuse, roughness, p["specular"].expand_as(diffuse), {"warp": on_warp.float()})
 
 
-register(
-    Family(
-        name="fabric",
-        description="plain, twill and satin weaves, stripes and checks",
-        draw=draw,
-        fields=fields,
-        order=60,
-        weight=0.5,  # a surface Des18 lacks
-    )
-)
+# weight: a surface Des18 lacks
+register(Family("fabric", "plain, twill and satin weaves, stripes and checks", draw, fields,
+                order=60, weight=0.5))

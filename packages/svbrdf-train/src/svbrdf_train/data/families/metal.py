@@ -2,13 +2,7 @@
 
 Brushed, polished and scratched, hammered, sandblasted, embossed; coloured specular (measured
 F0, or tarnished and anodised: darker), dark diffuse.
-
-``draw`` makes the choices of one material, ``fields`` computes a batch of them (see
-:mod:`svbrdf_train.data.families`); the module ends by registering the two, with the family's
-place in the drawing order and its weight.
 """
-
-from __future__ import annotations
 
 from typing import Any
 
@@ -110,13 +104,6 @@ def fields(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
     return Fields(height, diffuse.expand_as(specular), roughness, specular, {"scratch": scratch})
 
 
-register(
-    Family(
-        name="metal",
-        description="brushed, polished and scratched, hammered, sandblasted, embossed",
-        draw=draw,
-        fields=fields,
-        order=50,
-        weight=1.2,  # a Des18 family, a little more than the others (often dark, often coloured)
-    )
-)
+# weight: a Des18 family, a little more than the others (often dark, often coloured)
+register(Family("metal", "brushed, polished and scratched, hammered, sandblasted, embossed", draw, fields,
+                order=50, weight=1.2))

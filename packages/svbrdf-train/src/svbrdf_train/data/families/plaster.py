@@ -2,13 +2,7 @@
 
 Plaster, stucco, concrete: broad low bumps, stucco dabs, pores and air holes (recessed,
 rougher); near-grey, rough.
-
-``draw`` makes the choices of one material, ``fields`` computes a batch of them (see
-:mod:`svbrdf_train.data.families`); the module ends by registering the two, with the family's
-place in the drawing order and its weight.
 """
-
-from __future__ import annotations
 
 from typing import Any
 
@@ -85,13 +79,6 @@ def fields(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
     return Fields(height, diffuse, roughness, p["specular"].expand_as(diffuse), {"pore": pore})
 
 
-register(
-    Family(
-        name="plaster",
-        description="plaster, stucco and concrete: broad bumps, dabs, pores",
-        draw=draw,
-        fields=fields,
-        order=70,
-        weight=0.6,  # a surface Des18 lacks, common: rough near-grey, low relief
-    )
-)
+# weight: a surface Des18 lacks, common: rough near-grey, low relief
+register(Family("plaster", "plaster, stucco and concrete: broad bumps, dabs, pores", draw, fields,
+                order=70, weight=0.6))

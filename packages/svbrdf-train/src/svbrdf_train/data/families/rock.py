@@ -2,13 +2,7 @@
 
 Rough rock with strong warped low-frequency relief and folds, crevices (darker, rougher), lichen
 and moss patches.
-
-``draw`` makes the choices of one material, ``fields`` computes a batch of them (see
-:mod:`svbrdf_train.data.families`); the module ends by registering the two, with the family's
-place in the drawing order and its weight.
 """
-
-from __future__ import annotations
 
 from typing import Any
 
@@ -89,13 +83,6 @@ def fields(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
     return Fields(height, diffuse, roughness, p["specular"].expand_as(diffuse), parts)
 
 
-register(
-    Family(
-        name="rock",
-        description="rough rock: strong warped relief, crevices, lichen and moss",
-        draw=draw,
-        fields=fields,
-        order=100,  # last
-        weight=0.6,  # a surface Des18 lacks, common: rough near-grey, strong relief
-    )
-)
+# order: last; weight: a surface Des18 lacks, common: rough near-grey, strong relief
+register(Family("rock", "rough rock: strong warped relief, crevices, lichen and moss", draw, fields,
+                order=100, weight=0.6))

@@ -2,13 +2,7 @@
 
 Painted and rusted steel: paint chipped down to the metal, rust patches (orange-brown rough
 dielectric, flaky) on the bare metal.
-
-``draw`` makes the choices of one material, ``fields`` computes a batch of them (see
-:mod:`svbrdf_train.data.families`); the module ends by registering the two, with the family's
-place in the drawing order and its weight.
 """
-
-from __future__ import annotations
 
 from typing import Any
 
@@ -89,13 +83,6 @@ def fields(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
     return Fields(height, diffuse, roughness, specular, parts)
 
 
-register(
-    Family(
-        name="rusted",
-        description="painted and rusted metal: paint chipped to the metal, rust patches",
-        draw=draw,
-        fields=fields,
-        order=80,
-        weight=0.7,  # the most of the surfaces Des18 lacks: metal and dielectric in one
-    )
-)
+# weight: the most of the surfaces Des18 lacks: metal and dielectric in one
+register(Family("rusted", "painted and rusted metal: paint chipped to the metal, rust patches", draw, fields,
+                order=80, weight=0.7))

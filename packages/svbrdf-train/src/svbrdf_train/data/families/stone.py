@@ -1,13 +1,7 @@
 """The stone family of procedural materials.
 
 Marble with veins, granite, sandstone, slate: domain-warped fBm, specks, polished or rough.
-
-``draw`` makes the choices of one material, ``fields`` computes a batch of them (see
-:mod:`svbrdf_train.data.families`); the module ends by registering the two, with the family's
-place in the drawing order and its weight.
 """
-
-from __future__ import annotations
 
 from typing import Any
 
@@ -119,13 +113,6 @@ def fields(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
     return Fields(height, diffuse, roughness, p["specular"].expand_as(diffuse), {"vein": vein})
 
 
-register(
-    Family(
-        name="stone",
-        description="marble with veins, granite, sandstone, slate (warped fBm)",
-        draw=draw,
-        fields=fields,
-        order=10,  # drawn from first
-        weight=1.0,  # a family of the Des18 materials: they keep the bulk of the draws
-    )
-)
+# order: drawn from first; weight: a family of the Des18 materials: they keep the bulk of the draws
+register(Family("stone", "marble with veins, granite, sandstone, slate (warped fBm)", draw, fields,
+                order=10, weight=1.0))

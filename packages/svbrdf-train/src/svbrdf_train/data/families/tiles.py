@@ -2,13 +2,7 @@
 
 Tiles, bricks, mosaics; grout recessed, rougher, another colour; some with metal studs where the
 tiles meet.
-
-``draw`` makes the choices of one material, ``fields`` computes a batch of them (see
-:mod:`svbrdf_train.data.families`); the module ends by registering the two, with the family's
-place in the drawing order and its weight.
 """
-
-from __future__ import annotations
 
 from typing import Any
 
@@ -147,13 +141,6 @@ def fields(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
     return Fields(height, diffuse, roughness, specular, {"grout": grout * (1 - stud), "stud": stud})
 
 
-register(
-    Family(
-        name="tiles",
-        description="tiles, bricks and mosaics with recessed, rougher grout; metal studs",
-        draw=draw,
-        fields=fields,
-        order=20,
-        weight=1.0,  # a family of the Des18 materials: they keep the bulk of the draws
-    )
-)
+# weight: a family of the Des18 materials: they keep the bulk of the draws
+register(Family("tiles", "tiles, bricks and mosaics with recessed, rougher grout; metal studs", draw, fields,
+                order=20, weight=1.0))

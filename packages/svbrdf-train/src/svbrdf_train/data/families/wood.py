@@ -1,13 +1,7 @@
 """The wood family of procedural materials.
 
 Rings, fibres, pores; optionally planks with seams.
-
-``draw`` makes the choices of one material, ``fields`` computes a batch of them (see
-:mod:`svbrdf_train.data.families`); the module ends by registering the two, with the family's
-place in the drawing order and its weight.
 """
-
-from __future__ import annotations
 
 from typing import Any
 
@@ -103,13 +97,6 @@ def fields(p: dict[str, Tensor], x: Tensor, y: Tensor) -> Fields:
     return Fields(height, diffuse, roughness, p["specular"].expand_as(diffuse), {"seam": seam})
 
 
-register(
-    Family(
-        name="wood",
-        description="rings, fibres and pores, optionally planks with seams",
-        draw=draw,
-        fields=fields,
-        order=40,
-        weight=0.6,  # a surface Des18 lacks
-    )
-)
+# weight: a surface Des18 lacks
+register(Family("wood", "rings, fibres and pores, optionally planks with seams", draw, fields,
+                order=40, weight=0.6))
