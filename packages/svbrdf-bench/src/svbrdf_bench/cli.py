@@ -11,7 +11,7 @@ import sys
 import click
 
 from svbrdf_render.formats.files import EXIT_STATUS
-from svbrdf_train import OneLineErrors, run_main
+from svbrdf_train import OneLineErrors, add_commands, run_main
 
 from . import __version__
 
@@ -35,21 +35,21 @@ def cli():
     """
 
 
-def _register() -> None:
+def _command_modules() -> list:
+    """The command modules present (an installation may leave one out)."""
     import importlib
 
+    found = []
     for name in ("run", "report", "render"):
         try:
-            module = importlib.import_module(f".commands.{name}", __package__)
+            found.append(importlib.import_module(f".commands.{name}", __package__))
         except ModuleNotFoundError as e:
             if e.name != f"{__package__}.commands.{name}":
                 raise
-            continue
-        for command in module.COMMANDS:
-            cli.add_command(command)
+    return found
 
 
-_register()
+add_commands(cli, _command_modules())
 
 
 def main(argv: list[str] | None = None) -> int:

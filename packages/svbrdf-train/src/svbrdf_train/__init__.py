@@ -44,7 +44,7 @@ _PUBLIC: dict[str, tuple[str, ...]] = {
     "svbrdf_models.capture.one": ("flash_consistency",),
     ".data.sheet": ("image_grid", "map_tiles"),
     # the command line a sibling tool shares: one-line errors, the common options
-    ".cli": ("OneLineErrors", "run_main"),
+    ".cli": ("OneLineErrors", "add_commands", "run_main"),
     ".commands.options": ("experiment_option",),
     ".commands.fit": ("system_metrics_option",),
 }

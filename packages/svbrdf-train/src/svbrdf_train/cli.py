@@ -42,6 +42,14 @@ class OneLineErrors(click.Group):
             ctx.exit(INTERRUPTED)
 
 
+def add_commands(group: click.Group, modules) -> None:
+    """Add to ``group`` every command the ``modules`` list in their ``COMMANDS`` (each command
+    module of svbrdf-train and svbrdf-bench ends with that list)."""
+    for module in modules:
+        for command in module.COMMANDS:
+            group.add_command(command)
+
+
 def run_main(group: click.Group, prog: str, argv: list[str] | None = None) -> int:
     """Run a click group as a console script; its exit status as an int. SIGTERM stops it as
     Ctrl-C does (exit 130), unless a command handles both itself (a fit saves first)."""
@@ -88,12 +96,8 @@ def _register() -> None:
         recipes,
     )
 
-    for module in (data_sheet, data_shards, data_strips, data_compare, data_folds):
-        for command in module.COMMANDS:
-            data.add_command(command)
-    for module in (recipes, fit, predict, export):
-        for command in module.COMMANDS:
-            cli.add_command(command)
+    add_commands(data, (data_sheet, data_shards, data_strips, data_compare, data_folds))
+    add_commands(cli, (recipes, fit, predict, export))
 
 
 _register()
