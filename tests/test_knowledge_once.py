@@ -1,6 +1,7 @@
 """Knowledge that used to be written in several places is written once (issue 38), found by
 reading the four packages' source (:mod:`ast`; nothing is imported): the accuracy figures, the
-renderer's backend names, the flash modes and the refinement budget's check."""
+renderer's backend names, the flash modes, the refinement budget's check and the reading of a
+positive number from text."""
 
 from __future__ import annotations
 
@@ -81,6 +82,24 @@ def test_the_refinement_budget_is_checked_in_one_place():
         "packages/svbrdf-models/src/svbrdf_models/capture/refining.py"
     ], found
     assert _defined("check_refine") == ["packages/svbrdf-models/src/svbrdf_models/capture/refining.py"]
+
+
+def test_a_positive_number_is_read_from_text_in_one_place():
+    """``svbrdf_render.cli.positive_number`` reads "a finite number > 0" from text; the download
+    timeout (svbrdf-models) and the benchmark's flash intensity (svbrdf-bench) use it."""
+    assert _defined("positive_number") == ["packages/svbrdf-render/src/svbrdf_render/cli.py"]
+    users = {
+        path
+        for path, tree in SOURCES
+        for node in ast.walk(tree)
+        if isinstance(node, ast.ImportFrom)
+        and node.module == "svbrdf_render.cli"
+        and any(alias.name == "positive_number" for alias in node.names)
+    }
+    assert users >= {
+        "packages/svbrdf-bench/src/svbrdf_bench/refinement.py",
+        "packages/svbrdf-models/src/svbrdf_models/modelfile/download.py",
+    }, users
 
 
 def test_the_finders_find_what_they_look_for():

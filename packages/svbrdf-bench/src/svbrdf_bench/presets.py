@@ -37,37 +37,26 @@ class Preset:
     """Recipe overrides (``section.field=value``) for every model, before the user's ``--set``."""
 
 
+#: The presets by name.
 PRESETS = {
-    "quick": Preset(
-        "quick",
-        size="cpu",
-        minutes=2.0,
-        test_count=32,
-        validate_every=25,
-        latency_repeats=50,
-        expected="under 10 min for two models on a 2-core CPU (2 min of training each)",
-        # The cpu size's 2 epochs of 2000 samples end before 2 minutes for the faster models,
-        # and then the budgets would not be equal: 10x the samples lets the clock decide.
-        overrides=("data.count=20000",),
-    ),
-    "standard": Preset(
-        "standard",
-        size="paper",
-        minutes=30.0,
-        test_count=256,
-        validate_every=250,
-        latency_repeats=100,
-        expected="about 35 min per model on one H100 (30 min of training each); days on a CPU",
-    ),
-    "paper": Preset(
-        "paper",
-        size="paper",
-        minutes=None,
-        test_count=1000,
-        validate_every=2000,
-        latency_repeats=200,
-        expected="the paper's 20 epochs: 4-7.5 h per model on one H100 (svbrdf README), weeks on a CPU",
-    ),
+    p.name: p
+    for p in (
+        Preset(
+            "quick", size="cpu", minutes=2.0, test_count=32, validate_every=25, latency_repeats=50,
+            expected="under 10 min for two models on a 2-core CPU (2 min of training each)",
+            # The cpu size's 2 epochs of 2000 samples end before 2 minutes for the faster models,
+            # and then the budgets would not be equal: 10x the samples lets the clock decide.
+            overrides=("data.count=20000",),
+        ),
+        Preset(
+            "standard", size="paper", minutes=30.0, test_count=256, validate_every=250, latency_repeats=100,
+            expected="about 35 min per model on one H100 (30 min of training each); days on a CPU",
+        ),
+        Preset(
+            "paper", size="paper", minutes=None, test_count=1000, validate_every=2000, latency_repeats=200,
+            expected="the paper's 20 epochs: 4-7.5 h per model on one H100 (svbrdf README), weeks on a CPU",
+        ),
+    )
 }
 
 

@@ -23,7 +23,6 @@ re-rendering of the photo's own view is what refinement optimises, so it is no e
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import asdict, dataclass, field
 
@@ -32,6 +31,7 @@ import torch
 from torch import Tensor
 
 from svbrdf_render import BACKENDS
+from svbrdf_render.cli import positive_number
 from svbrdf_render.refinement.fit import FLASH_MODES
 
 from .errors import BenchError
@@ -95,11 +95,8 @@ def parse_flash(text: str | None, flag: str = "--refine-flash") -> str | float:
     value = (text or "").strip()
     if value in REFINE_FLASH_MODES:
         return value
-    try:
-        intensity = float(value)
-    except ValueError:
-        intensity = math.nan
-    if not (math.isfinite(intensity) and intensity > 0):
+    intensity = positive_number(value)
+    if intensity is None:
         raise BenchError(
             f"{flag} {text!r}: expected axis, fit or the intensity of the on-axis flash the test "
             "photos were taken with (a number > 0, e.g. 15)"

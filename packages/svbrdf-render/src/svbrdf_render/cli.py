@@ -109,6 +109,21 @@ def float_range(low: float | None = None, high: float | None = None, *, above: b
     return parse
 
 
+def positive_number(text: str | None) -> float | None:
+    """The finite number > 0 that ``text`` spells (``"15"``, ``" 2.5e1 "``), else None: for a
+    caller that says in its own words what it expected (an environment variable, an option).
+
+    Example:
+        >>> positive_number("15"), positive_number("0"), positive_number("nan"), positive_number(None)
+        (15.0, None, None, None)
+    """
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        return None
+    return value if math.isfinite(value) and value > 0 else None
+
+
 def _examples():
     from .examples import EXAMPLES, example_material
 

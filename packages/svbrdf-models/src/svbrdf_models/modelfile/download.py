@@ -10,7 +10,6 @@ nothing for ``SVBRDF_DOWNLOAD_TIMEOUT`` seconds (default :data:`DOWNLOAD_TIMEOUT
 from __future__ import annotations
 
 import hashlib
-import math
 import os
 import re
 import sys
@@ -21,6 +20,8 @@ from pathlib import Path
 from typing import Any
 
 import torch
+
+from svbrdf_render.cli import positive_number
 
 from ..errors import ModelFileError
 from .modelcheck import MAX_EXPANDED_BYTES, _bytes, _first_line, _load_checked, file_sha256, read_model_file
@@ -52,11 +53,8 @@ def download_timeout() -> float:
     raw = os.environ.get("SVBRDF_DOWNLOAD_TIMEOUT", "").strip()
     if not raw:
         return DOWNLOAD_TIMEOUT
-    try:
-        value = float(raw)
-    except ValueError:
-        value = math.nan
-    if not (math.isfinite(value) and value > 0):
+    value = positive_number(raw)
+    if value is None:
         raise ModelFileError(
             f"SVBRDF_DOWNLOAD_TIMEOUT={raw!r}: expected a number of seconds > 0 "
             f"(default {DOWNLOAD_TIMEOUT:g})"
