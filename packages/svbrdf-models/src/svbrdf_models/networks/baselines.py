@@ -45,6 +45,7 @@ as every generator (``svbrdf.generators``), so every tool that takes a generator
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 from torch import Tensor, nn
@@ -68,14 +69,18 @@ def _unit(value: float, what: str) -> None:
         raise ValueError(f"{what} must be in [0, 1], got {value}")
 
 
+def _tuned(default: float, doc: str) -> Any:
+    """A config field whose default was read off des18-dev (see the module doc)."""
+    return param(default, f"{doc} (default read off des18-dev)")
+
+
 @dataclass(frozen=True)
 class MeanConfig:
-    diffuse_scale: float = param(
-        MEAN_DIFFUSE_SCALE,
-        "diffuse = this x the photo's per-channel median, clamped to [0, 1] (default read off des18-dev)",
+    diffuse_scale: float = _tuned(
+        MEAN_DIFFUSE_SCALE, "diffuse = this x the photo's per-channel median, clamped to [0, 1]"
     )
-    roughness: float = param(ROUGHNESS, "the roughness of every pixel (default read off des18-dev)")
-    specular: float = param(SPECULAR, "the grey specular albedo of every pixel (default read off des18-dev)")
+    roughness: float = _tuned(ROUGHNESS, "the roughness of every pixel")
+    specular: float = _tuned(SPECULAR, "the grey specular albedo of every pixel")
 
     def __post_init__(self):
         if not self.diffuse_scale >= 0:
@@ -86,12 +91,10 @@ class MeanConfig:
 
 @dataclass(frozen=True)
 class PhotoConfig:
-    diffuse_scale: float = param(
-        PHOTO_DIFFUSE_SCALE,
-        "diffuse = this x the photo with the flash fall-off divided out, clamped to [0, 1] "
-        "(default read off des18-dev)",
+    diffuse_scale: float = _tuned(
+        PHOTO_DIFFUSE_SCALE, "diffuse = this x the photo, its flash fall-off divided out, clamped to [0, 1]"
     )
-    roughness: float = param(ROUGHNESS, "the roughness of every pixel (default read off des18-dev)")
+    roughness: float = _tuned(ROUGHNESS, "the roughness of every pixel")
     distance: float = param(
         DES18_DISTANCE,
         "height of the on-axis camera and flash above the surface [-1, 1]^2 the image covers (Des18: 2.2)",

@@ -66,6 +66,16 @@ MATERIALX_VERSION = "1.38"
 #: standard libraries since 1.38.4, so both files describe the same material.
 MATERIALX_SHADER = "gltf_pbr"
 
+#: The image file of each role when the writer is given none: the names the command lines write
+#: (the table of the module doc), relative to the material file's folder.
+_DEFAULT_FILES = {
+    "basecolor": "basecolor.png",
+    "metallic": "metallic.png",
+    "roughness": "roughness.png",
+    "metallic_roughness": "metallic_roughness.png",
+    "normal": "normal_opengl.png",
+}
+
 _MIME_TYPES = {".png": "image/png", ".jpg": "image/jpeg", ".jpeg": "image/jpeg"}
 # A URI scheme ("http:", "file:") or a Windows drive ("C:"): not a relative file name.
 _SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.\-]*:")
@@ -267,9 +277,9 @@ def _gltf_document(
 def write_gltf(
     path: str | os.PathLike,
     *,
-    basecolor: str = "basecolor.png",
-    metallic_roughness: str = "metallic_roughness.png",
-    normal: str = "normal_opengl.png",
+    basecolor: str = _DEFAULT_FILES["basecolor"],
+    metallic_roughness: str = _DEFAULT_FILES["metallic_roughness"],
+    normal: str = _DEFAULT_FILES["normal"],
     name: str = "svbrdf material",
     size: float = 1.0,
     extras: Mapping[str, Any] | None = None,
@@ -367,10 +377,10 @@ def _materialx_material(
 def write_materialx(
     path: str | os.PathLike,
     *,
-    basecolor: str = "basecolor.png",
-    metallic: str = "metallic.png",
-    roughness: str = "roughness.png",
-    normal: str = "normal_opengl.png",
+    basecolor: str = _DEFAULT_FILES["basecolor"],
+    metallic: str = _DEFAULT_FILES["metallic"],
+    roughness: str = _DEFAULT_FILES["roughness"],
+    normal: str = _DEFAULT_FILES["normal"],
     name: str = "svbrdf_material",
 ) -> Path:
     """Write a MaterialX document (``.mtlx``) whose surface material reads the maps.

@@ -25,17 +25,7 @@ from svbrdf_render.formats.yamlio import safe_load
 from ..errors import RecipeError
 from .checks import check_recipe, show
 from .registry import recipe_path
-from .schema import (
-    SECTIONS,
-    TOP_LEVEL,
-    DataSection,
-    LossSection,
-    NetworkSection,
-    OptimSection,
-    Recipe,
-    TrainSection,
-    suggest,
-)
+from .schema import SECTIONS, TOP_LEVEL, Recipe, suggest
 
 __all__ = [
     "RecipeFile",
@@ -250,7 +240,7 @@ def _build(sections: Mapping[str, Any], where: str, *, name: str, size: str, sou
     def build(section: str):
         values = sections.get(section)
         if values is None:
-            return None
+            return SECTIONS[section]()  # at its defaults
         if not isinstance(values, Mapping):
             raise RecipeError(f"{where}: section {section!r} must be a mapping, got {values!r}")
         try:
@@ -258,22 +248,12 @@ def _build(sections: Mapping[str, Any], where: str, *, name: str, size: str, sou
         except ConfigError as e:
             raise RecipeError(str(e)) from None
 
-    loss = build("loss") or LossSection()
-    discriminator = build("discriminator") if "discriminator" in sections else None
-    if loss.adv == 0:
-        discriminator = None  # never built nor trained without an adversarial term
-    return Recipe(
-        name=name,
-        size=size,
-        description=str(sections.get("description", "")),
-        generator=build("generator") or NetworkSection(),
-        discriminator=discriminator,
-        loss=loss,
-        optim=build("optim") or OptimSection(),
-        data=build("data") or DataSection(),
-        train=build("train") or TrainSection(),
-        source=source,
-    )
+    built = {section: build(section) for section in SECTIONS}
+    if sections.get("discriminator") is None or built["loss"].adv == 0:
+        # none in the file, or never built nor trained without an adversarial term
+        built["discriminator"] = None
+    description = str(sections.get("description", ""))
+    return Recipe(name=name, size=size, description=description, source=source, **built)
 
 
 def read_recipe(name_or_path: str | Path) -> RecipeFile:

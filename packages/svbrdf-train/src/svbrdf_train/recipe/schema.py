@@ -173,9 +173,7 @@ class OptimSection:
     warmup_samples: int = param(0, "linear warm-up of both rates over this many samples (0: none)")
     batch_rule: str = param(
         "none",
-        "how lr and d_lr follow a batch other than batch_reference (batch x processes): none (as "
-        "given), sqrt (times sqrt(batch / batch_reference): Adam's usual rule for a larger batch) or "
-        "linear (times batch / batch_reference)",
+        "lr and d_lr times 1 (none), sqrt(r) (sqrt) or r (linear), r = batch x processes / batch_reference",
         choices=BATCH_RULES,
     )
     batch_reference: int = param(8, "the batch lr and d_lr are set for (the paper's 8), for batch_rule")
