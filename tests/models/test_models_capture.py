@@ -277,6 +277,28 @@ def test_command_interrupted_during_refinement_writes_nothing_of_that_photo(
     assert summary["interrupted"] is True and [e["name"] for e in summary["entries"]] == ["tiles"]
 
 
+def test_a_signal_whose_interrupt_python_dropped_still_stops_the_batch(tmp_path, photo_file, monkeypatch, capsys):
+    """SIGTERM whose KeyboardInterrupt was dropped (it landed in a weakref callback): the batch
+    takes the stop at the next refinement step all the same, as it would Ctrl-C."""
+    from svbrdf_render.formats import files
+
+    second = write_image(tmp_path / "second.png", linear_to_srgb(_photo(64, "leather")))
+    real_call = ProgressBar.__call__
+
+    def dropped(self, step, total, loss):
+        if self.name == "second.png" and step == 1:
+            files._STOP["signal"] = "SIGTERM"  # what the handler records before its raise is lost
+        return real_call(self, step, total, loss)
+
+    monkeypatch.setattr(ProgressBar, "__call__", dropped)
+    out = tmp_path / "maps"
+    code, got = _run(photo_file, second, "-o", out, "--refine", 3, "--relit", "none", capsys=capsys)
+    assert code == 130, got.err
+    assert f"svbrdf-models: interrupted: {second} not written" in got.err
+    assert sorted(p.name for p in out.iterdir()) == ["summary.json", "tiles"]
+    assert files._STOP["signal"] is None  # nothing left pending after the command
+
+
 def test_progress_bar_draws_on_a_terminal_only():
     class Tty(io.StringIO):
         def isatty(self):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import errno
 import os
+import signal
 import subprocess
 import sys
 
@@ -171,3 +172,64 @@ def test_a_pid_is_written_in_a_lock_file_not_a_folder(tmp_path):
         pass
     with locked(tmp_path, wait=False):  # a folder is locked as it is: nothing written in it
         assert list(tmp_path.iterdir()) == []
+
+
+# -- a stop asked by a signal is not lost ------------------------------------------------------
+
+
+class _DropsItsException:
+    """Sends SIGTERM to this process from ``__del__``: the handler runs there, and Python drops
+    the KeyboardInterrupt it raises ("Exception ignored in ..."), as when the signal lands in a
+    weakref callback of h5py or torch."""
+
+    def __del__(self):
+        os.kill(os.getpid(), signal.SIGTERM)
+        for _ in range(1000):  # the eval loop runs the pending handler here, inside __del__
+            pass
+
+
+def test_an_interrupt_python_drops_is_raised_again_at_the_next_check(capsys):
+    from svbrdf_render.formats.files import raise_if_interrupted, sigterm_as_interrupt
+
+    went_on = []
+    before = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(KeyboardInterrupt, match="SIGTERM"):
+        with sigterm_as_interrupt():
+            _DropsItsException()  # freed at once: the signal's exception is dropped
+            went_on.append(True)  # the block goes on, as the command did
+            raise_if_interrupted()
+    assert went_on == [True]
+    raise_if_interrupted()  # outside the block nothing is pending any more
+    assert signal.getsignal(signal.SIGTERM) is before
+    assert "Exception ignored" not in capsys.readouterr().err  # the dropped one is not an error
+    hook = sys.unraisablehook
+    with sigterm_as_interrupt():
+        assert sys.unraisablehook is not hook
+    assert sys.unraisablehook is hook
+
+
+def test_ctrl_c_is_remembered_only_where_pythons_own_handler_is_in_place():
+    from svbrdf_render.formats.files import raise_if_interrupted, sigterm_as_interrupt
+
+    before = signal.getsignal(signal.SIGINT)
+    with sigterm_as_interrupt():
+        assert signal.getsignal(signal.SIGINT) is not signal.default_int_handler
+        with pytest.raises(KeyboardInterrupt, match="SIGINT"):
+            os.kill(os.getpid(), signal.SIGINT)
+            for _ in range(1000):
+                pass
+        with pytest.raises(KeyboardInterrupt, match="SIGINT"):
+            raise_if_interrupted()  # remembered until the block ends
+    raise_if_interrupted()
+    assert signal.getsignal(signal.SIGINT) is before
+
+    def own(signum, frame):  # a command's own handler (a fit's) is left alone
+        pass
+
+    signal.signal(signal.SIGINT, own)
+    try:
+        with sigterm_as_interrupt():
+            assert signal.getsignal(signal.SIGINT) is own
+        assert signal.getsignal(signal.SIGINT) is own
+    finally:
+        signal.signal(signal.SIGINT, before)

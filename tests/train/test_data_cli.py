@@ -136,6 +136,28 @@ def test_make_stopped_by_a_signal_exits_130_and_leaves_nothing(tmp_path, sig):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_make_takes_a_stop_whose_interrupt_python_dropped(tmp_path, monkeypatch):
+    """SIGTERM landing in a weakref callback loses its KeyboardInterrupt (seen: `data make` went on
+    past the signal); the loop takes the stop after the batch in progress, as it would Ctrl-C."""
+    from svbrdf_render.formats import files
+
+    real_batch = procedural.ProceduralMaterials.batch
+    made = []
+
+    def batch(self, indices):
+        made.append(len(indices))
+        if len(made) == 2:
+            files._STOP["signal"] = "SIGTERM"  # what the handler records before its raise is lost
+        return real_batch(self, indices)
+
+    monkeypatch.setattr(procedural.ProceduralMaterials, "batch", batch)
+    out = tmp_path / "x.h5"
+    result = _run("make", "--count", 40, "--resolution", 16, "--batch", 4, "--out", out)
+    assert result.exit_code == 130, result.output
+    assert made == [4, 4] and f"interrupted: {out} not written" in result.stderr
+    assert list(tmp_path.iterdir()) == [] and files._STOP["signal"] is None
+
+
 # -- import ----------------------------------------------------------------------------------
 
 

@@ -241,23 +241,37 @@ def _capture_all(predictor, photos, out: Path, options, prog: str):
         return entries, INTERRUPTED
 
 
+def _stoppable(bar: ProgressBar):
+    """The refinement's ``callback(step, total, loss)``: ``bar`` drawn, and a stop that a signal
+    asked for but whose interrupt was lost taken at the next step."""
+    from svbrdf_render.formats.files import raise_if_interrupted
+
+    def callback(step: int, total: int, loss: float) -> None:
+        raise_if_interrupted()
+        bar(step, total, loss)
+
+    return callback
+
+
 def _capture_each(predictor, photos, out: Path, options, prog: str, entries: list, now: dict):
     """The loop of :func:`_capture_all`: ``entries`` grows as photos are done, ``now`` names the
     photo in progress; what stopped the batch (None, or the OutputError of a failed write)."""
     from svbrdf_render import SVBRDFError
     from svbrdf_render.errors import OutputError
+    from svbrdf_render.formats.files import raise_if_interrupted
 
     from .one import capture_one
 
     used: set[str] = set()
     for path in map(Path, photos):
+        raise_if_interrupted()  # a signal whose interrupt Python dropped (see sigterm_as_interrupt)
         now.clear()
         now["path"] = path
         name = folder_name(path, used)
         _announce_cost(path, options, prog)
         bar = now["bar"] = ProgressBar(path.name)
         try:
-            entry = capture_one(predictor, path, out / name, options, progress=bar, checked=True)
+            entry = capture_one(predictor, path, out / name, options, progress=_stoppable(bar), checked=True)
         except OutputError as e:  # the disk, not the photo: the photos after it would fail alike
             bar.close()
             print(f"{prog}: error: {e}", file=sys.stderr)

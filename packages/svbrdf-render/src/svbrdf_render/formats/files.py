@@ -35,6 +35,7 @@ __all__ = [
     "remove_stale_temporaries",
     "check_output_folder",
     "INTERRUPTED",
+    "raise_if_interrupted",
     "sigterm_as_interrupt",
     "locked",
     "LockHeld",
@@ -263,28 +264,60 @@ def check_output_folder(folder: str | os.PathLike, flag: str) -> Path:
     return folder
 
 
+#: The signal that asked the innermost :func:`sigterm_as_interrupt` block to stop (None: none did).
+_STOP: dict[str, str | None] = {"signal": None}
+
+
 @contextlib.contextmanager
 def sigterm_as_interrupt() -> Iterator[None]:
     """Within the block, SIGTERM raises ``KeyboardInterrupt`` as Ctrl-C does, so that a command
     stopped by ``kill``, a job scheduler or a container's stop takes the same way out as one
     stopped by Ctrl-C: :func:`atomic_output` removes its temporary file, and the command says
-    what was left and exits :data:`INTERRUPTED`. The previous handler is restored on exit.
+    what was left and exits :data:`INTERRUPTED`. The previous handlers are restored on exit.
     Outside the main thread (where Python cannot set handlers) it does nothing.
+
+    Both signals are also remembered. Python drops an exception raised where it cannot travel
+    (a weakref callback or a ``__del__`` that runs when the signal lands: "Exception ignored
+    in ..."), and the command would then go on to its end; a long loop calls
+    :func:`raise_if_interrupted` between its steps, which raises the lost interrupt again (and
+    the dropped one is not printed as an error). Ctrl-C is handled so only where Python's own
+    handler is in place (a fit's handler is left alone).
     """
     import signal
+    import sys
     import threading
 
     def _raise(signum, frame):
-        raise KeyboardInterrupt(signal.Signals(signum).name)
+        _STOP["signal"] = signal.Signals(signum).name
+        raise KeyboardInterrupt(_STOP["signal"])
 
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGTERM, _raise)
+    def _unraisable(unraisable):
+        if not (isinstance(unraisable.exc_value, KeyboardInterrupt) and _STOP["signal"]):
+            hook(unraisable)  # anything else is printed as Python would
+
+    outer, hook = _STOP["signal"], sys.unraisablehook
+    previous = {signal.SIGTERM: signal.signal(signal.SIGTERM, _raise)}
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        previous[signal.SIGINT] = signal.signal(signal.SIGINT, _raise)
+    sys.unraisablehook = _unraisable
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        sys.unraisablehook = hook
+        _STOP["signal"] = outer
+
+
+def raise_if_interrupted() -> None:
+    """Raise ``KeyboardInterrupt`` when a signal asked the enclosing :func:`sigterm_as_interrupt`
+    block to stop and its interrupt was lost on the way (see there); else nothing. Cheap: call it
+    once per step of a long loop."""
+    if _STOP["signal"] is not None:
+        raise KeyboardInterrupt(_STOP["signal"])
 
 
 class LockHeld(Exception):

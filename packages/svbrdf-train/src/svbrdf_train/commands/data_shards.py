@@ -15,6 +15,8 @@ from pathlib import Path
 
 import click
 
+from svbrdf_render.formats.files import raise_if_interrupted
+
 from ..errors import DataError
 from .options import SEED, FiniteFloatRange, explicit, threads_option
 
@@ -187,6 +189,7 @@ def make(count, resolution, out, seed, bits, batch, families, mix, capture, forc
                 indices = list(range(first, min(first + batch, count)))
                 shard.extend(materials.batch(indices))
                 bar.update(len(indices))
+                raise_if_interrupted()  # a signal whose interrupt Python dropped
     click.echo(_summary(out, count, resolution, bits, time.perf_counter() - start))
 
 
@@ -243,6 +246,7 @@ def import_(ctx, folder, out, split, crop, full, bits, force):
             for i in range(1, len(strips)):
                 shard.append(strips[i])
                 bar.update(1)
+                raise_if_interrupted()
     click.echo(_summary(out, len(strips), resolution, bits, time.perf_counter() - start))
 
 
