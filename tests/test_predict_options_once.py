@@ -86,6 +86,23 @@ def test_both_commands_parse_the_same_values_and_capture_options(argv):
         assert _capture_options(Namespace(**models)) == _capture_options(Namespace(**train))
 
 
+def test_a_photo_named_like_an_option_is_taken_after_a_double_dash_by_both_commands(monkeypatch):
+    """``-- -x.jpg``: both commands see a photo named -x.jpg (click drops ``--`` unless the
+    command keeps its arguments as typed)."""
+    from click.testing import CliRunner
+
+    import svbrdf_models.commands.predict as models_predict
+    from svbrdf_models.cli import main as models_main
+    from svbrdf_train.cli import cli as train_cli
+
+    seen = []
+    monkeypatch.setattr(models_predict, "run_predict", lambda args, load, prog: seen.append(list(map(str, args.photos))) or 0)
+    assert models_main(["predict", "-o", "maps", "--", "-x.jpg"]) == 0
+    result = CliRunner().invoke(train_cli, ["predict", "-o", "maps", "--", "-x.jpg"])
+    assert result.exit_code == 0, result.output
+    assert seen == [["-x.jpg"], ["-x.jpg"]]
+
+
 def _strings_containing(text: str) -> list[str]:
     """``path:line`` of every string token of the four packages' source (f-string parts too)
     that holds ``text``, letter case aside."""

@@ -85,7 +85,19 @@ def _checkpoint_file(text: str) -> Path:
     return path
 
 
-@click.command("predict", context_settings=PASS_THROUGH, add_help_option=False)
+class _AsTyped(click.Command):
+    """A command that keeps its arguments as typed: click's parser drops ``--``, which argparse
+    needs to take a photo whose name starts with ``-`` (``predict -o maps -- -x.jpg``)."""
+
+    def parse_args(self, ctx, args):
+        ctx.meta[_TYPED] = list(args)
+        return super().parse_args(ctx, args)
+
+
+_TYPED = "svbrdf_train.predict.typed"
+
+
+@click.command("predict", cls=_AsTyped, context_settings=PASS_THROUGH, add_help_option=False)
 @click.argument("args", nargs=-1, type=click.UNPROCESSED)
 @click.pass_context
 def predict(ctx, args):
@@ -101,7 +113,7 @@ def predict(ctx, args):
     root = ctx.find_root()
     prog = f"{getattr(root.command, 'prog', None) or root.info_name} {ctx.info_name}"
     try:
-        parsed = build_parser(prog).parse_args(list(args))
+        parsed = build_parser(prog).parse_args(ctx.meta.get(_TYPED, list(args)))
     except SystemExit as e:  # --help (0) or a usage error (one line, 2)
         ctx.exit(e.code if isinstance(e.code, int) else 2)
     if sum(x is not None for x in (parsed.model, parsed.checkpoint, parsed.run)) > 1:
