@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from ..recipe import SIZES
+from ..recipe import KEEP_BEST_METRICS, SIZES
 from .options import FiniteFloatRange, experiment_option, explicit, threads_option
 
 #: What ``--init`` takes for an MLflow run id (anything else is a checkpoint or a fit's folder).
@@ -121,6 +121,14 @@ def system_metrics_option():
 )
 @click.option("--max-steps", type=click.IntRange(min=1), help="Stop after this many generator steps.")
 @click.option(
+    "--keep-best",
+    metavar="METRIC",
+    type=click.Choice(KEEP_BEST_METRICS),
+    help="Keep the weights of the best validation so far in OUT/best.pt, by this metric (lower is "
+    "better): val_fold/rmse/render chooses on the held-out fold of real materials, which a fit that "
+    "overfits needs; val_real is never chosen on. Sets train.keep_best.",
+)
+@click.option(
     "--set",
     "sets",
     multiple=True,
@@ -164,6 +172,7 @@ def fit(
     data,
     max_minutes,
     max_steps,
+    keep_best,
     sets,
     out,
     resume,
@@ -195,7 +204,7 @@ def fit(
             "recipe at the size it was started with"
         )
     _check_init_run(init)
-    overrides, read = _overrides(recipe_name, size, data, sets, max_minutes, max_steps)
+    overrides, read = _overrides(recipe_name, size, data, sets, max_minutes, max_steps, keep_best)
     recipe, out = _recipe_and_out(recipe_name, size, overrides, out, resume, read)
     options = FitOptions(
         out=out,
@@ -226,7 +235,7 @@ def _check_init_run(init: str | None) -> None:
         check_run_kept(init, "--init", hint)
 
 
-def _overrides(recipe_name, size, data, sets, max_minutes, max_steps):
+def _overrides(recipe_name, size, data, sets, max_minutes, max_steps, keep_best=None):
     """The recipe overrides of the command line (``--set`` items, then ``--data``, then the
     budgets), and the recipe file when reading them needed it (else None)."""
     from ..recipe import parse_overrides, read_recipe
@@ -248,13 +257,15 @@ def _overrides(recipe_name, size, data, sets, max_minutes, max_steps):
     for flag, key, value in (
         ("--max-minutes", "train.max_minutes", max_minutes),
         ("--max-steps", "train.max_steps", max_steps),
+        ("--keep-best", "train.keep_best", keep_best),
     ):
         if value is None:
             continue
         if key in overrides:  # one of the two would win without a word
             from ..errors import RecipeError
 
-            raise RecipeError(f"{flag} {value:g} and --set {key}={overrides[key]} both set {key}; give one")
+            shown = f"{value:g}" if isinstance(value, int | float) else value
+            raise RecipeError(f"{flag} {shown} and --set {key}={overrides[key]} both set {key}; give one")
         overrides[key] = value
     return overrides, read
 
@@ -297,6 +308,12 @@ def _summary(result) -> list[str]:
             )
     if result.checkpoint is not None:
         lines.append(f"  checkpoint: {result.checkpoint} (step {_saved_step(result.checkpoint)})")
+        if result.best:
+            b = result.best
+            lines.append(
+                f"  best: {result.checkpoint.parent / 'best.pt'} (step {b['step']}, {b['metric']} {b['value']:.4f}; "
+                "ship it: svbrdf-train export that file)"
+            )
     if result.run_id is not None:
         lines.append(f"  MLflow run: {result.run_id}")
     return lines

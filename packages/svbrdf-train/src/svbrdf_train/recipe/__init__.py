@@ -44,6 +44,7 @@ from .files import (
 from .registry import RECIPE_GROUP, list_recipes, recipe_path
 from .schema import (
     CAPTURES,
+    KEEP_BEST_METRICS,
     MAX_RESOLUTION,
     MAX_SEED,
     MIN_RESOLUTION,
@@ -65,6 +66,7 @@ __all__ = [
     "MAX_RESOLUTION",
     "RECIPE_GROUP",
     "CAPTURES",
+    "KEEP_BEST_METRICS",
     "NetworkSection",
     "LossSection",
     "OptimSection",

@@ -64,6 +64,12 @@ def check_recipe(recipe: Recipe, where: str) -> None:
                 f"{where}: discriminator.config.renderings is {wants} but train.renderings is "
                 f"{t.renderings}; the discriminator judges the renderings the loss draws: set both alike"
             )
+    if t is not None and d is not None and (t.keep_best or "").startswith("val_fold/") and not _has_fold(d):
+        raise RecipeError(
+            f"{where}: train.keep_best is {t.keep_best} but no materials source holds out a fold "
+            "(data.fold, or a materials entry's fold in data.mix); give one a fold (e.g. 1/5) or "
+            "choose on val/rmse/render"
+        )
     if d is not None and d.source == "procedural" and d.path is not None:
         raise RecipeError(
             f"{where}: data.path is {show(d.path)} but data.source is 'procedural', which reads no files; "
@@ -75,3 +81,9 @@ def check_recipe(recipe: Recipe, where: str) -> None:
             f"{t.batch}; raise data.count or lower train.batch"
         )
     object.__setattr__(recipe, "_checked", True)  # frozen: the mark is no field (module doc)
+
+
+def _has_fold(d) -> bool:
+    """Whether a materials source of data section ``d`` holds out a fold (``val_fold/``)."""
+    entries = list(d.mix or ()) if d.source == "mix" else [{"source": d.source, "fold": d.fold}]
+    return any(e.get("source") == "materials" and e.get("fold") for e in entries)

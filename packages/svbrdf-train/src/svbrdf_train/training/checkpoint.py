@@ -55,6 +55,7 @@ __all__ = [
     "FORMAT",
     "CHECKPOINT_NAME",
     "WEIGHTS_NAME",
+    "BEST_NAME",
     "save_checkpoint",
     "load_checkpoint",
     "load_weights",
@@ -72,6 +73,9 @@ FORMAT = 1
 CHECKPOINT_NAME = "last.pt"
 #: The weights alone (no optimiser or random state), written beside it: what MLflow gets.
 WEIGHTS_NAME = "weights.pt"
+#: The weights of the best validation so far (``train.keep_best``), in weights.pt's form plus
+#: ``best``: ``{"metric", "value", "step"}``.
+BEST_NAME = "best.pt"
 
 
 def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
@@ -92,7 +96,7 @@ def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
 
 def remove_leftovers(folder: str | Path) -> list[Path]:
     """Remove the temporary checkpoint files of fits in ``folder`` that were killed mid-write."""
-    names = [n for name in (CHECKPOINT_NAME, WEIGHTS_NAME) for n in (name, Path(name).stem + ".json")]
+    names = [n for name in (CHECKPOINT_NAME, WEIGHTS_NAME, BEST_NAME) for n in (name, Path(name).stem + ".json")]
     return remove_stale_temporaries(folder, names)
 
 

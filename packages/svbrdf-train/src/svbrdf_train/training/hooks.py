@@ -14,6 +14,10 @@ Validation         every ``train.validate_every`` steps,  ``val/...`` metrics an
 Checkpoints        every ``train.checkpoint_every``       the full state to ``OUT/last.pt``; the
                    steps and ``train.checkpoint_minutes`` weights to MLflow every
                                                           ``train.upload_minutes``
+KeepBest           after each validation, main process    with ``train.keep_best``: the weights
+                   only                                   to ``OUT/best.pt`` when its metric is
+                                                          the lowest so far; ``best/...``
+                                                          metrics; best.pt to MLflow at the end
 =================  =====================================  ======================================
 
 Every hook also runs after the last step (``RunView.last``: the step budget, the time budget
@@ -33,15 +37,16 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Protocol
 
-from .checkpoint import WEIGHTS_NAME, save_checkpoint
+from .checkpoint import BEST_NAME, WEIGHTS_NAME, save_checkpoint
 from .progress import format_duration
 from .run import Run, RunChange, RunView, StepEnd
 
 __all__ = [
     "Run", "RunView", "RunChange", "StepEnd", "Cadence", "Timer", "Hook", "HookRunner",
-    "BudgetWarning", "Logging", "Validation", "Checkpoints",
+    "BudgetWarning", "Logging", "Validation", "Checkpoints", "KeepBest",
 ]  # fmt: skip
 #: Checkpoint fields a user of the weights needs (predict, --init); the rest is for resuming.
 WEIGHT_FIELDS = (
@@ -313,3 +318,57 @@ class Checkpoints:
         weights = save_checkpoint(view.out / WEIGHTS_NAME, {k: state[k] for k in WEIGHT_FIELDS})
         view.tracker.log_artifact(weights, "checkpoints")
         self.upload.reset()
+
+
+class KeepBest:
+    """With ``train.keep_best`` (a validation metric, lower is better): after each validation,
+    the weights to ``OUT/best.pt`` (weights.pt's form, plus ``best``: metric, value, step) when
+    the metric is the lowest so far, and ``best/value`` and ``best/step`` to the tracker; at the
+    end, ``best.pt`` to the MLflow run (``checkpoints/best.pt``) and the run's tags
+    ``svbrdf.best_step`` and ``svbrdf.best_value``. A fit that overfits then ships its best
+    step: ``svbrdf-train export OUT/best.pt``.
+
+    A resumed fit goes on from the best that ``best.pt`` records when it belongs to the same
+    MLflow run (or both have none); a new fit in the folder starts afresh over it.
+    Runs after :class:`Validation` and reads its metrics."""
+
+    def __init__(self, view: RunView, validation: Validation):
+        self.metric = view.recipe.train.keep_best
+        self.validation = validation
+        self.cadence = Cadence(steps=view.recipe.train.validate_every, main_only=True)
+        self.best: dict[str, Any] | None = None
+        if self.metric and view.start_step > 0:
+            self.best = _recorded_best(view.out / BEST_NAME, view.weights_state().get("run_id"), self.metric)
+
+    def on_step(self, view: RunView) -> None:
+        if not self.metric:
+            return
+        value = self.validation.metrics.get(self.metric)
+        if value is not None and value == value and (self.best is None or value < self.best["value"]):
+            self.best = {"metric": self.metric, "value": float(value), "step": view.step}
+            state = view.weights_state()
+            save_checkpoint(view.out / BEST_NAME, {**{k: state[k] for k in WEIGHT_FIELDS}, "best": self.best})
+            view.tracker.log_metrics({"best/value": self.best["value"], "best/step": view.step}, view.step)
+        if view.last and self.best is not None and (view.out / BEST_NAME).is_file():
+            view.tracker.log_artifact(view.out / BEST_NAME, "checkpoints")
+            view.tracker.set_tags(
+                {"svbrdf.best_metric": self.metric, "svbrdf.best_step": str(self.best["step"]),
+                 "svbrdf.best_value": f"{self.best['value']:.6g}"}
+            )  # fmt: skip
+
+
+def _recorded_best(path, run_id: str | None, metric: str) -> dict[str, Any] | None:
+    """The ``best`` record of ``path`` when it belongs to run ``run_id`` and ranks by ``metric``."""
+    from ..errors import CheckpointError
+    from .checkpoint import load_checkpoint
+
+    if not Path(path).is_file():
+        return None
+    try:
+        state = load_checkpoint(path, check=False)
+    except (OSError, CheckpointError):  # unreadable: the next validation writes a new best
+        return None
+    best = state.get("best") if isinstance(state, dict) else None
+    if not isinstance(best, dict) or best.get("metric") != metric or state.get("run_id") != run_id:
+        return None
+    return best

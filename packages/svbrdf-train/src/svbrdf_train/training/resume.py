@@ -25,6 +25,7 @@ RESUMABLE_CHANGES = (
     "train.max_minutes",
     "train.log_every",
     "train.validate_every",
+    "train.keep_best",
     "train.checkpoint_every",
     "train.checkpoint_minutes",
     "train.upload_minutes",

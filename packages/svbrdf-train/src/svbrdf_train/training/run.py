@@ -81,6 +81,7 @@ class RunView:
     tracker: Tracker
     progress: Progress
     checkpoint_state: Callable[[], dict[str, Any] | None]  # gathers random states: the state on main
+    weights_state: Callable[[], dict[str, Any]]  # this process's state without random states (not collective)
     barrier: Callable[[], None]
 
 
@@ -141,5 +142,6 @@ class Run:
             seconds=self.watch.seconds, pace=self.watch.pace(), lr=gan.g_opt.param_groups[0]["lr"],
             schedule=gan.schedule, generator=gan.generator, validator=self.validator,
             tracker=self.tracker, progress=self.progress,
-            checkpoint_state=self.checkpoint_state, barrier=self.dist.barrier,
+            checkpoint_state=self.checkpoint_state, weights_state=lambda: self.state([]),
+            barrier=self.dist.barrier,
         )  # fmt: skip

@@ -33,7 +33,7 @@ from ..recipe import Recipe, check_recipe
 from . import distributed
 from .checkpoint import CHECKPOINT_NAME, check_resumable, check_run_kept
 from .clock import WARMUP_STEPS, Stopwatch, TrainClock
-from .hooks import BudgetWarning, Checkpoints, HookRunner, Logging, Validation
+from .hooks import BudgetWarning, Checkpoints, HookRunner, KeepBest, Logging, Validation
 from .order import BatchOrder
 from .progress import Interrupt, Progress, format_duration
 from .resume import RESUMABLE_CHANGES, check_out, check_world, resolve_resume
@@ -92,6 +92,8 @@ class FitResult:
     samples_per_s: float | None = None
     """Training throughput of all processes after the first :data:`WARMUP_STEPS` steps of this
     session (None when it made no more steps than that)."""
+    best: dict[str, Any] | None = None
+    """With ``train.keep_best``: ``{"metric", "value", "step"}`` of the weights in ``OUT/best.pt``."""
 
     @property
     def exit_code(self) -> int:
@@ -135,7 +137,8 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
         _start_tracking(run, options, real_name)
     view = run.view()  # the hooks see the run through read-only views; the runner applies their changes
     validation = Validation(view)
-    hooks = HookRunner([BudgetWarning(view), Logging(view), validation, Checkpoints(view)])
+    keep = KeepBest(view, validation)
+    hooks = HookRunner([BudgetWarning(view), Logging(view), validation, keep, Checkpoints(view)])
     status, message = _loop(run, hooks)
     run.progress.close()
     if status == "FINISHED" and not message:
@@ -160,6 +163,7 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
         message=message,
         metrics=validation.metrics,
         samples_per_s=run.watch.steady_rate(),
+        best=keep.best,
     )
 
 

@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# The long fit of issue 46, stage 1: ours-materials at the cpu size from the default model
+# (pretrained:ours-general-cpu), half procedural and half real strips of BOTH real folders
+# (DATA/real-train, 70, and DATA/real-train-more, 121: one strip shard of 191 materials), fold
+# 1/5 of them held out (val_fold/) and the best step on that fold kept in out/best.pt
+# (--keep-best val_fold/rmse/render); DATA/unseen-dev watched as val_real/, never chosen on;
+# 240 minutes of CPU time on one thread. Later stages (the phone's flash as it is) start from
+# its best.pt.
+# Run from the repository root:  fits/ours-real191/run.sh [start|resume]
+# State (checkpoints, MLflow store, log) stays in this folder so that a later session resumes it;
+# the shard is made again from the two folders when missing (the same bytes every time).
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+DIR=fits/ours-real191
+DATA="${SVBRDF_DATA:-$(cd .. && pwd)/shared/data}"
+SHARD=$DIR/real-191-256.h5
+if [ ! -f "$SHARD" ]; then
+    rm -rf "$DIR/strips" && mkdir -p "$DIR/strips"
+    ln -s "$DATA"/real-train/*.png "$DATA"/real-train-more/*.png "$DIR/strips/"
+    .venv/bin/svbrdf-train data strips "$DIR/strips" --out "$SHARD" --tile 256
+fi
+export MLFLOW_TRACKING_URI="sqlite:///$DIR/mlflow.db" OMP_NUM_THREADS=1
+mode="${1:-start}"
+if [ "$mode" = start ]; then
+    args=(--recipe ours-materials --size cpu --init pretrained --data "$SHARD" --out "$DIR/out"
+          --experiment issue-46 --max-minutes 240 --keep-best val_fold/rmse/render
+          --set "data.mix=[{source: procedural, weight: 0.5}, {source: materials, weight: 0.5, fold: '1/5'}]"
+          --set data.count=400000 --set train.epochs=1 --set data.validation=16
+          --set train.validate_every=500 --set train.checkpoint_every=250
+          --set "data.real_validation=$DATA/unseen-dev")
+else
+    args=(--out "$DIR/out" --resume)
+fi
+setsid nohup nice .venv/bin/svbrdf-train fit "${args[@]}" -q >> "$DIR/fit.log" 2>&1 < /dev/null &
+echo "fit started (pid $!): tail -f $DIR/fit.log"
