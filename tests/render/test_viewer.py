@@ -265,3 +265,25 @@ def test_moving_the_light_changes_the_image_where_the_renderer_says(shots):
     assert changed.mean() > 0.05
     agree = (np.sign(moved) == np.sign(expected)) & (np.abs(moved) > 0.025)
     assert agree[changed].mean() > 0.99
+
+
+def test_the_shots_of_a_capture_are_listed_for_the_keys(tmp_path):
+    """A capture of several photos hands the viewer where each shot's flash was: the page's data
+    lists them (at most 9, keys 1-9), and a shot below the patch is refused like a light."""
+    shots = [("a.jpg", (0.1, 0.2, 2.0)), ("b.jpg", [-0.3, 0.0, 3.0])]
+    page = write_viewer(tmp_path / "v.html", SVBRDF.constant(1, 8), shots=shots)
+    assert page_data(page)["shots"] == [
+        {"name": "a.jpg", "light": [0.1, 0.2, 2.0]}, {"name": "b.jpg", "light": [-0.3, 0.0, 3.0]},
+    ]  # fmt: skip
+    many = write_viewer(tmp_path / "m.html", SVBRDF.constant(1, 8), shots=[(str(i), (0, 0, 1)) for i in range(12)])
+    assert len(page_data(many)["shots"]) == 9
+    assert page_data(write_viewer(tmp_path / "n.html", SVBRDF.constant(1, 8)))["shots"] == []
+    with pytest.raises(SceneError, match="z must be > 0"):
+        write_viewer(tmp_path / "bad.html", SVBRDF.constant(1, 8), shots=[("low", (0, 0, -1))])
+
+
+def test_the_browser_says_which_key_puts_the_light_at_which_shot(tmp_path):
+    _need_chromium()
+    page = write_viewer(tmp_path / "v.html", SVBRDF.constant(1, 8), shots=[("a.jpg", (0.1, 0.2, 2.0))])
+    r = _chromium(page, "size=64", "--dump-dom")
+    assert re.search(r'<div id="shots">Keys 1-1: the light where each shot\'s flash was \(1 a\.jpg\)\.</div>', r.stdout)

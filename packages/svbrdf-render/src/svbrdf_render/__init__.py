@@ -3,7 +3,7 @@
 Public API (everything importable from here)::
 
     from svbrdf_render import SVBRDF, Scene, Camera, PointLight, Flash, render, apply_image_effects
-    from svbrdf_render import training_scene, evaluation_scene, fit_flash, refine_maps
+    from svbrdf_render import training_scene, evaluation_scene, fit_flash, refine_maps, refine_views
     from svbrdf_render import read_des18, write_des18, read_map_folder, write_map_folder
     from svbrdf_render import MetalRough, to_metal_rough, from_metal_rough, roundtrip_error
 
@@ -40,6 +40,7 @@ from .refinement.refine import (
     refine_maps,
     refine_start,
 )
+from .refinement.views import ViewsRefinement, refine_views
 from .renderer import BACKENDS, apply_image_effects, build_plan, log_radiance, render
 from .sampling import EVAL_CONFIGS, EVAL_SEED, evaluation_scene, training_scene
 from .scene import DES18_DISTANCE, Camera, Flash, PointLight, Scene
@@ -57,6 +58,8 @@ __all__ = [
     "Refinement",
     "refine_maps",
     "refine_start",
+    "ViewsRefinement",
+    "refine_views",
     "DES18_DISTANCE",
     "DES18_EFFECTS",
     "EFFECTS",

@@ -16,7 +16,9 @@ The page
     intensity ``pi * 2.2^2`` (the command line's default: a white Lambertian patch under a
     light at 2.2 shows 1.0). Its x, y follow the mouse (the point under the pointer), the
     wheel changes its height, ``R`` puts it back at the camera, ``T`` or the checkbox tiles the
-    maps 2x2 (to check that they tile). A text line shows the light position.
+    maps 2x2 (to check that they tile). A text line shows the light position. With ``shots``
+    (a capture of several photos), the keys ``1``-``9`` put the light where each shot's flash
+    was, and a line lists them.
 
 Fixed views, for tests and reproducible screenshots::
 
@@ -132,10 +134,12 @@ def _embedded_maps(svbrdf: SVBRDF) -> dict[str, str]:
     return {name: _png_data_uri(stored[name]) for name in MAP_NAMES}
 
 
-def _page_data(maps: SVBRDF, light, intensity: float) -> dict:
-    """What the page's script reads: the size, camera, light, BRDF constants and the maps."""
+def _page_data(maps: SVBRDF, light, intensity: float, shots: list | None = None) -> dict:
+    """What the page's script reads: the size, camera, light, BRDF constants, the shots' flash
+    positions and the maps."""
     h, w = maps.size
     return {
+        "shots": shots or [],
         "width": w,
         "height": h,
         "size": VIEWER_SIZE,
@@ -156,6 +160,7 @@ def write_viewer(
     light=None,
     max_size: int = 1024,
     intensity: float | None = None,
+    shots=None,
 ) -> Path:
     """Write a self-contained HTML viewer of one material; returns ``path``.
 
@@ -170,6 +175,8 @@ def write_viewer(
         intensity: the light's intensity (default :data:`VIEWER_INTENSITY`, which shows a
             white Lambertian patch at 1.0; the photo tool gives the flash it found, so the
             page shows the material as the photo's flash lit it).
+        shots: ``[(name, (x, y, z)), ...]``: where the flash of each photo of a capture was
+            (at most 9; keys ``1``-``9`` put the light there), each ``z > 0``.
 
     Open the page with ``#light=x,y,z&size=N&tile=0|1`` for a fixed view (see the module's
     docstring). Raises :class:`MapError` for anything but one material,
@@ -189,12 +196,13 @@ def write_viewer(
     if isinstance(max_size, bool) or not isinstance(max_size, int) or max_size < 1:
         raise SVBRDFError(f"write_viewer: max_size must be an integer >= 1, got {max_size!r}")
     start = _light_position(light)
+    shown = [{"name": str(name), "light": _light_position(pos)} for name, pos in list(shots or [])[:9]]
     maps = svbrdf.detach().to("cpu", torch.float32)
     h, w = maps.size
     if max(h, w) > max_size:
         scale = max_size / max(h, w)
         maps = maps.resize(max(1, round(h * scale)), max(1, round(w * scale)))
-    data = _page_data(maps, start, VIEWER_INTENSITY if intensity is None else _intensity(intensity))
+    data = _page_data(maps, start, VIEWER_INTENSITY if intensity is None else _intensity(intensity), shown)
     # "</" would end the <script> block early; "<\/" is the same string to JSON.
     blob = json.dumps(data).replace("</", "<\\/")
     template = resources.files("svbrdf_render").joinpath(_TEMPLATE).read_text(encoding="utf-8")

@@ -24,7 +24,8 @@ from ..maps import SVBRDF
 from ..renderer import render
 from ..scene import DES18_DISTANCE, Camera, PointLight, Scene
 
-__all__ = ["FLASH_MODES", "FlashFit", "axis_flash", "fit_flash"]
+__all__ = ["CARD_F0", "CARD_ROUGHNESS", "FLASH_MODES", "FlashFit", "ReferenceFlash", "axis_flash", "card_maps",
+           "fit_flash", "flash_scene", "reference_flash"]
 
 #: Pixels at or above this are taken as clipped by the camera; below _DARK as too dark to
 #: tell anything (and kept away from log(0)).
@@ -174,23 +175,30 @@ FLASH_MODES = ("axis", "fit")
 
 
 def axis_flash(
-    start: SVBRDF, photo: Tensor, distance: float = DES18_DISTANCE, over: Tensor | None = None
+    start: SVBRDF, photo: Tensor, distance: float = DES18_DISTANCE, over: Tensor | None = None,
+    *, position: Tensor | None = None,
 ) -> Scene:
     """The Des18 capture (camera and flash on the axis at ``distance``) with the intensity that
     makes ``start`` explain ``photo`` best in the log domain: the median over the pixels of
     ``log(photo) - log(rendering at intensity 1)``, one intensity per material. With ``over``
     ``(B, 2)``, camera and flash stand at ``distance`` above those points of the patch instead
     (a phone held off-centre: :func:`svbrdf_render.refinement.rings.highlight_point` finds the point).
+    With ``position`` ``(3,)`` or ``(B, 3)``, camera and flash stand there (the camera's place
+    known from the photo's lens and crop), and ``distance`` and ``over`` are not used.
 
     The median ignores what the start maps get most wrong (the highlight, where a network's
     specular lobe is often off, and clipped pixels); a least-squares intensity is dominated
     by exactly those pixels (on des18-dev it is off by a factor 2-15 even from the true maps).
     """
     b = photo.shape[0]
-    position = photo.new_tensor([0.0, 0.0, distance]).expand(b, 3)
-    if over is None:
+    if position is not None:
+        position = torch.as_tensor(position).to(photo).reshape(-1, 3).expand(b, 3)
+        unit = render(start, _camera_flashes(position, photo.new_ones(b)))
+    elif over is None:
+        position = photo.new_tensor([0.0, 0.0, distance]).expand(b, 3)
         unit = render(start, Scene.flash(distance, 1.0).to(photo.device))
     else:
+        position = photo.new_tensor([0.0, 0.0, distance]).expand(b, 3)
         position = torch.cat([over.to(photo).reshape(-1, 2).expand(b, 2), position[:, 2:]], dim=1)
         unit = render(start, _camera_flashes(position, photo.new_ones(b)))
     unit = unit[:, 0] if unit.dim() == 5 else unit
@@ -203,10 +211,112 @@ def axis_flash(
     return _camera_flashes(position, torch.stack(k))
 
 
-def _camera_flashes(position: Tensor, intensity: Tensor) -> Scene:
-    """A light at ``position`` ``(B, 3)`` with the camera at it, of ``intensity`` ``(B,)``, one per
-    material: a scene of shape ``()`` for one material, ``(B, 1)`` for more."""
+def _camera_flashes(position: Tensor, intensity: Tensor, color: Tensor | None = None) -> Scene:
+    """A light at ``position`` ``(B, 3)`` with the camera at it, of ``intensity`` ``(B,)`` (and
+    ``color`` ``(B, 3)``: white when None), one per material: a scene of shape ``()`` for one
+    material, ``(B, 1)`` for more."""
     if position.shape[0] == 1:
-        return Scene(Camera(position[0]), (PointLight(position[0], float(intensity[0])),), DES18_EFFECTS)
+        extra = () if color is None else (color[0],)
+        return Scene(Camera(position[0]), (PointLight(position[0], float(intensity[0]), *extra),), DES18_EFFECTS)
     pos = position[:, None, :]
-    return Scene(Camera(pos), (PointLight(pos, intensity[:, None]),), DES18_EFFECTS)
+    extra = () if color is None else (color[:, None, :],)
+    return Scene(Camera(pos), (PointLight(pos, intensity[:, None], *extra),), DES18_EFFECTS)
+
+
+def flash_scene(position: Tensor, intensity: Tensor, color: Tensor | None = None) -> Scene:
+    """The capture of :func:`refine_maps`: camera and flash at ``position`` ``(B, 3)`` (patch
+    half-widths), flash ``intensity`` ``(B,)`` and ``color`` ``(B, 3)`` (white when None)."""
+    return _camera_flashes(position, intensity, color)
+
+
+# -- a region of known albedo: the flash measured, not guessed -----------------------------------
+
+#: A matte reference card (a grey card, printer paper) as maps: flat, rough, with the small
+#: specular of a non-metal. Its diffuse map is ``albedo / (1 - CARD_F0)`` so that what the
+#: Des18 diffuse term reflects, ``d (1 - s) / pi``, is the stated albedo over pi.
+CARD_F0, CARD_ROUGHNESS = 0.04, 0.9
+
+
+def card_maps(albedo: float, size: tuple[int, int], batch: int = 1, device=None) -> SVBRDF:
+    """Maps of a matte card of ``albedo`` (its diffuse reflectance), ``size`` pixels."""
+    h, w = size
+    full = lambda c, v: torch.full((batch, c, h, w), float(v), device=device)  # noqa: E731
+    normal = torch.zeros(batch, 3, h, w, device=device)
+    normal[:, 2] = 1.0
+    return SVBRDF(normal, full(3, min(1.0, albedo / (1 - CARD_F0))), full(1, CARD_ROUGHNESS), full(3, CARD_F0))
+
+
+@dataclass(frozen=True)
+class ReferenceFlash:
+    """What :func:`reference_flash` measured, one entry per photo.
+
+    Attributes:
+        intensity: ``(B,)`` the flash intensity (luminance of the per-channel gains).
+        color: ``(B, 3)`` the flash's colour as the photo shows it (per-channel gain over
+            ``intensity``): a grey card measures the white balance too.
+        clipped: ``(B,)`` share of the region's pixels at or above the saturation level.
+        dark: ``(B,)`` share of the region's pixels too dark to read.
+        level: ``(B,)`` the region's mean luminance in the photo (linear).
+        pixels: ``(B,)`` pixels the intensity was read from.
+    """
+
+    intensity: Tensor
+    color: Tensor
+    clipped: Tensor
+    dark: Tensor
+    level: Tensor
+    pixels: Tensor
+
+
+_LUMA = (0.2126, 0.7152, 0.0722)
+
+
+@torch.no_grad()
+def reference_flash(photo: Tensor, mask: Tensor, albedo: float, position: Tensor | None,
+                    unit: Tensor | None = None) -> ReferenceFlash:  # fmt: skip
+    """The flash that shows a matte card of ``albedo`` where ``mask`` is true as ``photo`` does.
+
+    The card is rendered through the renderer's own image formation at unit intensity, with the
+    camera and flash at ``position`` ``(B, 3)`` (patch half-widths): each pixel's position in the
+    field of view, its distance, cosine and fall-off, and a matte card's small specular
+    (:func:`card_maps`). Per channel, the gain is the median of ``photo / unit rendering`` over
+    the region's pixels that are neither clipped (at or above 0.98) nor too dark (below 0.002);
+    the rendering is linear in the intensity, so that gain is the flash. Nothing is raised: the
+    caller judges ``clipped``, ``dark`` and ``pixels``.
+
+    Args:
+        photo: ``(B, 3, H, W)`` linear photos.
+        mask: ``(B or 1, 1, H, W)`` true over the card.
+        albedo: the card's diffuse reflectance in (0, 1].
+        position: ``(B, 3)`` or ``(3,)``.
+        unit: ``(B, 3, H, W)``: the card's rendering at unit intensity at the photo's pixels,
+            when they are not the patch's (a strip beside it, seen by a camera apart from the
+            flash): ``position`` is then not used.
+    """
+    b, _, h, w = photo.shape
+    photo = photo.float()
+    if unit is None:
+        position = position.to(photo).reshape(-1, 3).expand(b, 3)
+        card = card_maps(albedo, (h, w), b, photo.device)
+        unit = render(card, _camera_flashes(position, photo.new_ones(b)))
+        unit = unit[:, 0] if unit.dim() == 5 else unit
+    unit = unit.to(photo)
+    region = mask.to(photo.device, torch.bool).expand(b, 1, h, w)
+    top = photo.amax(1, keepdim=True)
+    clipped_px = (top >= _SATURATED) & region
+    dark_px = (top < 2 * _DARK) & region
+    keep = region & ~clipped_px & ~dark_px & (unit.amin(1, keepdim=True) > 1e-6)
+    count = region.flatten(1).sum(1).clamp_min(1).float()
+    luma = photo.new_tensor(_LUMA).view(1, 3, 1, 1)
+    level = ((photo * luma).sum(1, keepdim=True) * region).flatten(1).sum(1) / count
+    gains = torch.ones(b, 3, device=photo.device)
+    for i in range(b):
+        k = keep[i, 0]
+        if k.any():
+            gains[i] = (photo[i][:, k] / unit[i][:, k]).median(dim=1).values
+    intensity = (gains * luma.view(1, 3)).sum(1)
+    color = gains / intensity.clamp_min(1e-12)[:, None]
+    return ReferenceFlash(
+        intensity, color, clipped_px.flatten(1).sum(1) / count, dark_px.flatten(1).sum(1) / count, level,
+        keep.flatten(1).sum(1),
+    )

@@ -45,10 +45,11 @@ from torch import Tensor
 
 from ..errors import MapError, SceneError
 from ..geometry import safe_normalize
-from ..maps import MAP_NAMES, SVBRDF, stored_value
+from ..maps import MAP_NAMES, SVBRDF
 from ..renderer import BACKENDS, log_radiance, render
 from ..scene import Flash, Scene
 from .fit import FLASH_MODES, _camera_flashes, axis_flash, fit_flash
+from .prior import prior_targets, prior_weights, with_prior
 from .rings import RingBins, ring_penalty
 
 __all__ = [
@@ -319,16 +320,17 @@ class RefineLoss:
         settings: RefineSettings,
         backend: str,
         highlight: Tensor | None = None,
+        exclude: Tensor | None = None,
     ):
         self.scene = scene
         self.eps = settings.eps
         self.backend = backend
         self.target = log_radiance(photo.clamp(0, 1), settings.eps)
-        self.prior = {name: stored_value(name, t) for name, t in prior.maps().items()}
-        self.weights = {name: float(settings.prior.get(name, 0.0)) for name in MAP_NAMES}
+        self.prior = prior_targets(prior)
+        self.weights = prior_weights(settings)
         self.ring_weight = float(settings.rings)
         point = _light_xy(scene, photo.shape[0]) if highlight is None else highlight
-        self.bins = RingBins(point.to(photo.device), photo.shape, photo.device)
+        self.bins = RingBins(point.to(photo.device), photo.shape, photo.device, exclude)  # held: not the material
 
     def data(self, maps: SVBRDF) -> Tensor:
         """``mean |log(clip(render) + eps) - log(photo + eps)|``."""
@@ -344,10 +346,7 @@ class RefineLoss:
         loss = self.data(maps)
         if self.ring_weight > 0:
             loss = loss + self.ring_weight * self.rings(maps)
-        for name, t in maps.maps().items():
-            if self.weights[name] > 0:
-                loss = loss + self.weights[name] * (stored_value(name, t) - self.prior[name]).abs().mean()
-        return loss
+        return with_prior(loss, maps, self.prior, self.weights)
 
 
 def _check_point(point: Any, photo: Tensor) -> Tensor | None:
@@ -373,6 +372,32 @@ def _check_budget(steps: Any, seconds: Any, backend: Any) -> None:
         raise ValueError(f"refine: backend must be one of {BACKENDS}, got {backend!r}")
 
 
+def _check_held(held: Any, photo: Tensor, size: tuple[int, int], device) -> tuple[Tensor, SVBRDF] | None:
+    """``held`` of :func:`refine_maps` as ``(mask (B, 1, H, W) bool, maps at the photo's size)``."""
+    if held is None:
+        return None
+    mask, maps = held
+    b = photo.shape[0]
+    if not isinstance(mask, Tensor) or mask.dim() != 4 or mask.shape[1] != 1 or mask.shape[0] not in (1, b):
+        shape = tuple(mask.shape) if isinstance(mask, Tensor) else type(mask).__name__
+        raise MapError(f"refine: held's mask must be (B, 1, H, W) or (1, 1, H, W), got {shape}")
+    if tuple(mask.shape[-2:]) != size:
+        raise MapError(f"refine: held's mask is {tuple(mask.shape[-2:])}, the photo {size}")
+    if not isinstance(maps, SVBRDF) or maps.batch_size not in (1, b):
+        raise MapError("refine: held's maps must be an SVBRDF of 1 or B materials")
+    return mask.to(device, torch.bool), refine_start(maps.detach().to(device, torch.float32), size)
+
+
+def _with_held(maps: SVBRDF, held: tuple[Tensor, SVBRDF] | None) -> SVBRDF:
+    """``maps`` with ``held``'s maps where its mask is true."""
+    if held is None:
+        return maps
+    mask, fixed = held
+    return SVBRDF(
+        *(torch.where(mask, getattr(fixed, n).expand_as(t), t) for n, t in maps.maps().items()), validate=False
+    )
+
+
 def _optimise(
     params: _Parameters,
     loss_fn: RefineLoss,
@@ -381,6 +406,7 @@ def _optimise(
     seconds: float | None,
     callback: Callable[[int, int, float], None] | None,
     t0: float,
+    held: tuple[Tensor, SVBRDF] | None = None,
 ) -> list[float]:
     """Adam on ``params`` for ``steps`` steps, or until ``seconds`` after ``t0``; the losses."""
     from .fit import _Adam
@@ -389,7 +415,7 @@ def _optimise(
     losses = []
     for step in range(steps):
         opt.zero_grad()
-        loss = loss_fn(params.svbrdf())
+        loss = loss_fn(_with_held(params.svbrdf(), held))
         loss.backward()
         opt.step()
         losses.append(float(loss.detach()))
@@ -413,6 +439,7 @@ def refine_maps(
     backend: str = "compiled",
     callback: Callable[[int, int, float], None] | None = None,
     highlight: Tensor | None = None,
+    held: tuple[Tensor, SVBRDF] | None = None,
 ) -> Refinement:
     """Optimise maps so that their rendering under ``scene`` matches ``photo``.
 
@@ -433,6 +460,7 @@ def refine_maps(
         highlight: ``(B, 2)`` patch coordinates of the point under the flash, the centre of
             the ring penalty (:func:`svbrdf_render.refinement.rings.highlight_point` reads it off a
             photo); default: under the scene's light.
+        held: ``(mask (B, 1, H, W), maps)``: maps held where ``mask`` is true (a reference card).
 
     Returns:
         A :class:`Refinement`. A ``KeyboardInterrupt`` from the callback or the user
@@ -448,12 +476,13 @@ def refine_maps(
     prior = start if prior is None else refine_start(prior.detach().to(torch.float32), size)
     prior = dielectric_prior(prior, settings.dielectric)
     scene = _scene_for(photo, start, scene, flash)
+    held = _check_held(held, photo, size, start.device)
     if steps == 0 or seconds == 0:
-        return Refinement(start, scene, 0, time.perf_counter() - t0, torch.zeros(0))
-
+        return Refinement(_with_held(start, held), scene, 0, time.perf_counter() - t0, torch.zeros(0))
     params = _Parameters(start, settings.coarse)
-    loss_fn = RefineLoss(photo, prior, scene, settings, backend, _check_point(highlight, photo))
-    losses = _optimise(params, loss_fn, settings, steps, seconds, callback, t0)
+    exclude = None if held is None else held[0]  # a held card is no part of the material's rings
+    loss_fn = RefineLoss(photo, prior, scene, settings, backend, _check_point(highlight, photo), exclude)
+    losses = _optimise(params, loss_fn, settings, steps, seconds, callback, t0, held)
     with torch.no_grad():
-        out = params.svbrdf().detach()
+        out = _with_held(params.svbrdf(), held).detach()
     return Refinement(out, scene, len(losses), time.perf_counter() - t0, torch.tensor(losses))

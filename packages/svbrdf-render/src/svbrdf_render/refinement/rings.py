@@ -43,15 +43,21 @@ MIN_PEAK = 2.0
 _MAX_GAIN = 4.0
 
 
-def highlight_point(photo: Tensor) -> Tensor:
+def highlight_point(photo: Tensor, ignore: Tensor | None = None) -> Tensor:
     """``(B, 2)``: the patch coordinates (``x, y`` in ``[-1, 1]``, as
     :func:`~svbrdf_render.geometry.surface_positions`) of the brightest point of each photo
     ``(B, 3, H, W)`` after a box blur an eighth of its width wide: where the flash's highlight
     is in a capture parallel to the surface. A photo without a clear highlight (its blurred
     maximum under :data:`MIN_PEAK` times its blurred median: the brightest point is then
-    texture, anywhere) gets the centre, ``(0, 0)``, where a capture held over it has it."""
+    texture, anywhere) gets the centre, ``(0, 0)``, where a capture held over it has it.
+
+    ``ignore``: ``(B or 1, 1, H, W)``, true where the pixels are not the material (a grey card
+    or a printed strip, brighter than the material, must not pass for the flash's highlight):
+    they count as black."""
     b, _, h, w = photo.shape
     y = photo.float().mean(1, keepdim=True)
+    if ignore is not None:
+        y = y.masked_fill(ignore.to(torch.bool).to(y.device), 0.0)
     k = max(3, round(w * _BLUR)) | 1
     blurred = F.avg_pool2d(y, k, stride=1, padding=k // 2, count_include_pad=False).flatten(1)
     top, i = blurred.max(1)
@@ -67,9 +73,14 @@ def _slopes(normal: Tensor) -> Tensor:
 
 class RingBins:
     """The rings of a ``(B, C, H, W)`` map shape around points ``(B, 2)``: each pixel's ring,
-    the pixel count of each ring, and each pixel's unit direction away from the point."""
+    the pixel count of each ring, and each pixel's unit direction away from the point.
 
-    def __init__(self, point: Tensor, shape, device=None):
+    ``exclude`` ``(B or 1, 1, H, W)``: pixels that are not the material (a reference card held
+    at its own maps), left out of every ring's mean and of the map's mean: a grey card in a
+    corner of a dark material would otherwise read as a ring, and the penalty would brighten
+    the material around it."""
+
+    def __init__(self, point: Tensor, shape, device=None, exclude: Tensor | None = None):
         b, _, h, w = shape
         p = surface_positions(h, w, device=device)[:2].flatten(1)  # (2, HW)
         offset = p[None] - point.to(p).expand(b, 2)[:, :, None]  # (B, 2, HW)
@@ -77,6 +88,10 @@ class RingBins:
         top = r.amax(1, keepdim=True).clamp_min(1e-6)
         self.index = (r / top * RINGS).long().clamp(max=RINGS - 1)[:, None]  # (B, 1, HW)
         ones = torch.ones_like(r[:, None])
+        self.weight = None  # (B, 1, HW): 0 for the pixels left out; None: every pixel counts
+        if exclude is not None:
+            ones = ones * (~exclude.to(p.device, torch.bool)).flatten(2).expand(b, 1, -1).to(ones.dtype)
+            self.weight = ones
         count = torch.zeros(b, 1, RINGS, device=p.device).scatter_add_(2, self.index, ones)
         self.count = count.clamp_min(1)
         self.present = (count > 0).float()
@@ -89,15 +104,21 @@ class RingBins:
 
     def means(self, x: Tensor) -> Tensor:
         """``(B, C, RINGS)``: the mean of ``x`` ``(B, C, H, W)`` over each ring."""
-        flat = x.flatten(2)
+        flat = x.flatten(2) if self.weight is None else x.flatten(2) * self.weight
         b, c, _ = flat.shape
         sums = flat.new_zeros(b, c, RINGS).scatter_add_(2, self.index.expand(b, c, -1), flat)
         return sums / self.count
 
+    def mean(self, x: Tensor) -> Tensor:
+        """``(B, C, 1)``: the mean of ``x`` over the pixels counted (all but those excluded)."""
+        if self.weight is None:
+            return x.flatten(2).mean(2, keepdim=True)
+        return (x.flatten(2) * self.weight).sum(2, keepdim=True) / self.weight.sum(2, keepdim=True).clamp_min(1)
+
     def spread(self, x: Tensor) -> Tensor:
         """Mean over rings (those holding pixels) and channels of ``|ring mean - map mean|``."""
-        dev = (self.means(x) - x.flatten(2).mean(2, keepdim=True)).abs() * self.present
-        return dev.sum(2).mean() / self.present.sum(2).mean()
+        dev = (self.means(x) - self.mean(x)).abs() * self.present
+        return dev.sum(2).mean() / self.present.sum(2).mean().clamp_min(1)  # no ring counted: 0
 
     def radial_slope(self, normal: Tensor) -> Tensor:
         """``(B, 1, H, W)``: the slope of ``normal`` along the direction away from the point."""
