@@ -1,0 +1,254 @@
+"""Where the camera stood: its position over the captured square, from the lens and the crop.
+
+Maps cover the square a capture takes (``--crop``, or the largest centred one) as the patch
+``[-1, 1]^2`` at ``z = 0``; the renderer needs the camera (and the flash beside its lens) in the
+same units, half-widths of that square. A pinhole camera looking straight at the surface, its
+axis through the photo's centre, sees the square of ``side`` pixels whose top-left corner is at
+``(x0, y0)`` (pixels of the photo as displayed, ``W x H``) from::
+
+    x = (W / 2 - (x0 + side / 2)) / (side / 2)        # + right, as the patch's x
+    y = -(H / 2 - (y0 + side / 2)) / (side / 2)       # + up: image rows go down
+    z = f_px / (side / 2)                             # f_px: the focal length in pixels
+
+so a centred square has the camera on its axis at ``f_px / (side / 2)``, and a crop, which
+narrows the field of view, puts it farther away (and to the side when it is off-centre).
+
+The focal length in pixels comes from, in this order (:func:`capture_geometry`):
+
+1. ``distance``: the camera's height in half-widths of the square, on the square's axis
+   (``--distance D``): source ``"distance"``;
+2. ``fov``: the field of view across the photo's longer side as displayed, in degrees
+   (``--fov DEG``): ``f_px = (max(W, H) / 2) / tan(fov / 2)``; source ``"fov"``;
+3. the photo's EXIF (read with Pillow): the 35 mm equivalent focal length (FocalLengthIn35mmFilm),
+   defined on the diagonal of a 36 x 24 mm frame (43.27 mm), ``f_px = f35 * hypot(W, H) / 43.27``:
+   source ``"exif-35mm"``; else the focal length in mm and the sensor's pixel density
+   (FocalPlaneXResolution in FocalPlaneResolutionUnit), ``f_px = f_mm * pixels per mm``, scaled
+   when the photo was resized since (PixelXDimension): source ``"exif-sensor"``;
+4. nothing: source ``"default"``, the capture as before the geometry was read: camera and flash
+   at :data:`DEFAULT_DISTANCE` (2.2, the Des18 photos' flash) over the photo's highlight.
+
+A phone's main camera (about 26 mm equivalent, 4:3) puts the camera at about 2.0 half-widths of
+the centred square, close to the 2.2 of the photos the networks learnt from.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from svbrdf_render.scene import DES18_DISTANCE
+
+from ..errors import DataError
+
+__all__ = [
+    "DEFAULT_DISTANCE",
+    "DIAGONAL_35MM",
+    "FOV_RANGE",
+    "GEOMETRY_SOURCES",
+    "CaptureGeometry",
+    "capture_geometry",
+    "check_distance",
+    "check_fov",
+    "exif_focal",
+    "focal_pixels",
+]
+
+#: The diagonal of a 35 mm film frame (36 x 24 mm), on which the 35 mm equivalent focal length
+#: is defined.
+DIAGONAL_35MM = math.hypot(36.0, 24.0)  # 43.27 mm
+#: ``--fov`` is refused outside this open range (degrees).
+FOV_RANGE = (1.0, 179.0)
+#: The camera's height when nothing tells it (the Des18 photos' flash).
+DEFAULT_DISTANCE = DES18_DISTANCE
+#: Where a geometry came from, most trusted first.
+GEOMETRY_SOURCES = ("distance", "fov", "exif-35mm", "exif-sensor", "default")
+
+# EXIF tags (the Exif IFD, 0x8769).
+_EXIF_IFD = 0x8769
+_FOCAL_35MM = 0xA405
+_FOCAL_LENGTH = 0x920A
+_FOCAL_PLANE_X = 0xA20E
+_FOCAL_PLANE_UNIT = 0xA210
+_PIXEL_X = 0xA002
+#: Millimetres per FocalPlaneResolutionUnit (2 inch, the default; 3 cm; 4 mm; 5 micrometre).
+_UNIT_MM = {2: 25.4, 3: 10.0, 4: 1.0, 5: 1e-3}
+
+
+@dataclass(frozen=True)
+class CaptureGeometry:
+    """The camera over a captured square, and the figures it came from.
+
+    Attributes:
+        position: ``(x, y, z)``, the camera's lens (and the flash beside it) in half-widths of the
+            captured square, from the square's centre (x right, y up, z out of the surface).
+            With source ``"default"``: ``(0, 0, 2.2)``, whose x and y the capture replaces by the
+            photo's highlight (:func:`svbrdf_render.refinement.rings.highlight_point`).
+        source: one of :data:`GEOMETRY_SOURCES`.
+        focal_px: the focal length in pixels of the photo as displayed (None for ``"distance"``
+            and ``"default"``).
+        focal_mm, focal_35mm: the EXIF focal length and its 35 mm equivalent, when the file has them.
+        fov: the field of view across the photo's longer side, degrees (None without ``focal_px``).
+        photo_size: ``(W, H)`` of the photo as displayed (after its EXIF orientation).
+        square: ``(x0, y0, side)``: the captured square in those pixels.
+    """
+
+    position: tuple[float, float, float]
+    source: str
+    focal_px: float | None = None
+    focal_mm: float | None = None
+    focal_35mm: float | None = None
+    fov: float | None = None
+    photo_size: tuple[int, int] | None = None
+    square: tuple[int, int, int] | None = None
+
+    @property
+    def distance(self) -> float:
+        """The camera's distance from the square's centre, in half-widths."""
+        return math.sqrt(sum(v * v for v in self.position))
+
+    @property
+    def known(self) -> bool:
+        """Whether the position is the photo's own (not the default's guess)."""
+        return self.source != "default"
+
+    def record(self, used: bool) -> dict:
+        """material.json's ``geometry`` section; ``used``: the refinement's camera and flash
+        stood at ``position`` (over the highlight for ``"default"``)."""
+
+        def r(v, digits=4):
+            return None if v is None else round(float(v), digits)
+
+        return {
+            "source": self.source,
+            "position": None if not self.known else [r(v) for v in self.position],
+            "distance": r(self.distance if self.known else self.position[2]),
+            "over": "square" if self.known else "highlight",
+            "units": "half-widths of the captured square, from its centre; x right, y up, z out",
+            "fov": r(self.fov, 3),
+            "focal_length_px": r(self.focal_px, 2),
+            "focal_length_mm": r(self.focal_mm, 3),
+            "focal_length_35mm": r(self.focal_35mm, 3),
+            "photo_size": list(self.photo_size) if self.photo_size else None,
+            "square": list(self.square) if self.square else None,
+            "used": bool(used),
+        }
+
+
+def check_fov(fov) -> float:
+    """``fov`` (degrees) as a float, or a :class:`DataError` naming ``--fov`` and the value when it
+    is not a finite number strictly between 1 and 179."""
+    lo, hi = FOV_RANGE
+    try:
+        value = float(fov)
+    except (TypeError, ValueError):
+        value = math.nan
+    if isinstance(fov, bool) or not (math.isfinite(value) and lo < value < hi):
+        raise DataError(
+            f"--fov {fov}: the field of view across the photo's longer side must be a number of "
+            f"degrees between {lo:g} and {hi:g}"
+        )
+    return value
+
+
+def check_distance(distance) -> float:
+    """``distance`` (half-widths) as a float, or a :class:`DataError` naming ``--distance`` and the
+    value when it is not a finite number > 0."""
+    try:
+        value = float(distance)
+    except (TypeError, ValueError):
+        value = math.nan
+    if isinstance(distance, bool) or not (math.isfinite(value) and value > 0):
+        raise DataError(
+            f"--distance {distance}: the camera's height must be a finite number > 0 of half-widths "
+            "of the captured square"
+        )
+    return value
+
+
+def check_geometry_options(fov, distance) -> tuple[float | None, float | None]:
+    """``(fov, distance)`` checked (None stays None); both at once is a :class:`DataError`."""
+    if fov is not None and distance is not None:
+        raise DataError(
+            f"--fov {fov} and --distance {distance}: give one (--distance sets the camera's height, "
+            "--fov derives it from the lens)"
+        )
+    return (None if fov is None else check_fov(fov)), (None if distance is None else check_distance(distance))
+
+
+def _positive(value) -> float | None:
+    try:
+        v = float(value)
+    except (TypeError, ValueError, ZeroDivisionError):
+        return None
+    return v if math.isfinite(v) and v > 0 else None
+
+
+def exif_focal(path) -> dict:
+    """The focal-length figures of a photo's EXIF: ``focal_35mm``, ``focal_mm``, ``plane_x``
+    (FocalPlaneXResolution), ``plane_unit``, ``pixel_x`` (PixelXDimension), ``width`` and
+    ``height`` (as stored), each None when absent, zero or unreadable. A damaged EXIF block
+    reads as none."""
+    from PIL import Image
+
+    out = dict.fromkeys(("focal_35mm", "focal_mm", "plane_x", "plane_unit", "pixel_x"))
+    with Image.open(path) as im:
+        out["width"], out["height"] = im.size
+        try:
+            ifd = im.getexif().get_ifd(_EXIF_IFD)
+        except Exception:  # a damaged EXIF block: no figures
+            return out
+    out["focal_35mm"] = _positive(ifd.get(_FOCAL_35MM))
+    out["focal_mm"] = _positive(ifd.get(_FOCAL_LENGTH))
+    out["plane_x"] = _positive(ifd.get(_FOCAL_PLANE_X))
+    unit = _positive(ifd.get(_FOCAL_PLANE_UNIT))
+    out["plane_unit"] = int(unit) if unit is not None else None
+    pixel_x = _positive(ifd.get(_PIXEL_X))
+    out["pixel_x"] = int(pixel_x) if pixel_x is not None else None
+    return out
+
+
+def focal_pixels(exif: dict) -> tuple[float, str] | None:
+    """``(f_px, source)`` from :func:`exif_focal`'s figures: the 35 mm equivalent on the diagonal
+    (``"exif-35mm"``), else the focal length times the sensor's pixel density (``"exif-sensor"``,
+    scaled by ``width / PixelXDimension`` when the photo was resized after the camera wrote it);
+    None when neither is there."""
+    w, h = exif["width"], exif["height"]
+    if exif["focal_35mm"] is not None:
+        return exif["focal_35mm"] * math.hypot(w, h) / DIAGONAL_35MM, "exif-35mm"
+    unit_mm = _UNIT_MM.get(exif["plane_unit"] if exif["plane_unit"] is not None else 2)
+    if exif["focal_mm"] is None or exif["plane_x"] is None or unit_mm is None:
+        return None
+    f_px = exif["focal_mm"] * exif["plane_x"] / unit_mm
+    if exif["pixel_x"] is not None and exif["pixel_x"] != w:  # resized since: the density scales
+        f_px *= w / exif["pixel_x"]
+    return f_px, "exif-sensor"
+
+
+def capture_geometry(path, crop: tuple[int, int, int] | None = None, *, fov: float | None = None,
+                     distance: float | None = None) -> CaptureGeometry:  # fmt: skip
+    """The camera over the square a capture of ``path`` takes (``crop``, as ``--crop``, else the
+    centred square): from ``distance``, else ``fov``, else the photo's EXIF, else the default
+    (see the module). Bad ``fov`` or ``distance``, or both: a :class:`DataError` (one line)."""
+    from .photos import square_box
+
+    fov, distance = check_geometry_options(fov, distance)
+    x0, y0, side, width, height = square_box(Path(path), crop)
+    box, size, half = (x0, y0, side), (width, height), side / 2
+    if distance is not None:
+        return CaptureGeometry((0.0, 0.0, distance), "distance", photo_size=size, square=box)
+    exif = exif_focal(path)
+    f35, fmm = exif["focal_35mm"], exif["focal_mm"]
+    if fov is not None:
+        f_px, source = (max(width, height) / 2) / math.tan(math.radians(fov) / 2), "fov"
+    else:
+        found = focal_pixels(exif)
+        if found is None:
+            return CaptureGeometry((0.0, 0.0, DEFAULT_DISTANCE), "default", focal_mm=fmm, focal_35mm=f35,
+                                   photo_size=size, square=box)  # fmt: skip
+        f_px, source = found
+    x = (width / 2 - (x0 + half)) / half + 0.0  # + 0.0: no -0.0 in material.json
+    y = (y0 + half - height / 2) / half + 0.0
+    seen = fov if fov is not None else math.degrees(2 * math.atan((max(width, height) / 2) / f_px))
+    return CaptureGeometry((x, y, f_px / half), source, focal_px=f_px, focal_mm=fmm, focal_35mm=f35,
+                           fov=seen, photo_size=size, square=box)  # fmt: skip
