@@ -15,7 +15,7 @@ from svbrdf_render.errors import exit_status
 
 from . import __version__
 from ._registry import Registry, default_registry
-from .commands import names, predict, serve, show
+from .commands import frame, names, predict, serve, show
 
 __all__ = ["build_parser", "main"]
 
@@ -27,6 +27,7 @@ COMMANDS = {
     "show": show.run,
     "predict": predict.run,
     "serve": serve.run,
+    "frame": frame.run,
 }
 
 #: Each command's ``add(subparsers)``, in the order ``--help`` lists them.
@@ -36,6 +37,7 @@ PARSERS = {
     "show": show.add_parser,
     "predict": predict.add_parser,
     "serve": serve.add_parser,
+    "frame": frame.add_parser,
 }
 
 
@@ -47,7 +49,8 @@ def build_parser(command: str | None = None) -> OneLineParser:
         prog="svbrdf-models",
         description="List and describe the registered generators, attention modules and discriminators "
         "(built-ins and plugins, found through entry points), show what a model file holds, and "
-        "capture maps from flash photos (predict), and serve a model over HTTP (serve).",
+        "capture maps from flash photos (predict), serve a model over HTTP (serve), and print the capture "
+        "frame (frame).",
         epilog="Exit status: 0 done; 2 bad arguments (an unknown name, a bad option); 130 interrupted. "
         "predict: see svbrdf-models predict --help.",
     )
@@ -67,7 +70,7 @@ def main(argv: list[str] | None = None, registry: Registry | None = None) -> int
     except SystemExit as e:  # a usage error (one line, exit 2) or --help (exit 0)
         return int(e.code or 0)
     try:
-        if args.command not in ("predict", "serve"):
+        if args.command not in ("predict", "serve", "frame"):
             registry = registry or default_registry()
         return COMMANDS[args.command](args, registry, sys.stdout) or 0
     except SVBRDFError as e:  # RegistryError, a model file, a photo option, a scene: one line
