@@ -1,16 +1,28 @@
-"""A region of known albedo in the photo (a grey card) pins the level of the diffuse albedo.
+"""A region of known albedo in the photo (a grey card) measures the flash, and with it the
+level of every albedo.
 
 One photo cannot separate the albedo from the flash's power: every albedo twice as bright
-under a flash half as strong gives the same photo. The network's maps carry a guess of the
-level learnt from its training data. A user who puts a card of known albedo in the picture
-(``svbrdf-models predict --reference X,Y,W,H:ALBEDO``; an 18% grey card is 0.18, a white
-sheet of printer paper about 0.8) gives the capture the level itself: the network's diffuse
-map is scaled so that its mean over the card is ``ALBEDO``, and the refinement, which starts
-from and is pulled toward those maps, finds the flash that matches (the card must be in the
-square that is captured, lit by the flash like the material, and not clipped).
+under a flash half as strong gives the same photo. Without help, the level is the network's
+guess, learnt from its training data. A user who puts a matte card of known albedo in the
+captured square (``svbrdf-models predict --reference X,Y,W,H:ALBEDO``; an 18% grey card is
+0.18, white printer paper about 0.8) lets the capture *measure* the flash instead:
+:func:`pin_flash` renders the card through the renderer's own image formation at unit
+intensity (each pixel's place in the field of view, its distance, cosine and fall-off, a matte
+card's small specular: :func:`svbrdf_render.refinement.fit.reference_flash`) and reads the
+flash's intensity and colour off the photo's pixels over the card. The refinement then runs
+under the measured flash, which sets the albedos' level, with the card's pixels held at the
+card's maps (they are not the material); the network is shown the photo with the card filled
+in from the material around it (:func:`fill_card`), and the highlight finder ignores the
+card, which is often brighter than the material. Without refinement (``--refine 0``) the
+maps are the network's: the card is recorded, and judged, but sets nothing.
+
+It is never the network's diffuse over the card that sets the level: the network sees a
+card at the edge of a flash photo darker than it is (it does not follow the fall-off there),
+and scaling every albedo to make that patch 0.18 made them 2.5-3 times too bright.
 
     ref = Reference.parse("120,80,60,60:0.18")        # x, y, width, height in photo pixels
-    maps, record = pin_albedo(maps, square, ref, square_box(path, crop), "shot.jpg")
+    pinned = pin_flash(square, maps, ref, square_box(path, crop), "shot.jpg")
+    pinned.scene, pinned.record                        # the flash measured; material.json's section
 """
 
 from __future__ import annotations
@@ -20,17 +32,28 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from svbrdf_render import SVBRDF
+from svbrdf_render import SVBRDF, Scene
 
 from ..errors import DataError
 
-__all__ = ["Reference", "pin_albedo"]
+__all__ = ["MIN_ALBEDO", "PinnedFlash", "Reference", "fill_card", "pin_flash", "reference_mask", "with_card"]
 
-#: Photo values at or above this are clipped; a region more than half clipped says too little
-#: of its level to pin the albedo by.
-_SATURATED, _CLIPPED_SHARE = 0.98, 0.5
-#: Luminance weights (Rec. 709) of the region's mean albedo.
-_LUMA = (0.2126, 0.7152, 0.0722)
+#: A region more than this share clipped (or too dark) in the photo says too little to read
+#: the flash from.
+_CLIPPED_SHARE = 0.5
+#: The region's mean in the photo (linear) below which it is too dark to read (about 20 of
+#: 255 in sRGB): noise and the JPEG's quantisation would set the flash.
+MIN_LEVEL = 0.007
+#: The albedo a reference may state at least: the darkest matte materials (black velvet,
+#: carbon black paint) reflect about 1-2%; below, it is no reference.
+MIN_ALBEDO = 0.01
+#: The material's albedo level implied by the card may differ from the network's guess by at
+#: most this factor either way (the network's own level is off by up to 5 times on hard
+#: materials): beyond, the region is not a card of that albedo (a region on the material or
+#: the highlight, a wrong albedo), and the capture says so instead of refining every albedo to
+#: 20 times too bright. Nor may the network's diffuse at that level be more than
+#: :data:`MAX_WHITE` white, or its median darker than :data:`MIN_MATERIAL` (no real material is).
+MAX_LEVEL_RATIO, MAX_WHITE, MIN_MATERIAL = 20.0, 0.25, 0.003
 
 
 @dataclass(frozen=True)
@@ -59,8 +82,11 @@ class Reference:
             raise DataError(f"{where}: the region has no area; give a width and a height of at least 1 px")
         if x < 0 or y < 0:
             raise DataError(f"{where}: X and Y must be >= 0 (pixels from the top left of the photo)")
-        if not 0 < albedo <= 1:
-            raise DataError(f"{where}: the albedo must be in (0, 1] (an 18% grey card is 0.18), got {value}")
+        if not MIN_ALBEDO <= albedo <= 1:
+            raise DataError(
+                f"{where}: the albedo must be in [{MIN_ALBEDO}, 1] (an 18% grey card is 0.18, white paper "
+                f"about 0.8), got {value}"
+            )
         return cls(x, y, w, h, albedo)
 
     def describe(self) -> str:
@@ -89,35 +115,179 @@ def _window(
     return top, left, min(bottom, size), min(right, size)
 
 
-def pin_albedo(
-    maps: SVBRDF, square: Tensor, ref: Reference, box: tuple[int, int, int, int, int], where: str
-) -> tuple[SVBRDF, dict]:
-    """``maps`` (one material) with the diffuse albedo scaled so that its mean luminance over the
-    reference region is ``ref.albedo`` (clamped to [0, 1]), and the record of it.
+def reference_mask(ref: Reference, box: tuple[int, int, int, int, int], size: int, where: str) -> Tensor:
+    """``(1, 1, size, size)``: true over the region in maps of ``size`` made of the square ``box``."""
+    t, l, b, r = _window(ref, box, size, where)
+    mask = torch.zeros(1, 1, size, size, dtype=torch.bool)
+    mask[..., t:b, l:r] = True
+    return mask
 
-    ``square`` is the photo's square ``(3, S, S)`` (linear), ``box`` where that square lies in
-    the photo (:func:`svbrdf_models.capture.photos.square_box`), ``where`` the photo's name for errors.
+
+def fill_card(photo: Tensor, mask: Tensor) -> Tensor:
+    """``photo`` ``(3, H, W)`` with the pixels where ``mask`` ``(1, 1, H, W)`` is true filled
+    from the material around them (push-pull: averages of the known pixels on coarser and
+    coarser grids, brought back up smoothly): what the network sees. It never saw a grey card
+    in training, and one in the photo changed its maps of the material around it (on unseen-dev
+    a card in a corner made the network's diffuse 3x worse on the facade); the card itself is
+    read from the photo as it is."""
+    import torch.nn.functional as F
+
+    def fill(x: Tensor, known: Tensor) -> Tensor:
+        h, w = x.shape[-2:]
+        if bool(known.all()) or min(h, w) < 2:
+            return x
+        sx = F.avg_pool2d(x * known, 2, ceil_mode=True)
+        sk = F.avg_pool2d(known, 2, ceil_mode=True)
+        coarse = fill(sx / sk.clamp_min(1e-6), (sk > 0).to(x.dtype))
+        up = F.interpolate(coarse, size=(h, w), mode="bilinear", align_corners=False)
+        return torch.where(known > 0, x, up)
+
+    m = mask.to(photo.device)
+    if tuple(m.shape[-2:]) != tuple(photo.shape[-2:]):
+        m = F.interpolate(m.float(), size=tuple(photo.shape[-2:]), mode="nearest") > 0.5
+    known = (~m.to(torch.bool)).to(photo.dtype)
+    if not bool(known.any()):
+        return photo
+    return fill(photo[None], known)[0]
+
+
+def with_card(maps: SVBRDF, mask: Tensor, card: SVBRDF) -> SVBRDF:
+    """``maps`` with ``card``'s maps where ``mask`` (brought to the maps' size) is true."""
+    import torch.nn.functional as F
+
+    h, w = maps.size
+    if tuple(mask.shape[-2:]) != (h, w):
+        mask = F.interpolate(mask.float(), size=(h, w), mode="nearest") > 0.5
+    card = card.resize(h, w) if tuple(card.size) != (h, w) else card
+    return SVBRDF(
+        *(torch.where(mask.to(t.device), getattr(card, n).to(t).expand_as(t), t) for n, t in maps.maps().items()),
+        validate=False,
+    )
+
+
+@dataclass(frozen=True)
+class PinnedFlash:
+    """What a reference measured (:func:`pin_flash`).
+
+    Attributes:
+        scene: camera and flash at their place, with the measured intensity and colour.
+        mask: ``(1, 1, S, S)`` true over the card, in the square's pixels.
+        card: the card's maps (:func:`svbrdf_render.refinement.fit.card_maps`), ``S`` px.
+        record: material.json's ``reference`` section.
+    """
+
+    scene: Scene
+    mask: Tensor
+    card: SVBRDF
+    record: dict
+
+    def start(self, network: SVBRDF) -> SVBRDF:
+        """The network's maps with the card's maps over the card: the refinement's start."""
+        return with_card(network, self.mask, self.card)
+
+
+def pin_flash(
+    square: Tensor,
+    network: SVBRDF,
+    ref: Reference,
+    box: tuple[int, int, int, int, int],
+    where: str,
+    *,
+    position: Tensor | None = None,
+) -> PinnedFlash:
+    """The flash measured on the card ``ref`` of the photo's ``square`` ``(3, S, S)`` (linear,
+    at the size the maps are made at), with ``network``'s maps of it (one material, any size)
+    to judge it by.
+
+    ``box`` is where the square lies in the photo (:func:`svbrdf_models.capture.photos.square_box`);
+    ``position`` ``(3,)`` the camera and flash in patch half-widths (default: the Des18 distance
+    over the photo's highlight, found with the card ignored).
 
     Raises:
-        DataError: a region outside the photo or the square, or more than half clipped in the
-            photo (its level cannot be read), or where the maps' diffuse is black.
+        DataError: a region outside the photo or the square, more than half clipped or too
+            dark to read, too small, or one that makes the material's albedo implausible.
     """
-    t, l, b, r = _window(ref, box, square.shape[-1], where)
-    clipped = float((square[:, t:b, l:r].amax(dim=0) >= _SATURATED).float().mean())
+    from svbrdf_render import DES18_DISTANCE
+    from svbrdf_render.refinement.fit import card_maps, flash_scene, reference_flash
+    from svbrdf_render.refinement.rings import highlight_point
+
+    size = square.shape[-1]
+    head = f"{where}: --reference {ref.describe()}"
+    mask = reference_mask(ref, box, size, where)
+    photo = square[None].float()
+    point = highlight_point(photo, ignore=mask)
+    if position is None:
+        position = torch.cat([point[0], photo.new_tensor([DES18_DISTANCE])])
+    position = position.reshape(1, 3).to(photo)
+    measured = reference_flash(photo, mask, ref.albedo, position)
+    _check_readable(measured, head)
+    card = card_maps(ref.albedo, (size, size))
+    level = _network_level(photo, network, card, mask, position, float(measured.intensity[0]))
+    _check_level(level, network, mask, head)
+    record = {
+        "region": [ref.x, ref.y, ref.width, ref.height],
+        "albedo": ref.albedo,
+        "flash_intensity": float(measured.intensity[0]),
+        "flash_color": [round(float(c), 4) for c in measured.color[0]],
+        "flash_position": [round(float(c), 4) for c in position[0]],
+        "network_level": level,
+        "clipped": round(float(measured.clipped[0]), 4),
+        "pixels": int(measured.pixels[0]),
+    }
+    return PinnedFlash(flash_scene(position, measured.intensity, measured.color), mask, card, record)
+
+
+def _check_readable(measured, head: str) -> None:
+    """Refuse a region too clipped, too dark or too small to read the flash from."""
+    clipped, dark, level = float(measured.clipped[0]), float(measured.dark[0]), float(measured.level[0])
     if clipped > _CLIPPED_SHARE:
         raise DataError(
-            f"{where}: --reference {ref.describe()}: {clipped:.0%} of the region is clipped (white) in the "
-            "photo, so its level cannot be read; lower the exposure, or give a region that is not blown out"
+            f"{head}: {clipped:.0%} of the region is clipped (white) in the photo, so the flash cannot be "
+            "read from it; lower the exposure, use a darker card, or give a region that is not blown out"
         )
-    tm, lm, bm, rm = _window(ref, box, maps.size[0], where)
-    luma = torch.tensor(_LUMA, dtype=maps.diffuse.dtype).view(1, 3, 1, 1)
-    level = float((maps.diffuse[:, :, tm:bm, lm:rm] * luma).sum(dim=1).mean())
-    if level <= 1e-4:
+    if dark > _CLIPPED_SHARE or level < MIN_LEVEL:
         raise DataError(
-            f"{where}: --reference {ref.describe()}: the maps' diffuse is black there; nothing to scale"
+            f"{head}: the region is too dark to read (mean {level:.4f} of 1, linear); light it with the "
+            "flash, raise the exposure, or give a region on the card"
         )
-    scale = ref.albedo / level
-    pinned = SVBRDF(
-        maps.normal, (maps.diffuse * scale).clamp(0, 1), maps.roughness, maps.specular, validate=False
-    )
-    return pinned, {"region": [ref.x, ref.y, ref.width, ref.height], "albedo": ref.albedo, "scale": scale}
+    if int(measured.pixels[0]) < 4:
+        raise DataError(f"{head}: too few readable pixels in the region; give a larger region on the card")
+
+
+def _network_level(photo: Tensor, network: SVBRDF, card: SVBRDF, mask: Tensor, position: Tensor,
+                   intensity: float) -> float:  # fmt: skip
+    """How many times brighter the measured flash says the material is than ``network``'s maps
+    say: the flash those maps need to explain the photo from ``position`` (the median of
+    :func:`svbrdf_render.refinement.fit.axis_flash`, the card held at the card) over the flash
+    measured. Recorded, and judged (:func:`_check_level`); the maps are not scaled by it: on
+    metals and dark materials the network explains much of the photo with its specular lobe,
+    and a scale of the diffuse made them worse than the refinement under the measured flash."""
+    from svbrdf_render.refinement.fit import axis_flash
+
+    size = photo.shape[-1]
+    start = with_card(network.detach().to(torch.float32).resize(size, size), mask, card)
+    guessed = axis_flash(start, photo, distance=float(position[0, 2]), over=position[:, :2])
+    return float(guessed.point_lights[0].intensity.reshape(-1)[0]) / max(intensity, 1e-12)
+
+
+def _check_level(level: float, network: SVBRDF, mask: Tensor, head: str) -> None:
+    """Refuse a card that makes the material's albedo implausible (:data:`MAX_LEVEL_RATIO`)."""
+    luma = network.diffuse.new_tensor((0.2126, 0.7152, 0.0722)).view(1, 3, 1, 1)
+    diffuse = network.diffuse.to(torch.float32)
+    material = ~(
+        torch.nn.functional.interpolate(mask.float(), size=diffuse.shape[-2:], mode="nearest") > 0.5
+    )[:, 0]
+    scaled = diffuse * level
+    white = float((scaled.amax(1) >= 1.0)[material].float().mean())
+    median = float((scaled * luma).sum(1)[material].median())
+    check = "; check that the region covers only the card (not the material or the highlight) and its albedo"
+    if white > MAX_WHITE or level > MAX_LEVEL_RATIO:
+        raise DataError(
+            f"{head}: the card would make the material {level:.1f} times brighter than the network sees it, "
+            f"{white:.0%} of its diffuse white, which no real capture does{check}"
+        )
+    if median < MIN_MATERIAL or level < 1 / MAX_LEVEL_RATIO:
+        raise DataError(
+            f"{head}: the card would make the material {1 / level:.1f} times darker than the network sees it "
+            f"(median albedo {median:.4f}), darker than any real material{check}"
+        )

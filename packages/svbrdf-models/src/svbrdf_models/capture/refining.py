@@ -167,6 +167,8 @@ def refine_prediction(
     scene: Scene | None = None,
     callback: Callable[[int, int, float], None] | None = None,
     backend: str = BACKEND,
+    held: tuple[Tensor, SVBRDF] | None = None,
+    camera: Tensor | None = None,
 ) -> Refinement:
     """Refine ``start`` (a network's maps, any size) against ``photo`` at the photo's size.
 
@@ -181,31 +183,29 @@ def refine_prediction(
             highlight, or over its centre when it shows none).
         callback: ``callback(step, total, loss)`` after each step.
         backend: the renderer's backend (:data:`BACKEND` by default).
+        held: ``(mask (B or 1, 1, H, W), maps)``: a reference card's pixels (:func:`svbrdf_models.
+            capture.reference.pin_flash`), held at its maps and ignored by the highlight finder.
+        camera: ``(3,)`` or ``(B, 3)``: where camera and flash stood (:mod:`svbrdf_models.capture.geometry`):
+            the default scene's place, instead of over the highlight (which still centres the rings).
 
     The refinement runs on ``start``'s device with gradients on (also when called under
     ``torch.no_grad`` or ``torch.inference_mode``); the :class:`~svbrdf_render.Refinement`
     comes back on the CPU.
     """
     steps = check_refine(steps, seconds)
-    if photo.dim() == 3:
-        photo = photo[None]
+    photo = _refinable(photo)
     h, w = photo.shape[-2:]
-    if min(h, w) < MIN_REFINE_SIDE:
-        raise DataError(
-            f"the photo is {w}x{h}, smaller than {MIN_REFINE_SIDE} px: too few pixels to refine "
-            "maps against; give a larger photo, or refine 0 (the network's maps only)"
-        )
     device = start.device
     # Gradients on, even under torch.no_grad or torch.inference_mode (whose tensors are copied
     # into ordinary ones: autograd cannot save inference tensors for the backward pass).
     with torch.inference_mode(False), torch.enable_grad():
         photo = photo.detach().to(device, torch.float32).clone()
         copy = {k: t.detach().clone() for k, t in start.maps().items()}
-        point = highlight_point(photo)
+        point = highlight_point(photo, ignore=None if held is None else held[0])
         start = dering(without_checkerboard(SVBRDF(**copy, validate=False)), point)
         start = refine_start(start, (h, w))  # once: refine_maps takes a photo-sized start as it is
-        if scene is None:  # the flash over the highlight (the centre when there is none)
-            scene = axis_flash(start, photo, over=point)
+        if scene is None:  # the flash at the camera, else over the highlight (the centre when none)
+            scene = axis_flash(start, photo, over=point, position=camera)
         result = refine_maps(
             photo,
             start,
@@ -214,8 +214,22 @@ def refine_prediction(
             seconds=seconds,
             backend=pick_backend(backend, h, w),
             callback=callback,
+            held=held,
+            highlight=None if camera is None else point,  # None: under the scene's light
         )
     return dataclasses.replace(result, svbrdf=result.svbrdf.to("cpu"), scene=result.scene.to("cpu"))
+
+
+def _refinable(photo: Tensor) -> Tensor:
+    """``photo`` as a batch, refused (:class:`DataError`) when too small to refine against."""
+    photo = photo[None] if photo.dim() == 3 else photo
+    h, w = photo.shape[-2:]
+    if min(h, w) < MIN_REFINE_SIDE:
+        raise DataError(
+            f"the photo is {w}x{h}, smaller than {MIN_REFINE_SIDE} px: too few pixels to refine "
+            "maps against; give a larger photo, or refine 0 (the network's maps only)"
+        )
+    return photo
 
 
 @torch.no_grad()

@@ -72,6 +72,7 @@ class TrainedModel:
         scene=None,
         callback=None,
         backend: str | None = None,
+        reference=None,
     ) -> SVBRDF:
         """Maps of linear photos: ``(3, H, W)`` (one material) or ``(N, 3, H, W)``.
 
@@ -95,6 +96,11 @@ class TrainedModel:
         must be at least :data:`svbrdf_render.MIN_REFINE_SIDE`; a refinement this machine's
         free memory cannot hold (about 1.4 KB a pixel) is refused before it starts.
 
+        ``reference``: a matte card of known albedo in one photo, ``"X,Y,W,H:ALBEDO"`` in its
+        pixels (or a :class:`~svbrdf_models.capture.reference.Reference`): the flash measured on
+        it (:func:`~svbrdf_models.capture.reference.pin_flash`), the network shown the photo
+        without it, the refinement run under that flash with the card held; not with ``scene``.
+
         ``refine`` is 0 by default here: the network alone, what a caller in a loop wants.
         ``svbrdf-models predict`` refines by default
         (:data:`svbrdf_render.DEFAULT_REFINE_STEPS` steps, at most 1024 px): give
@@ -104,6 +110,8 @@ class TrainedModel:
         from ..capture.refining import BACKEND, check_refine, check_refine_memory, refine_prediction
 
         steps = check_refine(refine, seconds)
+        if reference is not None:
+            return self._predict_with_reference(batch, steps, reference, seconds, scene, callback, backend)
         if steps == 0:
             return self._network(batch)
         side = min(batch.shape[-2:])
@@ -111,14 +119,40 @@ class TrainedModel:
         check_refine_memory(side, steps, str(self.source), count=batch.shape[0], remedy=remedy)
         squares = torch.stack([square_photo(p.float(), None) for p in batch])
         result = refine_prediction(
-            squares,
-            self._network(squares).to(self.device),
-            steps,
-            seconds=seconds,
-            scene=scene,
-            callback=callback,
-            backend=backend or BACKEND,
-        )
+            squares, self._network(squares).to(self.device), steps, seconds=seconds, scene=scene,
+            callback=callback, backend=backend or BACKEND,
+        )  # fmt: skip
+        return result.svbrdf
+
+    def _predict_with_reference(self, batch, steps, reference, seconds, scene, callback, backend) -> SVBRDF:
+        """:meth:`predict` with a reference card (see there)."""
+        from ..capture.reference import Reference, fill_card, pin_flash, reference_mask
+        from ..capture.refining import BACKEND, check_refine_memory, refine_prediction
+        from ..errors import DataError
+
+        if batch.shape[0] != 1:
+            raise DataError(f"a reference is for one photo; got {batch.shape[0]} photos: predict them one by one")
+        if scene is not None:
+            raise DataError("a reference measures the flash and a scene gives it: give one of them")
+        ref = reference if isinstance(reference, Reference) else Reference.parse(str(reference))
+        _, _, h, w = batch.shape
+        side = min(h, w)
+        box = ((w - side) // 2, (h - side) // 2, side, w, h)
+        where = f"{self.source}"
+        full = square_photo(batch[0].float(), None)
+        seen = fill_card(full, reference_mask(ref, box, side, where))  # the network is not shown the card
+        if steps == 0:
+            square = square_photo(full, self.resolution)
+            network = self._network(square_photo(seen, self.resolution)[None])
+            return pin_flash(square, network, ref, box, where).start(network)
+        check_refine_memory(side, steps, where, remedy="resize the photo smaller first, or refine=0")
+        square = full
+        network = self._network(square_photo(seen, self.resolution)[None])
+        pinned = pin_flash(square, network, ref, box, where)
+        result = refine_prediction(
+            square[None], pinned.start(network).to(self.device), steps, seconds=seconds, scene=pinned.scene,
+            callback=callback, backend=backend or BACKEND, held=(pinned.mask, pinned.card),
+        )  # fmt: skip
         return result.svbrdf
 
     def _check_photo(self, photo: Tensor) -> Tensor:
