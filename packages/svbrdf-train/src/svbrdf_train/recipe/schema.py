@@ -364,11 +364,8 @@ def _check_mix_entry(i: int, entry: Mapping[str, Any]) -> None:
         raise ValueError(f"{where}.path is {path!r} but its source is 'procedural', which reads no files")
 
 
-#: The validation metrics ``train.keep_best`` may choose on (lower is better): the held-out fold
-#: of a materials source, or the held-out samples; never the watched real set (``val_real``).
-KEEP_BEST_METRICS = tuple(
-    f"{prefix}/rmse/{m}" for prefix in ("val_fold", "val") for m in ("render", "normal", "diffuse", "roughness", "specular")
-)
+#: What ``train.keep_best`` may choose on (lower is better); never the watched real set, val_real.
+KEEP_BEST_METRICS = tuple(f"{p}/rmse/{m}" for p in ("val_fold", "val") for m in (*MAP_WEIGHTS, "render"))
 
 
 @dataclass(frozen=True)
@@ -415,13 +412,8 @@ class TrainSection:
         "torch.compile the generator and the discriminator (a compile of tens of seconds to "
         "minutes when the fit starts)",
     )
-    keep_best: str | None = param(
-        None,
-        "keep the weights of the best validation so far in OUT/best.pt, by this metric (lower "
-        "is better): val_fold/rmse/<map> (the held-out fold of a materials source: the honest "
-        "choice) or val/rmse/<map>, <map> one of normal, diffuse, roughness, specular, render; "
-        "never val_real (watched, not chosen on); None: the last step only",
-    )
+    keep_best: str | None = param(None, "keep the best validation's weights in OUT/best.pt, by this metric: "
+                                  "val_fold/rmse/render (the held-out fold) or another of KEEP_BEST_METRICS")
     channels_last: bool = param(False, "keep the networks' images in NHWC memory layout for the convolutions")
     precision: str = param(
         "fp32",
@@ -445,13 +437,8 @@ class TrainSection:
         for name in ("compile", "channels_last"):
             _check(isinstance(getattr(self, name), bool), name, getattr(self, name), "true or false")
         _int_at_least(self.max_steps, "max_steps", 1, none="no limit")
-        if self.keep_best is not None:
-            _check(
-                self.keep_best in KEEP_BEST_METRICS,
-                "keep_best",
-                self.keep_best,
-                "one of " + ", ".join(KEEP_BEST_METRICS) + " (val_real is watched, never chosen on), or null",
-            )
+        ok = self.keep_best is None or self.keep_best in KEEP_BEST_METRICS
+        _check(ok, "keep_best", self.keep_best, "null or one of " + ", ".join(KEEP_BEST_METRICS) + " (never val_real)")
         if self.max_minutes is not None:
             _finite(self.max_minutes, "max_minutes")  # 0: stop after the first step
         _seed(self.seed, "seed")
