@@ -54,6 +54,7 @@ __all__ = [
     "MATERIAL_FORMAT",
     "MaterialContent",
     "check_material_folder",
+    "model_record",
     "photo_sha256",
     "to_directx",
     "write_gif",
@@ -239,9 +240,11 @@ def _write_all(stage: Path, svbrdf: SVBRDF, content: MaterialContent, options) -
                extras={"svbrdf": "material.json"})  # fmt: skip
     write_materialx(stage / "material.mtlx", basecolor="basecolor.png", metallic="metallic.png",
                     roughness="roughness.png", normal=gl_normal, name=_mtlx_name(name))  # fmt: skip
-    flash = (content.record.get("flash") or {}).get("intensity")
+    flash = content.record.get("flash") or {}
+    intensity = flash.get("intensity")
     write_viewer(stage / "index.html", svbrdf.detach().to("cpu", torch.float32), title=name,
-                 intensity=flash if isinstance(flash, (int, float)) and flash > 0 else None)  # fmt: skip
+                 intensity=intensity if isinstance(intensity, (int, float)) and intensity > 0 else None,
+                 light=_above(flash.get("position")), shots=_shot_lights(content.record))  # fmt: skip
     record = {
         "format": MATERIAL_FORMAT,
         "version": MATERIAL_VERSION,
@@ -293,6 +296,29 @@ def _mtlx_name(name: str) -> str:
     return cleaned if not cleaned[0].isdigit() else f"m_{cleaned}"
 
 
+def _above(position) -> list[float] | None:
+    """``position`` when it is three finite numbers with ``z > 0`` (a light the viewer can
+    start at: where the photo's flash was), else None (the viewer's camera flash)."""
+    import math
+
+    if not isinstance(position, (list, tuple)) or len(position) != 3:
+        return None
+    if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in position) or position[2] <= 0:
+        return None
+    return [float(v) for v in position]
+
+
+def _shot_lights(record: dict) -> list:
+    """``[(name, light position)]`` of the shots a capture of several photos records (each
+    shot's ``light``), for the viewer's keys 1-9."""
+    shots = []
+    for i, shot in enumerate(record.get("shots") or []):
+        light = _above(shot.get("light") if isinstance(shot, dict) else None)
+        if light is not None:
+            shots.append((str(shot.get("file") or f"shot {i + 1}"), light))
+    return shots
+
+
 def write_material(folder, svbrdf: SVBRDF, content: MaterialContent, options) -> dict:
     """Write the material folder of one photo (see the module): staged in ``.NAME.PID.tmp``
     beside ``folder``, then moved in, so an error or an interrupt leaves ``folder`` as it was.
@@ -332,6 +358,14 @@ def _move_in(stage: Path, folder: Path) -> None:
                 (folder / old).unlink()
     for new in stage.iterdir():
         os.replace(new, folder / new.name)
+
+
+def model_record(predictor) -> dict:
+    """material.json's ``model``: the source (as text), SHA-256, resolution and training steps of
+    the network that made a material."""
+    model = {key: getattr(predictor, key, None) for key in ("source", "sha256", "resolution")}
+    model["steps"] = getattr(predictor, "steps", getattr(predictor, "step", None))
+    return {k: (str(v) if k == "source" and v is not None else v) for k, v in model.items()}
 
 
 def provenance() -> dict:

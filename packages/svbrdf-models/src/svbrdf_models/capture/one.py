@@ -37,6 +37,7 @@ from svbrdf_render import MAP_NAMES, MIN_REFINE_SIDE, SVBRDF, Refinement, Scene,
 from ..errors import DataError
 from ..modelfile.trained import square_photo
 from .figures import HEAT_MAX, error_heatmap, image_grid
+from .geometry import CaptureGeometry, capture_geometry
 from .material import to_directx
 from .photos import MAX_PIXELS, MIN_SIDE, PhotoError, load_photo, orient, square
 from .reference import Reference
@@ -136,6 +137,12 @@ class CaptureOptions:
         backend: with ``refine``, the renderer's backend (``"auto"``, ``"eager"`` or ``"compiled"``).
         reference: a region of known albedo (:class:`svbrdf_models.capture.reference.Reference`) that
             pins the diffuse albedo's level, before any refinement.
+        fov: the lens's field of view across the photo's longer side as displayed, in degrees,
+            strictly between 1 and 179: where the camera stood follows from it and the square
+            (:mod:`svbrdf_models.capture.geometry`; default: the photo's EXIF focal length).
+        distance: the camera's height over the square's centre, in half-widths of the square
+            (not with ``fov``). Without either, and without EXIF, the refinement's camera and flash
+            stand at 2.2 half-widths over the photo's highlight.
     """
 
     linear: bool = False
@@ -153,6 +160,8 @@ class CaptureOptions:
     scene: Scene | None = None
     backend: str = BACKEND
     reference: Reference | None = None
+    fov: float | None = None
+    distance: float | None = None
 
     def __post_init__(self):
         convention = NORMAL_ALIASES.get(self.normal_convention, self.normal_convention)
@@ -171,7 +180,18 @@ class CaptureOptions:
             raise DataError(f"bits must be 8 or 16, got {self.bits}")
         if self.exr and importlib.util.find_spec("OpenEXR") is None:
             raise DataError("--exr needs the OpenEXR package: pip install 'svbrdf-render[exr]'")
+        self._check_geometry()
         self._check_refine()
+
+    def _check_geometry(self) -> None:
+        from .geometry import check_geometry_options
+
+        fov, distance = check_geometry_options(self.fov, self.distance)
+        object.__setattr__(self, "fov", fov)
+        object.__setattr__(self, "distance", distance)
+        if self.scene is not None and (fov is not None or distance is not None):
+            flag = "--fov" if fov is not None else "--distance"
+            raise DataError(f"{flag} and --scene: the scene places the camera itself; give one of them")
 
     def _check_refine(self) -> None:
         check_refine(self.refine, self.refine_seconds)
@@ -183,6 +203,10 @@ class CaptureOptions:
             raise DataError(
                 f"map size (--map-size) {self.map_size} is smaller than {MIN_REFINE_SIDE} px: too few "
                 "pixels to refine"
+            )
+        if self.reference is not None and self.scene is not None:
+            raise DataError(
+                "a reference (--reference) measures the flash and a scene (--scene) gives it: give one"
             )
         if not self.refine and (self.refine_seconds is not None or self.scene is not None):
             raise DataError(
@@ -223,6 +247,7 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None,
     if not checked:
         check_material_folder(out_dir, path)
     photo, notes = load_photo(path, linear=options.linear, crop=options.crop)
+    geometry = capture_geometry(path, options.crop, fov=options.fov, distance=options.distance)
     side = photo.shape[-1]
     if options.tileable and side < MIN_TILEABLE_PHOTO:
         raise PhotoError(
@@ -230,23 +255,19 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None,
             f"the square is {side} px; --tileable needs at least {MIN_TILEABLE_PHOTO} px of photo",
             "give a larger photo or --crop, or leave out --tileable",
         )
-    photo, svbrdf, tiles = _predict_square(predictor, photo, options, notes, path)
-    svbrdf, reference = _pin_reference(svbrdf, photo, options, path)
+    seen = _without_card(photo, options, path)  # the network does not see a reference card
+    square, svbrdf, tiles = _predict_square(predictor, seen, options, notes, path)
+    photo = square if seen is photo else square_photo(photo, square.shape[-1])
+    pinned = _pin_reference(svbrdf, photo, options, path, geometry)
+    if pinned is not None:  # the card's pixels held at the card
+        svbrdf = pinned.start(svbrdf)
+    reference = None if pinned is None else pinned.record
     if options.refine:  # on the model's device, where the network ran
         device = getattr(predictor, "device", torch.device("cpu"))
-        judged = _judge_refined(photo, svbrdf, options, progress, device)
+        judged = _judge_refined(photo, svbrdf, options, progress, device, geometry, pinned)
     else:
         judged = _judge_network(photo, svbrdf, options)
-    svbrdf, frames, tileable = judged.svbrdf, judged.frames, None
-    if options.tileable:
-        svbrdf, tileable = _tileable(svbrdf)
-        if options.relit != "none":  # the preview shows the maps written
-            frames = torch.cat([frames[:-1], relit_versions([svbrdf])])
-    relit = None
-    if options.relit == "png":
-        relit = relit_grid(frames, judged.versions if len(judged.versions) > 1 else None)
-    elif options.relit == "gif":
-        relit = frames[-1]
+    svbrdf, relit, tileable = _finished(judged, options)
     entry = {
         "photo": str(path),
         "folder": str(out_dir),
@@ -259,20 +280,49 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None,
         "tileable": tileable,
         "reference": reference,
     }
-    record = _material_record(predictor, path, options, entry)
+    record = _material_record(predictor, path, options, entry, geometry)
     write_material(out_dir, svbrdf, MaterialContent(photo, judged.figure, relit, record), options)
     return entry
 
 
-def _pin_reference(svbrdf: SVBRDF, photo: Tensor, options: CaptureOptions, path: Path) -> tuple[SVBRDF, dict | None]:
-    """The maps with the albedo level of ``options.reference`` (a card of known albedo), and
-    its record; the maps as they are without one."""
-    if options.reference is None:
-        return svbrdf, None
-    from .photos import square_box
-    from .reference import pin_albedo
+def _finished(judged: _Judged, options: CaptureOptions):
+    """``(maps, relit preview, tileable record)``: the judged maps made tileable when asked,
+    and the relit preview of the maps written (frames of a GIF, a PNG grid or None)."""
+    svbrdf, frames, tileable = judged.svbrdf, judged.frames, None
+    if options.tileable:
+        svbrdf, tileable = _tileable(svbrdf)
+        if options.relit != "none":  # the preview shows the maps written
+            frames = torch.cat([frames[:-1], relit_versions([svbrdf])])
+    if options.relit == "png":
+        return svbrdf, relit_grid(frames, judged.versions if len(judged.versions) > 1 else None), tileable
+    return svbrdf, frames[-1] if options.relit == "gif" else None, tileable
 
-    return pin_albedo(svbrdf, photo, options.reference, square_box(path, options.crop), str(path))
+
+def _without_card(photo: Tensor, options: CaptureOptions, path: Path) -> Tensor:
+    """The square ``photo`` as the network is shown it: with ``options.reference``'s region
+    filled from the material around it (:func:`svbrdf_models.capture.reference.fill_card`)."""
+    if options.reference is None:
+        return photo
+    from .photos import square_box
+    from .reference import fill_card, reference_mask
+
+    return fill_card(photo, reference_mask(options.reference, square_box(path, options.crop), photo.shape[-1], str(path)))
+
+
+def _pin_reference(svbrdf: SVBRDF, photo: Tensor, options: CaptureOptions, path: Path, geometry=None):
+    """The flash measured on ``options.reference`` (a card of known albedo) in the square
+    ``photo``, camera and flash where ``geometry`` puts them when it knows: a
+    :class:`~svbrdf_models.capture.reference.PinnedFlash`; None without a reference."""
+    if options.reference is None:
+        return None
+    from .photos import square_box
+    from .reference import pin_flash
+
+    known = geometry is not None and geometry.known
+    return pin_flash(
+        photo, svbrdf, options.reference, square_box(path, options.crop), str(path),
+        position=torch.tensor(geometry.position, dtype=torch.float32) if known else None,
+    )  # fmt: skip
 
 
 def _tileable(svbrdf: SVBRDF) -> tuple[SVBRDF, dict]:
@@ -287,18 +337,17 @@ def _tileable(svbrdf: SVBRDF) -> tuple[SVBRDF, dict]:
     return tiled, {"seam_error_before": before, "seam_error_after": seams(tiled)}
 
 
-def _material_record(predictor, path: Path, options: CaptureOptions, entry: dict) -> dict:
-    """material.json's fields that the capture knows: photo, model, refinement, provenance."""
-    from .material import photo_sha256, provenance
+def _material_record(predictor, path: Path, options: CaptureOptions, entry: dict,
+                     geometry: CaptureGeometry) -> dict:  # fmt: skip
+    """material.json's fields that the capture knows: photo, model, refinement, geometry, provenance."""
+    from .material import model_record, photo_sha256, provenance
 
-    model = {key: getattr(predictor, key, None) for key in ("source", "sha256", "resolution")}
-    model["steps"] = getattr(predictor, "steps", getattr(predictor, "step", None))
     return {
         "name": path.stem,
         "photo": {"file": path.name, "sha256": photo_sha256(path), "square": entry["square"],
                   "crop": list(options.crop) if options.crop else None,
                   "encoding": "linear" if options.linear else "srgb"},  # fmt: skip
-        "model": {k: (str(v) if k == "source" and v is not None else v) for k, v in model.items()},
+        "model": model_record(predictor),
         "maps_size": entry["maps"],
         "tiles": entry["tiles"],
         "rerender_rmse": entry["rmse"],
@@ -306,6 +355,7 @@ def _material_record(predictor, path: Path, options: CaptureOptions, entry: dict
         "refine": entry["refine"] or {"budget": 0},
         "tileable": entry["tileable"],
         "reference": entry.get("reference"),
+        "geometry": geometry.record(used=bool(options.refine) and options.scene is None),
         "provenance": provenance(),
     }
 
@@ -327,17 +377,22 @@ def _judge_network(photo: Tensor, svbrdf: SVBRDF, options: CaptureOptions) -> _J
     return _Judged(svbrdf, figure, frames, ["network"], entry)
 
 
-def _judge_refined(photo: Tensor, network: SVBRDF, options: CaptureOptions, progress, device) -> _Judged:
-    """The network's maps refined against ``photo`` on ``device``; both judged under the
-    refinement's scene."""
+def _judge_refined(photo: Tensor, network: SVBRDF, options: CaptureOptions, progress, device,
+                   geometry: CaptureGeometry | None = None, pinned=None) -> _Judged:  # fmt: skip
+    """The network's maps refined against ``photo`` on ``device`` (camera and flash where
+    ``geometry`` puts them, when it knows); both judged under the refinement's scene. With
+    ``pinned`` (a reference card), under the flash measured on it, the card's pixels held."""
+    known = geometry is not None and geometry.known and options.scene is None and pinned is None
     result: Refinement = refine_prediction(
         photo[None],
         network.to(device),
         options.refine,
         seconds=options.refine_seconds,
-        scene=options.scene,
+        scene=options.scene if pinned is None else pinned.scene,
         callback=progress,
         backend=options.backend,
+        camera=torch.tensor(geometry.position) if known else None,
+        held=None if pinned is None else (pinned.mask, pinned.card),
     )
     size = tuple(photo.shape[-2:])
     renderings = [rerender(network, result.scene, size)[0], rerender(result.svbrdf, result.scene)[0]]

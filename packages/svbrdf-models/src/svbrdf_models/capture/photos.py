@@ -39,6 +39,7 @@ __all__ = [
     "file_orientation",
     "load_photo",
     "orient",
+    "read_oriented",
     "square",
     "square_box",
     "square_side",
@@ -253,16 +254,16 @@ def _check_alpha(path: Path, im, notes: list[str]) -> None:
     notes.append("opaque alpha channel dropped")
 
 
-def load_photo(
-    path, *, linear: bool = False, crop: tuple[int, int, int] | None = None
-) -> tuple[Tensor, list[str]]:
-    """Read a flash photo: ``(3, S, S)`` linear float32, the square to capture, and notes.
+def read_oriented(path, *, linear: bool = False) -> tuple[Tensor, list[str]]:
+    """The whole photo as it is shown, ``(3, H, W)`` linear float32 (its EXIF orientation
+    applied; decoded from sRGB unless ``linear``), and notes. Judged as :func:`load_photo`
+    judges it (a :class:`PhotoError` when refused)."""
+    image, notes = _oriented(Path(path))
+    return (image if linear else srgb_to_linear(image)), notes
 
-    The EXIF orientation is applied; ``crop = (x, y, size)`` in pixels of the oriented photo picks
-    the square, else the largest centred one; values are decoded from sRGB unless ``linear``.
-    Refused photos raise :class:`PhotoError` (see the module's docstring for which).
-    """
-    path = Path(path)
+
+def _oriented(path: Path) -> tuple[Tensor, list[str]]:
+    """The whole photo as stored in the file, its EXIF orientation applied, and notes."""
     if not path.exists():
         raise PhotoError(path, "no such file", "check the path")
     if not path.is_file():
@@ -281,7 +282,21 @@ def load_photo(
         notes.append(
             "R, G and B are equal everywhere: a grey picture saved as colour? The diffuse will be grey"
         )
-    image = square(orient(image, orientation), crop, path=path)
+    return orient(image, orientation), notes
+
+
+def load_photo(
+    path, *, linear: bool = False, crop: tuple[int, int, int] | None = None
+) -> tuple[Tensor, list[str]]:
+    """Read a flash photo: ``(3, S, S)`` linear float32, the square to capture, and notes.
+
+    The EXIF orientation is applied; ``crop = (x, y, size)`` in pixels of the oriented photo picks
+    the square, else the largest centred one; values are decoded from sRGB unless ``linear``.
+    Refused photos raise :class:`PhotoError` (see the module's docstring for which).
+    """
+    path = Path(path)
+    image, notes = _oriented(path)
+    image = square(image, crop, path=path)
     clipped = float((image.amin(0) >= 254 / 255).float().mean())  # blown out to white
     if clipped > CLIPPED_SHARE:
         notes.append(f"{clipped:.0%} of the square is clipped (overexposed): expose for the highlight")

@@ -16,6 +16,7 @@ from svbrdf_render.machine import THREADS_HELP
 
 from .._registry import Registry
 from ..capture.refining import DEFAULT_MAP_SIZE, FULL
+from .predict_shots import add_shots_options, run_shots
 
 __all__ = ["MAX_MAP_SIZE", "add_options", "add_parser", "run", "run_predict"]
 
@@ -29,6 +30,7 @@ examples:
   svbrdf-models predict shots/*.png -o maps/ --linear --bits 16 --refine-seconds 20
   svbrdf-models predict big.jpg --model ours.pt -o maps/ --tiles --map-size 1024
   svbrdf-models predict IMG_0042.jpg -o maps/ --crop 600,200,1800 --map-size 512
+  svbrdf-models predict IMG_1.jpg IMG_2.jpg IMG_3.jpg --shots --strip-albedo 0.8 -o maps/  # the frame
 
 The model: --model (a file of svbrdf-train export, an https URL whose name carries its
 SHA-256 prefix, models:/NAME/VERSION or runs:/ID/PATH of MLflow, pretrained[:NAME]); without
@@ -68,7 +70,7 @@ def add_options(p, *, refine: int, refine_note: str, sources=None):
     and ``refine_note`` what its help says of the other command's; ``sources(p)``, when given,
     adds a command's own model options after --model. Returns the group "more options"."""
     more = p.add_argument_group("more options (the ones above are what most captures need)")
-    p.add_argument("photos", nargs="+", type=Path, metavar="PHOTO")
+    p.add_argument("photos", nargs="*", type=Path, metavar="PHOTO")  # or --calibrated DIR
     p.add_argument("-o", "--out", type=Path, required=True, help="output folder")
     p.add_argument(
         "--model",
@@ -105,6 +107,7 @@ def add_options(p, *, refine: int, refine_note: str, sources=None):
         metavar="FILE",
         help="the capture's scene (YAML) to refine under (default: a flash found per photo)",
     )
+    _add_geometry_options(more)
     more.add_argument(
         "--backend",
         choices=["auto", *BACKENDS],
@@ -112,8 +115,68 @@ def add_options(p, *, refine: int, refine_note: str, sources=None):
         help="the renderer's backend for refinement (default: auto, compiled from 512x512 up, where "
         "it is faster than its compile time costs)",
     )
+    _add_calibrated_options(more)
+    add_shots_options(more)
     _add_output_options(p, more)
     return more
+
+
+def _add_geometry_options(more) -> None:
+    """``--fov`` and ``--distance``: where the camera stood (:mod:`svbrdf_models.capture.geometry`)."""
+    more.add_argument(
+        "--fov",
+        type=float,
+        metavar="DEG",
+        help="the lens's field of view across the photo's longer side (as displayed), in degrees, "
+        "strictly between 1 and 179: for a photo whose EXIF lacks the focal length (a screenshot, an "
+        "edited copy). The refinement places the camera and flash from it and the square captured "
+        "(--crop included). Default: the EXIF 35 mm equivalent focal length, else the focal length "
+        "and sensor; with no EXIF, 2.2 square half-widths over the photo's highlight. material.json "
+        "says which (geometry)",
+    )
+    more.add_argument(
+        "--distance",
+        type=float,
+        metavar="D",
+        help="the camera's height over the captured square's centre, in half-widths of the square "
+        "(a 20 cm square shot from 22 cm: 2.2): when you measured it, or for a lens the EXIF "
+        "misdescribes. Not with --fov or --scene",
+    )
+
+
+def _add_calibrated_options(more) -> None:
+    """``--calibrated DIR`` (instead of photos), ``--use`` and ``--holdout``."""
+    more.add_argument(
+        "--calibrated",
+        type=Path,
+        metavar="DIR",
+        help="instead of photos: a calibrated set as MaterialGAN publishes its real captures (00.png, "
+        "01.png, ... rectified, camera_pos.txt, light_pos.txt, image_size.txt, light_power.txt; cm): "
+        "one material refined against every view used, each under its own camera and light, "
+        "written to OUT/DIR-NAME/",
+    )
+    more.add_argument(
+        "--use",
+        type=_view_list,
+        metavar="I,J,...",
+        help="with --calibrated: the views refined against, numbered from 0 (default: all)",
+    )
+    more.add_argument(
+        "--holdout",
+        action="store_true",
+        help="with --calibrated: re-render the views not in --use under their own camera and light "
+        "and report each one's relighting RMSE against its photo (material.json: holdout)",
+    )
+
+
+def _view_list(text: str) -> list[int]:
+    try:
+        views = [int(v) for v in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected view numbers I,J,... (from 0), got {text!r}") from None
+    if any(v < 0 for v in views):
+        raise argparse.ArgumentTypeError(f"view numbers start at 0, got {text!r}")
+    return views
 
 
 def _add_output_options(p, more) -> None:
@@ -225,7 +288,12 @@ def run_predict(args, load, *, prog: str) -> int:
 
     from ..capture.batch import capture_batch, check_material_folders, pick_device, set_threads
 
+    calibrated = _calibrated(args)  # photos, or a calibrated set: one of them
     options = _capture_options(args)
+    if calibrated:
+        return _run_calibrated(args, options, load, prog)
+    if args.shots:
+        return run_shots(args, options, load, prog, _announce)
     device = pick_device(args.device)  # a GPU that is not there is named as such
     check_output_folder(args.out, "-o")  # before the model is loaded and the first photo is done
     check_material_folders(args.photos, args.out)
@@ -272,6 +340,8 @@ def _capture_options(args):
         scene=None if args.scene is None else load_scene(args.scene),
         reference=args.reference,
         backend=args.backend,
+        fov=args.fov,
+        distance=args.distance,
     )
 
 
@@ -309,3 +379,66 @@ def _announce(model, line: str, tile_size: int | None) -> None:
             f"of memory" + (f" ({have / 2**30:.1f} GiB available)" if have is not None else ""),
             file=sys.stderr,
         )
+
+
+def _calibrated(args) -> bool:
+    """Whether ``args`` capture a calibrated set (--calibrated) rather than photos; photos and
+    --calibrated together, neither, or --use and --holdout without --calibrated (and the options
+    of --shots without it) are refused."""
+    from ..errors import DataError
+
+    shots = [f for f, v in (("--strip-albedo", args.strip_albedo), ("--flash-offset", args.flash_offset))
+             if v is not None]  # fmt: skip
+    if shots and not args.shots:
+        raise DataError(f"{shots[0]} goes with --shots")
+    if args.shots and args.calibrated is not None:
+        raise DataError("--shots and --calibrated DIR: give the shots' photos or a calibrated set, not both")
+    if args.calibrated is None:
+        alone = [f for f, v in (("--use", args.use is not None), ("--holdout", args.holdout)) if v]
+        if alone:
+            raise DataError(f"{alone[0]} goes with --calibrated DIR")
+        if not args.photos:
+            raise DataError("no photos: give the photos to capture (PHOTO ...) or --calibrated DIR")
+        return False
+    if args.photos:
+        raise DataError("give photos or --calibrated DIR, not both")
+    return True
+
+
+def _run_calibrated(args, options, load, prog: str) -> int:
+    """``predict --calibrated DIR``: the set checked before the model loads, captured into
+    OUT/DIR-NAME/ (:func:`svbrdf_models.capture.calibrated.capture_calibrated`); the folder and
+    the held-out views' relighting RMSEs printed."""
+    from svbrdf_render.formats.files import check_output_folder
+
+    from ..capture.batch import ProgressBar, pick_device, set_threads
+    from ..capture.calibrated import capture_calibrated, check_options, check_views, read_calibrated
+
+    device = pick_device(args.device)
+    check_output_folder(args.out, "-o")
+    check_options(options)
+    calibrated = read_calibrated(args.calibrated, linear=options.linear)
+    check_views(args.use, len(calibrated[0].files), args.holdout)
+    model, line = load(args, device)
+    _announce(model, line, None)
+    set_threads(args.threads)
+    folder = args.out / calibrated[0].folder.resolve().name
+    bar = ProgressBar(folder.name)
+    try:
+        record = capture_calibrated(model, calibrated, folder, options, use=args.use, holdout=args.holdout,
+                                    progress=bar)  # fmt: skip
+    finally:
+        bar.close()
+    print(str(folder), flush=True)
+    held = record["holdout"]
+    for name, rmse in (held or {}).get("rmse", {}).items():
+        network = _number(held["rmse_network"][name])
+        print(f"{prog}: holdout {name}: relighting RMSE {_number(rmse)} (network's maps {network})")
+    if held:
+        print(f"{prog}: holdout mean of {len(held['rmse'])} view(s): relighting RMSE {_number(held['mean'])} "
+              f"(network's maps {_number(held['mean_network'])})")  # fmt: skip
+    return 0
+
+
+def _number(value) -> str:
+    return "n/a" if value is None else f"{value:.4f}"
