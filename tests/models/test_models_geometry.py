@@ -198,16 +198,26 @@ def test_command_help_teaches_fov_and_distance(capsys):
 
 
 def test_refinement_stands_at_the_photos_geometry_and_material_json_says_so(tmp_path):
-    """An EXIF photo with a crop: the refinement's camera and flash at the geometry's position
-    (not over the highlight at 2.2), and material.json's geometry section gives it and its source."""
+    """An EXIF photo with a crop: the refinement's camera and flash at the geometry's height (not
+    2.2), over the photo's clear highlight when it shows one (the foot of a flash beside the lens:
+    where a tilted phone was), else over the geometry's x and y; material.json's geometry section
+    gives the place and where it came from."""
+    from svbrdf_render.refinement.rings import find_highlight
+
     path = _f35(tmp_path / "shot.jpg")
     options = CaptureOptions(refine=2, relit="none", crop=(0, 0, 64))
     entry = capture_one(_Known(), path, tmp_path / "out", options)
-    want = capture_geometry(path, (0, 0, 64)).position
-    assert entry["flash"]["position"] == pytest.approx(list(want), abs=1e-5)
+    want = list(capture_geometry(path, (0, 0, 64)).position)
+    from svbrdf_models.capture.photos import load_photo
+
+    point, clear = find_highlight(load_photo(path, crop=(0, 0, 64))[0][None])  # the capture's square
+    over = "highlight" if bool(clear[0]) else "square"
+    if over == "highlight":
+        want[:2] = [float(v) for v in point[0]]
+    assert entry["flash"]["position"] == pytest.approx(want, abs=1e-5)
     record = json.loads((tmp_path / "out" / "material.json").read_text())
     geometry = record["geometry"]
-    assert geometry["source"] == "exif-35mm" and geometry["used"] is True and geometry["over"] == "square"
+    assert geometry["source"] == "exif-35mm" and geometry["used"] is True and geometry["over"] == over
     assert geometry["position"] == pytest.approx(list(want), abs=1e-4)
     assert geometry["distance"] == pytest.approx(math.hypot(*want), abs=1e-4)
     assert geometry["focal_length_35mm"] == 26 and geometry["focal_length_mm"] == pytest.approx(4.2)
@@ -264,3 +274,27 @@ def test_refine_prediction_camera_and_axis_flash_position():
     light = result.scene.point_lights[0]
     assert light.position.reshape(-1, 3)[0].tolist() == pytest.approx([0.5, 0.25, 3.0])
     assert result.scene.camera.position.reshape(-1, 3)[0].tolist() == pytest.approx([0.5, 0.25, 3.0])
+
+
+def test_a_tilted_phone_s_flash_stands_over_its_highlight(tmp_path):
+    """A photo whose flash stood 0.3 half-widths right of and 0.2 below the square's centre (a
+    phone held off-centre or tilted): with the lens from EXIF the flash is placed over the
+    highlight, at the height the lens gives, not on the square's axis; ``--distance`` keeps the
+    axis the user states."""
+    from svbrdf_render.refinement.fit import flash_scene
+
+    from svbrdf_render import SVBRDF
+
+    maps = SVBRDF.constant(1, 96, diffuse=(0.2, 0.2, 0.2), roughness=0.3, specular=(0.04, 0.04, 0.04))
+    photo = render(maps, flash_scene(torch.tensor([[0.3, -0.2, 2.0]]), torch.tensor([10.0]))).clamp(0, 1)[0]
+    data = (linear_to_srgb(photo) * 255).round().byte().permute(1, 2, 0).contiguous().numpy()
+    exif = Image.Exif()
+    exif.get_ifd(EXIF_IFD).update({FOCAL_35MM: 26})
+    path = tmp_path / "tilted.jpg"
+    Image.fromarray(data).save(path, format="JPEG", quality=95, exif=exif)
+    entry = capture_one(_Known(96), path, tmp_path / "out", CaptureOptions(refine=2, relit="none"))
+    x, y, z = entry["flash"]["position"]
+    assert (x, y) == pytest.approx((0.3, -0.2), abs=0.08)
+    assert z == pytest.approx(capture_geometry(path).position[2], abs=1e-5)
+    on_axis = capture_one(_Known(96), path, tmp_path / "o2", CaptureOptions(refine=2, relit="none", distance=2.0))
+    assert on_axis["flash"]["position"] == pytest.approx([0.0, 0.0, 2.0], abs=1e-5)

@@ -101,6 +101,8 @@ class CaptureGeometry:
     fov: float | None = None
     photo_size: tuple[int, int] | None = None
     square: tuple[int, int, int] | None = None
+    over: str | None = None
+    """Where x and y came from once placed (:meth:`over_highlight`): "highlight" or "square"."""
 
     @property
     def distance(self) -> float:
@@ -111,6 +113,26 @@ class CaptureGeometry:
     def known(self) -> bool:
         """Whether the position is the photo's own (not the default's guess)."""
         return self.source != "default"
+
+    def over_highlight(self, photo, ignore=None) -> CaptureGeometry:
+        """This geometry with x and y under the clear highlight of ``photo`` ``(3, S, S)`` (the
+        captured square; ``ignore``: a reference card's pixels), its height kept. A flash beside
+        the lens lights its highlight at the foot of the camera on the surface, so a tilted or
+        off-centre phone shows where it was; the lens and the crop alone assume the phone
+        parallel to the surface (a 20 degree tilt moves the flash 0.7 half-widths). Without a
+        clear highlight, for ``--distance`` (the user says the camera stood on the square's axis)
+        or for the default geometry (placed over the highlight anyway), as it is."""
+        import dataclasses
+
+        from svbrdf_render.refinement.rings import find_highlight
+
+        if self.source in ("default", "distance"):
+            return self
+        point, clear = find_highlight(photo[None].float(), ignore)
+        if not bool(clear[0]):
+            return dataclasses.replace(self, over="square")
+        x, y = (float(v) for v in point[0])
+        return dataclasses.replace(self, position=(x, y, self.position[2]), over="highlight")
 
     def record(self, used: bool) -> dict:
         """material.json's ``geometry`` section; ``used``: the refinement's camera and flash
@@ -123,7 +145,7 @@ class CaptureGeometry:
             "source": self.source,
             "position": None if not self.known else [r(v) for v in self.position],
             "distance": r(self.distance if self.known else self.position[2]),
-            "over": "square" if self.known else "highlight",
+            "over": self.over or ("square" if self.known else "highlight"),
             "units": "half-widths of the captured square, from its centre; x right, y up, z out",
             "fov": r(self.fov, 3),
             "focal_length_px": r(self.focal_px, 2),

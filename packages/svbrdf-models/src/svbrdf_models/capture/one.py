@@ -258,6 +258,7 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None,
     seen = _without_card(photo, options, path)  # the network does not see a reference card
     square, svbrdf, tiles = _predict_square(predictor, seen, options, notes, path)
     photo = square if seen is photo else square_photo(photo, square.shape[-1])
+    geometry = geometry.over_highlight(photo, None if options.reference is None else _card_mask(options, path, photo))
     pinned = _pin_reference(svbrdf, photo, options, path, geometry)
     if pinned is not None:  # the card's pixels held at the card
         svbrdf = pinned.start(svbrdf)
@@ -303,10 +304,17 @@ def _without_card(photo: Tensor, options: CaptureOptions, path: Path) -> Tensor:
     filled from the material around it (:func:`svbrdf_models.capture.reference.fill_card`)."""
     if options.reference is None:
         return photo
-    from .photos import square_box
-    from .reference import fill_card, reference_mask
+    from .reference import fill_card
 
-    return fill_card(photo, reference_mask(options.reference, square_box(path, options.crop), photo.shape[-1], str(path)))
+    return fill_card(photo, _card_mask(options, path, photo))
+
+
+def _card_mask(options: CaptureOptions, path: Path, photo: Tensor) -> Tensor:
+    """``(1, 1, S, S)``: the reference card's pixels in the square ``photo``."""
+    from .photos import square_box
+    from .reference import reference_mask
+
+    return reference_mask(options.reference, square_box(path, options.crop), photo.shape[-1], str(path))
 
 
 def _pin_reference(svbrdf: SVBRDF, photo: Tensor, options: CaptureOptions, path: Path, geometry=None):

@@ -26,7 +26,7 @@ from torch import Tensor
 from ..geometry import surface_positions
 from ..maps import SVBRDF
 
-__all__ = ["RINGS", "RingBins", "dering", "highlight_point", "ring_penalty"]
+__all__ = ["RINGS", "RingBins", "dering", "find_highlight", "highlight_point", "ring_penalty"]
 
 #: Rings of equal width from the point under the flash to the farthest pixel.
 RINGS = 16
@@ -44,6 +44,11 @@ _MAX_GAIN = 4.0
 
 
 def highlight_point(photo: Tensor, ignore: Tensor | None = None) -> Tensor:
+    """:func:`find_highlight`'s point alone (the centre where there is no clear highlight)."""
+    return find_highlight(photo, ignore)[0]
+
+
+def find_highlight(photo: Tensor, ignore: Tensor | None = None) -> tuple[Tensor, Tensor]:
     """``(B, 2)``: the patch coordinates (``x, y`` in ``[-1, 1]``, as
     :func:`~svbrdf_render.geometry.surface_positions`) of the brightest point of each photo
     ``(B, 3, H, W)`` after a box blur an eighth of its width wide: where the flash's highlight
@@ -53,7 +58,8 @@ def highlight_point(photo: Tensor, ignore: Tensor | None = None) -> Tensor:
 
     ``ignore``: ``(B or 1, 1, H, W)``, true where the pixels are not the material (a grey card
     or a printed strip, brighter than the material, must not pass for the flash's highlight):
-    they count as black."""
+    they count as black. Returns the points and ``(B,)`` whether each photo shows a clear
+    highlight."""
     b, _, h, w = photo.shape
     y = photo.float().mean(1, keepdim=True)
     if ignore is not None:
@@ -63,7 +69,7 @@ def highlight_point(photo: Tensor, ignore: Tensor | None = None) -> Tensor:
     top, i = blurred.max(1)
     clear = (top >= MIN_PEAK * blurred.median(1).values).float()[:, None]
     rows, cols = (i // w).float(), (i % w).float()
-    return torch.stack([2 * (cols + 0.5) / w - 1, 1 - 2 * (rows + 0.5) / h], dim=1) * clear
+    return torch.stack([2 * (cols + 0.5) / w - 1, 1 - 2 * (rows + 0.5) / h], dim=1) * clear, clear[:, 0] > 0
 
 
 def _slopes(normal: Tensor) -> Tensor:
