@@ -6,7 +6,14 @@
 # (--keep-best val_fold/rmse/render); DATA/unseen-dev watched as val_real/, never chosen on;
 # 240 minutes of CPU time on one thread. Later stages (the phone's flash as it is) start from
 # its best.pt.
-# Run from the repository root:  fits/ours-real191/run.sh [start|resume]
+# Stage 2 (`stage2`): the phone's flash as it is: data.capture=handheld (the LED beside the
+# lens, its beam, the camera up to 0.6 half-widths off-centre, vignetting, a residual tone
+# curve, JPEG for 80%) for the procedural and the real samples alike, the real ones
+# drawn balanced by kind (data.balance=kind) with the stated albedo prior (median diffuse
+# luminance 0.12, log-sd 0.7: darker than the two folders' 0.17), from stage 1's best step,
+# into out-2/, 240 CPU minutes, fold 1/5 kept out as before. `resume-2` resumes it.
+# Run from the repository root:
+#   fits/ours-real191/run.sh [start|resume|stage2|resume-2] [extra fit flags]
 # State (checkpoints, MLflow store, log) stays in this folder so that a later session resumes it;
 # the shard is made again from the two folders when missing (the same bytes every time).
 set -euo pipefail
@@ -28,8 +35,23 @@ if [ "$mode" = start ]; then
           --set data.count=400000 --set train.epochs=1 --set data.validation=16
           --set train.validate_every=500 --set train.checkpoint_every=250
           --set "data.real_validation=$DATA/unseen-dev")
+elif [ "$mode" = stage2 ]; then
+    args=(--recipe ours-materials --size cpu --init "${INIT2:-$DIR/out/best.pt}" --data "$SHARD"
+          --out "${OUT2:-$DIR/out-2}" --experiment issue-46 --max-minutes 240
+          --keep-best val_fold/rmse/render
+          --set "data.mix=[{source: procedural, weight: 0.5}, {source: materials, weight: 0.5, fold: '1/5'}]"
+          --set data.capture=handheld --set data.balance=kind --set "data.albedo_prior=[0.12, 0.7]"
+          --set data.count=400000 --set train.epochs=1 --set data.validation=16
+          --set train.validate_every=500 --set train.checkpoint_every=250
+          --set "data.real_validation=$DATA/unseen-dev")
+elif [ "$mode" = resume-2 ]; then
+    args=(--out "${OUT2:-$DIR/out-2}" --resume)
 else
     args=(--out "$DIR/out" --resume)
 fi
-setsid nohup nice .venv/bin/svbrdf-train fit "${args[@]}" -q >> "$DIR/fit.log" 2>&1 < /dev/null &
+shift || true
+if [ -n "${FOREGROUND:-}" ]; then  # a dry run: in the foreground, with the extra flags
+    exec .venv/bin/svbrdf-train fit "${args[@]}" "$@"
+fi
+setsid nohup nice .venv/bin/svbrdf-train fit "${args[@]}" "$@" -q >> "$DIR/fit.log" 2>&1 < /dev/null &
 echo "fit started (pid $!): tail -f $DIR/fit.log"

@@ -27,12 +27,13 @@ from svbrdf_render import (
 )
 
 ALL = list(EFFECTS)
-IMAGE_EFFECTS = ["vignetting", "exposure", "noise", "clip", "gamma"]
+IMAGE_EFFECTS = ["vignetting", "exposure", "noise", "clip", "tone", "gamma"]
 NEUTRAL = {
     "vignetting": {"strength": 0.0},
     "exposure": {"ev": 0.0},
     "noise": {"sigma": 0.0},
     "clip": {"max": 1e30},
+    "tone": {"power": 1.0, "shoulder": 0.0},
     "gamma": {"gamma": 1.0},
 }
 

@@ -182,7 +182,7 @@ def test_a_batch_with_vignetting_renders_as_one_by_one():
     scenes = [data.scene(i).with_effects({**data.scene(i).effects, "vignetting": {}}) for i in range(3)]
     assert len({s.camera.fov for s in scenes}) == 3
     image = [name for name, e in EFFECTS.items() if e.phase == "image"]
-    assert _IMAGE_STAGES == ("exposure", "noise", "clip", "gamma") == tuple(image[1:])
+    assert _IMAGE_STAGES == ("exposure", "noise", "clip", "tone", "gamma") == tuple(image[1:])
     assert EFFECTS[image[0]].needs_camera  # vignetting, run first in the batch as render() runs it
     one_by_one = torch.cat(
         [render(SVBRDF.unpack(batch["maps"][k : k + 1], validate=False), s) for k, s in enumerate(scenes)]

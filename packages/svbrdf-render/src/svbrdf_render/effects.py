@@ -24,6 +24,9 @@ exposure       image    ``ev`` (0.0): multiply by ``2**ev``
 noise          image    ``sigma`` (0.01), ``shot`` (0.0), ``seed`` (0): Gaussian read noise
                         plus signal-dependent shot noise, variance ``sigma^2 + shot x``
 clip           image    ``max`` (1.0): clamp to ``[0, max]`` (sensor saturation)
+tone           image    ``power`` (1.0), ``shoulder`` (0.0): a phone's tone curve as it is left
+                        in a linearised photo, ``y = x**power`` then the highlight roll-off
+                        ``y (1 + shoulder) / (1 + shoulder y)`` (0 and 1 stay put)
 gamma          image    ``gamma`` (2.2): ``x ** (1/gamma)`` after clamping at 1e-8
 =============  =======  ====================================================================
 
@@ -291,6 +294,29 @@ def _gamma(params, declared):
     return lambda x, p, geo, gen: x.clamp_min(_GAMMA_FLOOR).pow(inv)
 
 
+def _tone(params, declared):
+    power, shoulder = params["power"], params["shoulder"]
+
+    def tone(x, p, geo, gen):
+        # Clamped at a floor first: a power below 1 has an infinite slope at 0.
+        y = x.clamp_min(_GAMMA_FLOOR)
+        if power != 1.0:
+            y = y.pow(power)
+        if shoulder > 0:
+            y = y * (1 + shoulder) / (1 + shoulder * y)
+        return y
+
+    return tone
+
+
+def _check_tone(p):
+    if not 0.25 <= p["power"] <= 4:
+        return f"power must be in [0.25, 4], got {p['power']}"
+    if not 0 <= p["shoulder"] <= 20:
+        return f"shoulder must be in [0, 20], got {p['shoulder']}"
+    return None
+
+
 def _positive(key: str):
     return lambda p: None if p[key] > 0 else f"{key} must be > 0, got {p[key]}"
 
@@ -309,6 +335,8 @@ _register("exposure", "image", "gain 2**ev", stage=_exposure, ev=0.0)
 _register("noise", "image", "seeded sensor noise", stage=_noise, check=_check_noise,
           sigma=0.01, shot=0.0, seed=0)
 _register("clip", "image", "saturation to [0, max]", stage=_clip, check=_positive("max"), max=1.0)
+_register("tone", "image", "tone curve x**power with a highlight shoulder", stage=_tone,
+          check=_check_tone, power=1.0, shoulder=0.0)
 _register("gamma", "image", "display encoding x**(1/gamma)", stage=_gamma, check=_positive("gamma"),
           gamma=2.2)
 

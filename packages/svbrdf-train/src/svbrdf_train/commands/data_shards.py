@@ -18,6 +18,7 @@ import click
 from svbrdf_render.formats.files import raise_if_interrupted
 
 from ..errors import DataError
+from ..recipe.datasection import CAPTURES
 from .options import SEED, FiniteFloatRange, explicit, threads_option
 
 #: Largest side of a shard's samples: one 4096 px sample already takes about 1 GB in memory.
@@ -147,11 +148,12 @@ def _summary(out: Path, count: int, resolution: int, bits: int, seconds: float) 
 )
 @click.option(
     "--capture",
-    type=click.Choice(["des18", "phone"]),
+    type=click.Choice(CAPTURES),
     default="des18",
     show_default=True,
-    help="How the photos are taken: des18 (the Des18 inputs' flash) or phone (flashes fitted to "
-    "real phone photos, white balance, JPEG); recorded with the photo settings.",
+    help="How the photos are taken: des18 (the Des18 inputs' flash), phone (flashes fitted to "
+    "real phone photos, white balance, JPEG) or handheld (phone plus the LED beside the lens, "
+    "its beam, the camera off-centre, vignetting, a tone curve); recorded with the photo settings.",
 )
 @click.option("--force", is_flag=True, help="Replace --out if it exists.")
 @threads_option()

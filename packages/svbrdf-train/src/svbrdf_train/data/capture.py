@@ -79,8 +79,24 @@ class PhotoSettings:
     after the clip and before any gamma: the photo stays linear."""
     jpeg_quality: tuple[int, int] = (75, 95)
     """JPEG quality range (integers 1-100, drawn uniformly, both ends included)."""
+    flash_offset_min: float = 0.0
+    """Smallest distance of the flash from the lens (half-widths): with a positive value the
+    flash is drawn uniformly over the ring between it and ``flash_offset``, as a phone's LED,
+    which always sits beside the lens. 0: the disc."""
+    beam_exponent: tuple[float, float] | None = None
+    """Range of the flash beam's ``cos^exponent`` fall-off (the renderer's ``beam`` effect,
+    aimed at the patch centre), drawn uniformly; None: no beam (an ideal point light)."""
+    vignetting: tuple[float, float] | None = None
+    """Range of the lens's vignetting strength (the renderer's ``vignetting`` effect: 1 is the
+    full ``cos^4``), drawn uniformly; None: none."""
+    tone_power: tuple[float, float] | None = None
+    """Range of the residual tone curve's power (the renderer's ``tone`` effect: what a phone's
+    curve leaves in a photo linearised as sRGB), drawn log-uniformly; None: no tone effect."""
+    tone_shoulder: tuple[float, float] = (0.0, 0.0)
+    """Range of the tone curve's highlight shoulder (uniform); used with ``tone_power``."""
 
     def __post_init__(self):
+        self._check_phone_ranges()
         for name in ("fov", "exposure_ev", "noise_sigma", "noise_shot", "camera_shift", "jpeg_quality"):
             low, high = getattr(self, name)
             if not low <= high:
@@ -118,6 +134,24 @@ class PhotoSettings:
         if not (all(int(v) == v for v in q) and 1 <= q[0] and q[1] <= 100):
             raise DataError(f"PhotoSettings.jpeg_quality: expected integers in [1, 100], got {q}")
 
+    def _check_phone_ranges(self) -> None:
+        limits = {"beam_exponent": (0.0, 1000.0), "vignetting": (0.0, 1.0), "tone_power": (0.25, 4.0),
+                  "tone_shoulder": (0.0, 20.0)}
+        for name, (lo, hi) in limits.items():
+            value = getattr(self, name)
+            if value is None:
+                continue
+            ok = len(value) == 2 and all(isinstance(v, (int, float)) and math.isfinite(v) for v in value)
+            if not (ok and lo <= value[0] <= value[1] <= hi):
+                raise DataError(
+                    f"PhotoSettings.{name}: expected (low, high) with {lo} <= low <= high <= {hi}, got {value}"
+                )
+        if not 0 <= self.flash_offset_min <= self.flash_offset:
+            raise DataError(
+                f"PhotoSettings.flash_offset_min: expected 0 <= flash_offset_min <= flash_offset "
+                f"({self.flash_offset}), got {self.flash_offset_min}"
+            )
+
     @classmethod
     def preset(cls, name: str) -> PhotoSettings:
         """The settings of a named capture (:data:`CAPTURE_PRESETS`): ``"des18"``, today's
@@ -141,6 +175,17 @@ class PhotoSettings:
 #: (15 / 2.3^2 = 2.8), +0.25 EV, and rounds off the edges of the range by +-0.25 EV. White
 #: balance within 8% (R and B gains against G), half the photos JPEG-compressed at quality
 #: 75-95 (what phone cameras save), flash offset and camera shift as des18.
+#:
+#: ``handheld``: ``phone`` plus what a phone's flash and camera do that the fitted flashes
+#: leave out (issue 46): the LED 0.08-0.3 half-widths beside the lens (about 1 cm on a patch
+#: 7-12 cm wide), its beam ``cos^0-4`` (half power from 36 degrees off its axis to none),
+#: the camera up to 0.6 half-widths off the patch's axis (the highlight anywhere in the
+#: central half; at distance 2.3 that is a tilt of up to 15 degrees aimed at the centre,
+#: which the beam and vignetting follow), vignetting up to half the ``cos^4``, a residual
+#: tone curve (power 0.85-1.2, highlight shoulder 0-1.5), white balance within 10%, exposure
+#: -0.25 to +0.75 EV, des18's noise (a phone denoises what a wider range would add) and 80%
+#: of the photos JPEG at quality 70-95. Its draws come from a stream of their own: the other presets' photos are
+#: what they were.
 CAPTURE_PRESETS: dict[str, dict[str, Any]] = {
     "des18": {},
     "phone": {
@@ -150,6 +195,21 @@ CAPTURE_PRESETS: dict[str, dict[str, Any]] = {
         "white_balance": 0.08,
         "jpeg_probability": 0.5,
         "jpeg_quality": (75, 95),
+    },
+    "handheld": {
+        "distance": (1.8, 3.7),
+        "intensity": (10.0, 21.0),
+        "exposure_ev": (-0.25, 0.75),
+        "white_balance": 0.1,
+        "jpeg_probability": 0.8,
+        "jpeg_quality": (70, 95),
+        "flash_offset": 0.3,
+        "flash_offset_min": 0.08,
+        "camera_shift": (0.0, 0.6),
+        "beam_exponent": (0.0, 4.0),
+        "vignetting": (0.0, 0.5),
+        "tone_power": (0.85, 1.2),
+        "tone_shoulder": (0.0, 1.5),
     },
 }
 
@@ -171,6 +231,26 @@ def _capture_draws(seed: int, index: int, s: PhotoSettings) -> tuple[float | Non
     if s.white_balance > 0:
         color = torch.tensor([1.0 + s.white_balance * red, 1.0, 1.0 + s.white_balance * blue])
     return intensity, color, (quality if jpeg else None)
+
+
+def _handheld_effects(seed: int, index: int, s: PhotoSettings) -> list[Any]:
+    """The declared beam, vignetting and tone of a photo under ``s`` (none under the presets
+    without them), drawn from a stream of their own so that the other draws stay put."""
+    h = Draw(key(seed, index, PHOTO, 2))
+    u_beam, u_vignetting, u_power, u_shoulder = h.uniform(), h.uniform(), h.uniform(), h.uniform()
+    out: list[Any] = []
+    if s.beam_exponent is not None:
+        low, high = s.beam_exponent
+        out.append({"beam": {"exponent": low + (high - low) * u_beam}})
+    if s.vignetting is not None:
+        low, high = s.vignetting
+        out.append({"vignetting": {"strength": low + (high - low) * u_vignetting}})
+    if s.tone_power is not None:
+        low, high = math.log(s.tone_power[0]), math.log(s.tone_power[1])
+        lo_s, hi_s = s.tone_shoulder
+        power, shoulder = math.exp(low + (high - low) * u_power), lo_s + (hi_s - lo_s) * u_shoulder
+        out.append({"tone": {"power": power, "shoulder": shoulder}})
+    return out
 
 
 def photo_scene(seed: int, index: int, settings: PhotoSettings | None = None) -> Scene:
@@ -199,7 +279,12 @@ def photo_scene(seed: int, index: int, settings: PhotoSettings | None = None) ->
     else:  # the same one draw, so the draws after it stay those of the des18 settings
         distance = d.log_uniform(*s.distance)
         fov = 2 * math.degrees(math.atan(1.0 / distance))
-    radius = s.flash_offset * math.sqrt(d.uniform())  # uniform over the disc
+    u_radius = d.uniform()
+    if s.flash_offset_min > 0:  # uniform over the ring between the two radii
+        low2 = s.flash_offset_min * s.flash_offset_min
+        radius = math.sqrt(low2 + (s.flash_offset * s.flash_offset - low2) * u_radius)
+    else:
+        radius = s.flash_offset * math.sqrt(u_radius)  # uniform over the disc
     cs, sn = d.angle()
     ev, sigma, shot = d.uniform(*s.exposure_ev), d.uniform(*s.noise_sigma), d.uniform(*s.noise_shot)
     noise_seed = d.seed()
@@ -208,6 +293,7 @@ def photo_scene(seed: int, index: int, settings: PhotoSettings | None = None) ->
     shift_cos, shift_sin = d.angle()
     drawn = {"exposure": {"ev": ev}, "noise": {"sigma": sigma, "shot": shot, "seed": noise_seed}}
     effects: list[Any] = [{name: drawn[name]} if name in drawn else name for name in PHOTO_EFFECTS]
+    effects += _handheld_effects(seed, index, s)
     if gamma:
         effects.append({"gamma": {"gamma": s.gamma}})
     camera = Camera(torch.tensor([shift * shift_cos, shift * shift_sin, distance]), fov)

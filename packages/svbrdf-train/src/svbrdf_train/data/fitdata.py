@@ -81,6 +81,8 @@ class DataSettings(Protocol):
     capture: str
     fold: str | None
     mix: tuple[dict, ...] | None
+    balance: str
+    albedo_prior: tuple[float, float] | None
 
 
 def data_paths(path: str | tuple[str, ...] | list[str] | None) -> list[Path]:
@@ -132,6 +134,8 @@ def section_datasets(d: DataSettings, res: int) -> tuple[Dataset, Dataset]:
             validation=d.validation if entry.get("validation") is None else entry["validation"],
             fold=entry.get("fold"),
             mix=None,
+            balance=d.balance if entry["source"] == "materials" else "none",
+            albedo_prior=d.albedo_prior if entry["source"] == "materials" else None,
         )
         try:
             train, val = _source_datasets(part, res)
@@ -446,7 +450,8 @@ def _strip_datasets(d: DataSettings, res: int) -> tuple[Dataset, Dataset]:
     bank = _bank(paths[0])
     train, held = fold_split(bank.names, d.fold, str(paths[0]))
     photo = PhotoSettings.preset(d.capture)
-    train_set = MaterialStrips(bank.select(train), d.count, res, seed=d.seed, photo=photo)
+    train_set = MaterialStrips(bank.select(train), d.count, res, seed=d.seed, photo=photo,
+                               balance=d.balance, albedo_prior=d.albedo_prior)
     if not held:
         return train_set, Subset(train_set, [])
     val = bank.select(held)

@@ -45,6 +45,7 @@ from svbrdf_render import SVBRDF, decode_normal
 from ..errors import DataError
 from .capture import PhotoSettings, photo_jpeg_quality, photo_scene, photographs
 from .des18 import DIHEDRAL_COUNT, dihedral
+from .kinds import kind_weights
 from .seeds import key
 from .strip_bank import MaterialBank
 
@@ -58,10 +59,17 @@ ALBEDO_SCALE = (0.8, 1.25)
 ALBEDO_CEILING = 0.95
 #: The stream of a strip's photo draws (beside procedural data's streams in :mod:`.seeds`).
 _STRIP_STREAM = 0x5354
+#: The stream of the material and albedo draws of a balanced or prior-matched source, apart
+#: from the window's, so that a source without them draws what it always drew.
+_MIX_STREAM = 0x4B49
+#: How far the albedo prior may move a material's diffuse (factor range): a dark wood stays a
+#: dark wood, only brighter or darker.
+PRIOR_FACTOR = (0.5, 2.0)
+_LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
-def _generator(seed: int, epoch: int, index: int) -> torch.Generator:
-    words = np.random.SeedSequence([seed, 0x5354, epoch, index]).generate_state(2, dtype=np.uint32)
+def _generator(seed: int, epoch: int, index: int, stream: int = _STRIP_STREAM) -> torch.Generator:
+    words = np.random.SeedSequence([seed, stream, epoch, index]).generate_state(2, dtype=np.uint32)
     return torch.Generator().manual_seed(int(words[0]) << 32 | int(words[1]))
 
 
@@ -145,6 +153,14 @@ class MaterialStrips(Dataset):
     Each item is the sample dict of :mod:`.sample` (``input``, ``maps``, ``name`` =
     ``strip:<material>``). See the module doc for the draws; ``augment=False`` gives the
     whole tile under a fixed photo, for validation.
+
+    ``weights`` (one per material; ``balance="kind"``: :func:`.kinds.kind_weights`): sample
+    ``i`` shows a material drawn with these weights instead of material ``i % len(bank)``.
+    ``albedo_prior`` ``(median, sigma)``: the diffuse of each sample is scaled towards a mean
+    luminance drawn log-normally around ``median`` (``sigma`` in natural-log units), by a
+    factor within :data:`PRIOR_FACTOR` and under the ceiling, instead of by
+    :data:`ALBEDO_SCALE`: the brightness mix then follows the prior, not the sources' level.
+    Both act only with ``augment``.
     """
 
     def __init__(
@@ -156,6 +172,9 @@ class MaterialStrips(Dataset):
         seed: int = 0,
         photo: PhotoSettings | None = None,
         augment: bool = True,
+        weights: Sequence[float] | None = None,
+        balance: str = "none",
+        albedo_prior: tuple[float, float] | None = None,
     ):
         if len(bank) == 0:
             raise DataError(f"{bank.where}: no materials to draw from")
@@ -167,6 +186,21 @@ class MaterialStrips(Dataset):
         self.bank, self.count, self.resolution = bank, int(count), int(resolution)
         self.seed, self.augment, self.epoch = int(seed), bool(augment), 0
         self.photo = photo or PhotoSettings()
+        self._cumulative = None
+        if balance == "kind" and weights is None:
+            weights = kind_weights(bank.names)
+        if weights is not None:
+            w = np.asarray(weights, dtype=np.float64)
+            if w.shape != (len(bank),) or not np.isfinite(w).all() or (w < 0).any() or w.sum() <= 0:
+                raise DataError(f"{bank.where}: expected {len(bank)} finite weights >= 0, not all 0")
+            self._cumulative = np.cumsum(w) / w.sum()
+        self.albedo_prior = None
+        if albedo_prior is not None:
+            median, sigma = (float(v) for v in albedo_prior)
+            if not (0 < median < 1 and 0 <= sigma <= 3):
+                raise DataError(f"albedo prior: expected (median in (0, 1), sigma in [0, 3]), got {albedo_prior}")
+            self.albedo_prior = (median, sigma)
+            self._luminance = [float(_LUMA @ m[3:6].reshape(3, -1).mean(1)) / 255 for m in bank.maps]
 
     def __len__(self) -> int:
         return self.count
@@ -175,9 +209,25 @@ class MaterialStrips(Dataset):
         """Draw other windows, turns and photos from now on."""
         self.epoch = int(epoch)
 
+    def _material(self, index: int) -> tuple[int, float | None]:
+        """The material of sample ``index`` and the albedo factor the prior asks (None: no
+        prior)."""
+        if not self.augment or (self._cumulative is None and self.albedo_prior is None):
+            return index % len(self.bank), None
+        g = _generator(self.seed, self.epoch, index, _MIX_STREAM)
+        u, z = torch.rand((), generator=g, dtype=torch.float64), torch.randn((), generator=g, dtype=torch.float64)
+        m = index % len(self.bank)
+        if self._cumulative is not None:
+            m = min(int(np.searchsorted(self._cumulative, float(u), side="right")), len(self.bank) - 1)
+        if self.albedo_prior is None:
+            return m, None
+        median, sigma = self.albedo_prior
+        target = median * math.exp(sigma * float(z))
+        return m, min(max(target / max(self._luminance[m], 1e-4), PRIOR_FACTOR[0]), PRIOR_FACTOR[1])
+
     def placement(self, index: int) -> StripCrop:
         """The window, turn and albedo factor of sample ``index`` this epoch."""
-        m = index % len(self.bank)
+        m, prior = self._material(index)
         tile = self.bank.maps[m].shape[-1]
         if not self.augment:
             return StripCrop(m, tile, 0, 0, 0, 1.0)
@@ -186,7 +236,8 @@ class MaterialStrips(Dataset):
         side = min(tile, max(self.resolution, round(tile * _log_uniform(g, low, CROP_SIDE[1]))))
         top, left = (int(v) for v in torch.randint(0, tile - side + 1, (2,), generator=g))
         k = int(torch.randint(0, DIHEDRAL_COUNT, (1,), generator=g))
-        return StripCrop(m, side, top, left, k, _log_uniform(g, *ALBEDO_SCALE))
+        albedo = _log_uniform(g, *ALBEDO_SCALE)
+        return StripCrop(m, side, top, left, k, albedo if prior is None else prior)
 
     def maps(self, index: int) -> SVBRDF:
         """The maps of sample ``index`` ``(1, ...)`` at the resolution."""
@@ -223,7 +274,7 @@ class MaterialStrips(Dataset):
         return index % self.count
 
     def _name(self, index: int) -> str:
-        return f"strip:{self.bank.names[index % len(self.bank)]}"
+        return f"strip:{self.bank.names[self._material(index)[0]]}"
 
     def __repr__(self) -> str:
         return (

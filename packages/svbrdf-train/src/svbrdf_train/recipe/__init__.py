@@ -42,22 +42,9 @@ from .files import (
     with_overrides,
 )
 from .registry import RECIPE_GROUP, list_recipes, recipe_path
-from .schema import (
-    CAPTURES,
-    KEEP_BEST_METRICS,
-    MAX_RESOLUTION,
-    MAX_SEED,
-    MIN_RESOLUTION,
-    MIX_KEYS,
-    MIX_SOURCES,
-    SIZES,
-    DataSection,
-    LossSection,
-    NetworkSection,
-    OptimSection,
-    Recipe,
-    TrainSection,
-)
+from .datasection import BALANCES, CAPTURES, MIX_KEYS, MIX_SOURCES, DataSection
+from .schema import KEEP_BEST_METRICS, LossSection, NetworkSection, OptimSection, Recipe, TrainSection
+from .values import MAX_RESOLUTION, MAX_SEED, MIN_RESOLUTION, SIZES
 
 __all__ = [
     "SIZES",
@@ -66,6 +53,7 @@ __all__ = [
     "MAX_RESOLUTION",
     "RECIPE_GROUP",
     "CAPTURES",
+    "BALANCES",
     "KEEP_BEST_METRICS",
     "NetworkSection",
     "LossSection",

@@ -25,7 +25,8 @@ from svbrdf_render.formats.yamlio import safe_load
 from ..errors import RecipeError
 from .checks import check_recipe, show
 from .registry import recipe_path
-from .schema import SECTIONS, TOP_LEVEL, Recipe, suggest
+from .schema import SECTIONS, TOP_LEVEL, Recipe
+from .values import suggest
 
 __all__ = [
     "RecipeFile",

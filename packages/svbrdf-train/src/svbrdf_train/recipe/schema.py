@@ -20,9 +20,8 @@ Sections build what they describe:
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -30,73 +29,26 @@ from svbrdf_models import param
 from svbrdf_render.renderer import BACKENDS
 
 from ..training.paper_weights import MAP_WEIGHTS
+from .datasection import DataSection
+from .values import MAX_RESOLUTION, MIN_RESOLUTION, _check, _finite, _int_at_least, _number, _seed
 
 if TYPE_CHECKING:  # annotations only: these modules read no recipe, so nothing imports back
     import torch
-    from torch.utils.data import Dataset
 
     from ..training.losses import GanLoss
     from ..training.schedule import LrSchedule, ScheduledRate
 
 __all__ = [
-    "SIZES",
-    "MAX_SEED",
-    "MIN_RESOLUTION",
-    "MAX_RESOLUTION",
     "BATCH_RULES",
-    "CAPTURES",
     "KEEP_BEST_METRICS",
-    "MIX_KEYS",
-    "MIX_SOURCES",
     "NetworkSection",
     "LossSection",
     "OptimSection",
-    "DataSection",
     "TrainSection",
     "Recipe",
     "SECTIONS",
     "TOP_LEVEL",
-    "suggest",
 ]
-
-#: Sizes every built-in recipe has: the paper's, one for a CPU in minutes, one for tests.
-SIZES = ("paper", "cpu", "smoke")
-#: Seeds are drawn from [0, MAX_SEED] (numpy's SeedSequence refuses negative ones).
-MAX_SEED = 2**32 - 1
-#: Training sizes in pixels: below, no network has a layer left; above, no GPU holds a batch.
-MIN_RESOLUTION, MAX_RESOLUTION = 8, 8192
-
-
-def _number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
-def _check(ok: bool, field: str, value: Any, expected: str) -> None:
-    """ValueError ``"field must be expected, got value"`` unless ``ok``."""
-    if not ok:
-        raise ValueError(f"{field} must be {expected}, got {value!r}")
-
-
-def _finite(value: Any, field: str, *, low: float = 0.0, positive: bool = False) -> None:
-    ok = _number(value) and math.isfinite(value) and (value > low if positive else value >= low)
-    _check(ok, field, value, f"a finite number {'>' if positive else '>='} {low:g}")
-
-
-def _int_at_least(value: Any, field: str, low: int, *, none: str | None = None) -> None:
-    if value is None and none is not None:
-        return
-    expected = f"at least {low}" + (f" (or null: {none})" if none else "")
-    _check(value is not None and value >= low, field, value, expected)
-
-
-def _seed(value: int, field: str) -> None:
-    _check(0 <= value <= MAX_SEED, field, value, f"in [0, {MAX_SEED}] (2**32 - 1)")
-
-
-def suggest(key: str, options: Iterable[str]) -> str:
-    """`` (did you mean 'x'?)`` for the option closest to a mistyped ``key``, else ``""``."""
-    close = difflib.get_close_matches(key, list(options), n=1, cutoff=0.5)
-    return f" (did you mean {close[0]!r}?)" if close else ""
 
 
 @dataclass(frozen=True)
@@ -227,141 +179,6 @@ class OptimSection:
         optimiser = torch.optim.Adam(params, lr=base, betas=tuple(self.betas))
         return optimiser, ScheduledRate(optimiser, base, schedule)
 
-
-#: The named photo captures of procedural data (``data.capture``; svbrdf_train.data.procedural's
-#: ``CAPTURE_PRESETS``).
-CAPTURES = ("des18", "phone")
-#: Keys of one ``data.mix`` entry, and the sources an entry may name.
-MIX_KEYS = ("source", "weight", "path", "count", "validation", "fold")
-MIX_SOURCES = ("procedural", "shards", "des18", "materials")
-
-
-@dataclass(frozen=True)
-class DataSection:
-    source: str = param(
-        "procedural",
-        "procedural (generated), shards (HDF5 files), des18 (a folder of strips), materials (a "
-        "folder of map-only strips normal | diffuse | roughness | specular, or a strip shard: "
-        "random windows, turns and mirrors, photographed on the fly under data.capture) or mix "
-        "(the sources of data.mix, drawn at random with their weights)",
-        choices=("procedural", "shards", "des18", "materials", "mix"),
-    )
-    path: str | tuple[str, ...] | None = param(
-        None,
-        "shard file(s) or Des18 folder (--data); unused for procedural; for mix, the path of the "
-        "entries that give none",
-    )
-    count: int = param(
-        200_000,
-        "procedural samples per epoch (the paper trains on ~200k); for mix, samples per epoch "
-        "drawn from all sources",
-    )
-    seed: int = param(0, "procedural data seed; validation uses seed + 1, so the two never overlap")
-    validation: int = param(64, "held-out samples for periodic validation")
-    workers: int = param(0, "DataLoader worker processes (with generate: workers)")
-    generate: str = param(
-        "workers",
-        "where training batches are made: workers (a DataLoader over data.workers CPU processes; "
-        "0: in the training process) or device (in the training process, on the training device: "
-        "procedural materials and their photos are computed there, the whole batch at once, and "
-        "shards and Des18 strips are read on the CPU and moved). device suits a GPU, whose "
-        "training outruns CPU workers generating procedural data; on a CPU both give the same "
-        "bytes, on a GPU device gives the same materials with the GPU's own photo noise",
-        choices=("workers", "device"),
-    )
-    real_validation: str | None = param(
-        None,
-        "a Des18 folder or .h5 shards of real materials to validate on as well, brought to the "
-        "training resolution by resizing (logged as val_real/...); None: none",
-    )
-    mix: tuple[dict, ...] | None = param(
-        None,
-        "with source mix: entries {source, weight[, path, count, validation]}; each training "
-        "sample comes from entry i with probability weight_i / sum(weights); validation sets "
-        "are each entry's own, put together",
-    )
-    fold: str | None = param(
-        None,
-        "for materials: the materials held out of training and validated on (val_fold/): k/n "
-        "(fold k of n, each material's fold fixed by a hash of its name) or comma-separated "
-        "names; None: train on all of them",
-    )
-    capture: str = param(
-        "des18",
-        "how procedural materials and material strips are photographed (training and validation "
-        "alike): des18 (a "
-        "flash at 1.8-2.75 whose irradiance follows the distance, +-0.75 EV, linear, as the "
-        "Des18 inputs) or phone (the flashes fitted to real phone photos: distance 1.8-3.7 and "
-        "intensity 10-21 drawn independently, white balance within 8%, half of the photos "
-        "JPEG-compressed at quality 75-95)",
-        choices=CAPTURES,
-    )
-
-    def __post_init__(self):
-        _int_at_least(self.count, "count", 1)
-        _int_at_least(self.validation, "validation", 0)
-        _int_at_least(self.workers, "workers", 0)
-        _seed(self.seed, "seed")
-        paths = (self.path,) if isinstance(self.path, str) else self.path or ()
-        if any(not p.strip() for p in paths) or self.path == ():
-            raise ValueError(f"path must name files or folders (or be null), got {self.path!r}")
-        if self.real_validation is not None and not self.real_validation.strip():
-            raise ValueError(
-                f"real_validation must name a folder or shards (or be null), got {self.real_validation!r}"
-            )
-        if self.fold is not None and not str(self.fold).strip():
-            raise ValueError(f"fold must be k/n or material names (or null), got {self.fold!r}")
-        if self.source == "mix":
-            if not self.mix:
-                raise ValueError("source 'mix' needs data.mix: a list of {source, weight} entries")
-            for i, entry in enumerate(self.mix):
-                _check_mix_entry(i, entry)
-        elif self.mix:
-            raise ValueError(f"data.mix is set but data.source is {self.source!r}; set data.source=mix")
-
-    def setup(self, resolution: int) -> tuple[Dataset, Dataset]:
-        """``(train, validation)``: the data sets this section describes, at ``resolution``
-        pixels (:func:`svbrdf_train.data.fitdata.section_datasets`; ``DataError`` when a source is
-        missing or too small)."""
-        from ..data.fitdata import section_datasets
-
-        return section_datasets(self, resolution)
-
-
-def _check_mix_entry(i: int, entry: Mapping[str, Any]) -> None:
-    where = f"mix[{i}]"
-    unknown = set(entry) - set(MIX_KEYS)
-    if unknown:
-        key = sorted(unknown)[0]
-        raise ValueError(f"{where}: unknown key {key!r}{suggest(key, MIX_KEYS)}; keys: {', '.join(MIX_KEYS)}")
-    if entry.get("source") not in MIX_SOURCES:
-        raise ValueError(
-            f"{where}.source must be one of {', '.join(MIX_SOURCES)}, got {entry.get('source')!r}"
-        )
-    weight = entry.get("weight")
-    number = isinstance(weight, (int, float)) and not isinstance(weight, bool)
-    if not number or not 0 < weight < float("inf"):
-        raise ValueError(f"{where}.weight must be a positive number (a relative frequency), got {weight!r}")
-    for key in ("count", "validation"):
-        value = entry.get(key)
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
-            raise ValueError(f"{where}.{key} must be a non-negative integer, got {value!r}")
-    path = entry.get("path")
-    paths = [path] if isinstance(path, str) else path
-    named = (
-        isinstance(paths, (list, tuple))
-        and bool(paths)
-        and all(isinstance(p, str) and p.strip() for p in paths)
-    )
-    if path is not None and not named:
-        raise ValueError(f"{where}.path must be a path or a list of paths, got {path!r}")
-    fold = entry.get("fold")
-    if fold is not None and (entry["source"] != "materials" or not isinstance(fold, str) or not fold.strip()):
-        raise ValueError(
-            f"{where}.fold must be k/n or material names, on a materials entry only; got {fold!r}"
-        )
-    if entry["source"] == "procedural" and path is not None:
-        raise ValueError(f"{where}.path is {path!r} but its source is 'procedural', which reads no files")
 
 
 #: What ``train.keep_best`` may choose on (lower is better); never the watched real set, val_real.
