@@ -15,7 +15,9 @@ sRGB, as DATA/real-dev's README says) and every model:
   near 0. A disc or ring of the flash stamped into the map: near 1. The same figure around
   three points half the photo away from the flash (the median of the three) is printed as
   the **floor**: what texture and large-scale shading give with no flash there. An imprint
-  at its floor holds no more of the flash than the rest of the map.
+  at its floor holds no more of the flash than the rest of the map. The same figure around
+  the photo's **centre** is printed too (``centre``): a network that expects the highlight
+  in the middle stamps its ring there even when the photo's highlight is elsewhere.
 With ``--refine STEPS`` the maps are the photo tool's (network, then refinement against the
 photo at ``--size`` pixels), so the figures say what a user of ``predict`` gets.
 
@@ -152,8 +154,10 @@ def main(argv=None) -> None:
             imp = {m: imprint(maps[m], centre) for m in MAPS}
             away = [((centre[0] + dy) % SIZE, (centre[1] + dx) % SIZE) for dy, dx in AWAY]
             floor = {m: statistics.median(imprint(maps[m], c) for c in away) for m in MAPS}
+            middle = {m: imprint(maps[m], (SIZE / 2, SIZE / 2)) for m in MAPS}
             metal = maps["metallic"].flatten()
             figs = {**{f"imprint {m}": v for m, v in imp.items()}, **{f"floor {m}": v for m, v in floor.items()},
+                    **{f"centre {m}": v for m, v in middle.items()},
                     "metallic mean": float(metal.mean()),
                     "metallic p95": float(metal.quantile(0.95))}  # fmt: skip
             for k, v in figs.items():

@@ -231,6 +231,15 @@ class TrainSection:
     )
     keep_best: str | None = param(None, "keep the best validation's weights in OUT/best.pt, by this metric: "
                                   "val_fold/rmse/render (the held-out fold) or another of KEEP_BEST_METRICS")
+    snapshot_minutes: tuple[float, ...] | None = param(
+        None,
+        "save the weights when the training time (train.clock) first reaches each of these minutes, "
+        "to OUT/snapshots/minutes-M.pt and the MLflow run: one fit gives its model at several "
+        "training budgets (svbrdf-bench run --minutes 2,8,32); None: none",
+    )
+    snapshot_steps: tuple[int, ...] | None = param(
+        None, "the same at these step counts (OUT/snapshots/steps-N.pt); None: none"
+    )
     channels_last: bool = param(False, "keep the networks' images in NHWC memory layout for the convolutions")
     precision: str = param(
         "fp32",
@@ -259,6 +268,13 @@ class TrainSection:
         if self.max_minutes is not None:
             _finite(self.max_minutes, "max_minutes")  # 0: stop after the first step
         _seed(self.seed, "seed")
+        for name, whole in (("snapshot_minutes", False), ("snapshot_steps", True)):
+            marks = getattr(self, name)
+            ok = marks is None or (
+                isinstance(marks, (list, tuple)) and len(marks) > 0
+                and all(_number(m) and math.isfinite(m) and m > 0 and (not whole or int(m) == m) for m in marks)
+            )  # fmt: skip
+            _check(ok, name, marks, "null or a list of " + ("whole numbers of steps > 0" if whole else "minutes > 0"))
 
 
 #: The sections of a recipe and their classes.

@@ -76,6 +76,10 @@ WEIGHTS_NAME = "weights.pt"
 #: The weights of the best validation so far (``train.keep_best``), in weights.pt's form plus
 #: ``best``: ``{"metric", "value", "step"}``.
 BEST_NAME = "best.pt"
+#: The folder of the weights saved at training budgets (``train.snapshot_minutes`` and
+#: ``train.snapshot_steps``): ``minutes-M.pt`` and ``steps-N.pt``, weights.pt's form plus
+#: ``snapshot``: ``{"kind", "mark", "step", "seconds"}``.
+SNAPSHOTS_DIR = "snapshots"
 
 
 def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:

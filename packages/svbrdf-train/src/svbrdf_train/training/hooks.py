@@ -18,6 +18,11 @@ KeepBest           after each validation, main process    with ``train.keep_best
                    only                                   to ``OUT/best.pt`` when its metric is
                                                           the lowest so far; ``best/...``
                                                           metrics; best.pt to MLflow at the end
+Snapshots          after every step, main process only    with ``train.snapshot_minutes`` or
+                                                          ``snapshot_steps``: the weights when
+                                                          the training time or step first
+                                                          reaches each mark, to
+                                                          ``OUT/snapshots/`` and MLflow
 =================  =====================================  ======================================
 
 Every hook also runs after the last step (``RunView.last``: the step budget, the time budget
@@ -40,13 +45,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from .checkpoint import BEST_NAME, WEIGHTS_NAME, save_checkpoint
+from .checkpoint import BEST_NAME, SNAPSHOTS_DIR, WEIGHTS_NAME, save_checkpoint
 from .progress import format_duration
 from .run import Run, RunChange, RunView, StepEnd
 
 __all__ = [
     "Run", "RunView", "RunChange", "StepEnd", "Cadence", "Timer", "Hook", "HookRunner",
-    "BudgetWarning", "Logging", "Validation", "Checkpoints", "KeepBest",
+    "BudgetWarning", "Logging", "Validation", "Checkpoints", "KeepBest", "Snapshots", "snapshot_name",
 ]  # fmt: skip
 #: Checkpoint fields a user of the weights needs (predict, --init); the rest is for resuming.
 WEIGHT_FIELDS = (
@@ -355,6 +360,49 @@ class KeepBest:
                 {"svbrdf.best_metric": self.metric, "svbrdf.best_step": str(self.best["step"]),
                  "svbrdf.best_value": f"{self.best['value']:.6g}"}
             )  # fmt: skip
+
+
+def snapshot_name(kind: str, mark: float) -> str:
+    """The file of the snapshot at ``mark`` (``kind``: ``minutes`` or ``steps``):
+    ``minutes-2.pt``, ``minutes-0.5.pt``, ``steps-1000.pt``."""
+    return f"{kind}-{mark:g}.pt"
+
+
+class Snapshots:
+    """With ``train.snapshot_minutes`` / ``train.snapshot_steps``: the weights (weights.pt's
+    form, plus ``snapshot``: kind, mark, step, training seconds) to
+    ``OUT/snapshots/minutes-M.pt`` or ``steps-N.pt`` after the first step at which the
+    training time (``train.clock``, as ``train.max_minutes`` counts it) or the step count
+    reaches each mark, uploaded to the MLflow run (``snapshots/``) with the metrics
+    ``snapshot/minutes-M`` = the step taken. A resumed fit takes only the marks it has not
+    reached; a mark the fit never reaches has no file. One fit then answers "how good after 2,
+    8 and 32 minutes" without a fit per budget."""
+
+    cadence = Cadence(steps=1, main_only=True)
+
+    def __init__(self, view: RunView):
+        t = view.recipe.train
+        self.marks = [("minutes", float(m)) for m in sorted(t.snapshot_minutes or ())]
+        self.marks += [("steps", int(m)) for m in sorted(t.snapshot_steps or ())]
+        if view.start_step > 0:  # resumed: what the fit already passed was taken (or missed) then
+            self.marks = [(k, m) for k, m in self.marks if not self._reached(k, m, view)]
+
+    @staticmethod
+    def _reached(kind: str, mark: float, view: RunView) -> bool:
+        return view.seconds >= mark * 60 if kind == "minutes" else view.step >= mark
+
+    def on_step(self, view: RunView) -> None:
+        due = [(k, m) for k, m in self.marks if self._reached(k, m, view)]
+        if not due:
+            return
+        state = view.weights_state()
+        for kind, mark in due:
+            record = {"kind": kind, "mark": mark, "step": view.step, "seconds": view.seconds}
+            path = view.out / SNAPSHOTS_DIR / snapshot_name(kind, mark)
+            save_checkpoint(path, {**{k: state[k] for k in WEIGHT_FIELDS}, "snapshot": record})
+            view.tracker.log_artifact(path, SNAPSHOTS_DIR)
+            view.tracker.log_metrics({f"snapshot/{Path(path).stem}": view.step}, view.step)
+            self.marks.remove((kind, mark))
 
 
 def _recorded_best(path, run_id: str | None, metric: str) -> dict[str, Any] | None:

@@ -26,6 +26,8 @@ RESUMABLE_CHANGES = (
     "train.log_every",
     "train.validate_every",
     "train.keep_best",
+    "train.snapshot_minutes",
+    "train.snapshot_steps",
     "train.checkpoint_every",
     "train.checkpoint_minutes",
     "train.upload_minutes",

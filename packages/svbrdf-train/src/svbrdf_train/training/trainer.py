@@ -33,7 +33,7 @@ from ..recipe import Recipe, check_recipe
 from . import distributed
 from .checkpoint import CHECKPOINT_NAME, check_resumable, check_run_kept
 from .clock import WARMUP_STEPS, Stopwatch, TrainClock
-from .hooks import BudgetWarning, Checkpoints, HookRunner, KeepBest, Logging, Validation
+from .hooks import BudgetWarning, Checkpoints, HookRunner, KeepBest, Logging, Snapshots, Validation
 from .order import BatchOrder
 from .progress import Interrupt, Progress, format_duration
 from .resume import RESUMABLE_CHANGES, check_out, check_world, resolve_resume
@@ -138,7 +138,7 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
     view = run.view()  # the hooks see the run through read-only views; the runner applies their changes
     validation = Validation(view)
     keep = KeepBest(view, validation)
-    hooks = HookRunner([BudgetWarning(view), Logging(view), validation, keep, Checkpoints(view)])
+    hooks = HookRunner([BudgetWarning(view), Logging(view), validation, keep, Snapshots(view), Checkpoints(view)])
     status, message = _loop(run, hooks)
     run.progress.close()
     if status == "FINISHED" and not message:
