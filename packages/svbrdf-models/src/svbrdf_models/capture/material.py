@@ -31,7 +31,6 @@ the same photo replaces its own files and leaves anything else there alone.
 
 from __future__ import annotations
 
-import contextlib
 import datetime
 import hashlib
 import json
@@ -45,7 +44,14 @@ import torch
 from torch import Tensor
 
 from svbrdf_render import SVBRDF, encode_normal, linear_to_srgb, write_image
-from svbrdf_render.formats.files import atomic_output, locked, temporary_path, write_failure, write_text
+from svbrdf_render.formats.files import (
+    atomic_output,
+    locked,
+    replace_folder,
+    temporary_path,
+    write_failure,
+    write_text,
+)
 
 from ..errors import DataError
 
@@ -123,6 +129,11 @@ def check_material_folder(folder, photo: Path, flag: str = "-o", *, sha256: str 
     one, or maps with no ``material.json``. A missing or empty folder, or one of the same photo,
     passes."""
     folder = Path(folder)
+    if folder.is_symlink():  # it would write through the link, outside the output folder
+        raise DataError(
+            f"{folder}: is a symbolic link (to {os.readlink(folder)}), so the material would be "
+            f"written outside {flag}; remove the link or choose another {flag}"
+        )
     if not folder.is_dir():
         return
     record = folder / "material.json"
@@ -347,17 +358,10 @@ def write_material(folder, svbrdf: SVBRDF, content: MaterialContent, options) ->
 
 
 def _move_in(stage: Path, folder: Path) -> None:
-    """``stage``'s files into ``folder``: one rename when it is new; else each file replaces its
-    namesake, and files of an earlier run of the same photo that this one did not write go."""
-    if not folder.exists():
-        os.replace(stage, folder)
-        return
-    for old in MATERIAL_FILES:
-        if not (stage / old).exists():
-            with contextlib.suppress(FileNotFoundError):
-                (folder / old).unlink()
-    for new in stage.iterdir():
-        os.replace(new, folder / new.name)
+    """``stage`` in the place of ``folder`` as a whole (:func:`replace_folder`): a reader, or a
+    crash, sees the old material or the new one, never both; files of an earlier run of the
+    same photo that this one did not write go, files a user put in the folder stay."""
+    replace_folder(stage, folder, keep=MATERIAL_FILES)
 
 
 def model_record(predictor) -> dict:

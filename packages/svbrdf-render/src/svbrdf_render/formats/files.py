@@ -32,6 +32,7 @@ __all__ = [
     "write_failure",
     "is_write_failure",
     "temporary_path",
+    "replace_folder",
     "remove_stale_temporaries",
     "check_output_folder",
     "INTERRUPTED",
@@ -178,6 +179,62 @@ def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
             raise
         raise write_failure(path, e) from None
     _fsync_folder(path.parent)
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap ``a`` and ``b`` in one step (Linux ``renameat2(RENAME_EXCHANGE)``); False where the
+    system has no such call (then nothing moved)."""
+    import ctypes
+
+    try:
+        call = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return False
+    call.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    here, exchange = -100, 2  # AT_FDCWD, RENAME_EXCHANGE
+    if call(here, os.fsencode(a), here, os.fsencode(b), exchange) == 0:
+        return True
+    code = ctypes.get_errno()
+    if code in (errno.ENOSYS, errno.EINVAL, errno.EOPNOTSUPP):  # no such call, or not here
+        return False
+    raise OSError(code, os.strerror(code), str(b))
+
+
+def replace_folder(stage: str | os.PathLike, folder: str | os.PathLike, keep=()) -> None:
+    """Put the whole folder ``stage`` in the place of ``folder``, so that a reader (and a crash at
+    any moment) sees the old folder or the new one, never a mix: a new ``folder`` is one rename;
+    an existing one is swapped with ``stage`` in one step where the system can (Linux), after
+    which ``stage`` holds the old folder for the caller to remove. Elsewhere the old folder is
+    renamed aside first (a crash between the two renames leaves it there, whole, as
+    ``.NAME.PID.old``). Entries of the old folder named in neither ``stage`` nor ``keep``'s
+    complement are carried over (hard links, else copies): what a user put beside the files
+    this writer owns stays; the names in ``keep`` (the writer's own files) are not carried over,
+    so those an earlier run wrote and this one did not go."""
+    stage, folder = Path(stage), Path(folder)
+    if not folder.exists() and not folder.is_symlink():
+        os.replace(stage, folder)
+        return
+    own = set(keep)
+    for old in folder.iterdir():
+        if old.name in own or (stage / old.name).exists():
+            continue
+        if old.is_dir() and not old.is_symlink():
+            shutil.copytree(old, stage / old.name, symlinks=True, copy_function=_link_or_copy)
+        else:
+            _link_or_copy(old, stage / old.name)
+    if _exchange(stage, folder):
+        return
+    aside = folder.with_name(f".{folder.name}.{os.getpid()}.old")
+    os.replace(folder, aside)
+    os.replace(stage, folder)
+    os.replace(aside, stage)  # the caller removes its stage: now the old folder
+
+
+def _link_or_copy(src, dst) -> None:
+    try:
+        os.link(src, dst, follow_symlinks=False)
+    except OSError:
+        shutil.copy2(src, dst, follow_symlinks=False)
 
 
 def write_text(path: str | os.PathLike, text: str) -> Path:
