@@ -98,3 +98,23 @@ def test_a_rerun_of_the_same_photo_gives_the_new_material_whole(tmp_path):
     assert (out / "tiles" / "notes.txt").read_text() == "mine"
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no stage left
     assert os.path.isdir(out / "tiles") and not (out / "tiles").is_symlink()
+
+
+def test_a_failed_photo_does_not_poison_later_runs_into_the_folder(tmp_path, capsys):
+    out = tmp_path / "out"
+    bad = tmp_path / "bad.png"
+    bad.write_text("not a photo")
+    assert main(["predict", str(bad), "-o", str(out), *FAST]) == 2
+    good = _photo(tmp_path / "tiles.png")
+    capsys.readouterr()
+    assert main(["predict", str(good), "-o", str(out), *FAST]) == 0  # its own photo succeeded
+    err = capsys.readouterr().err
+    assert not [line for line in err.splitlines() if line.startswith("bad.png")]  # this run's table only
+    assert "photo(s) failed" not in err
+    assert "2 photo(s) of this and earlier runs, 1 failed" in err
+    _photo(bad)  # the failed photo, fixed, captured again: its entry is replaced
+    assert main(["predict", str(bad), "-o", str(out), *FAST]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["failed"] == 0 and summary["photos"] == 2
+    assert sorted(e["name"] for e in summary["entries"]) == ["bad", "tiles"]
+    assert all(len(e["model"].rsplit("@", 1)[1]) == 12 for e in summary["entries"])  # which model made each

@@ -210,12 +210,16 @@ def capture_batch(
 
     result = write_summary(out / "summary.json", entries, **summary)
     err = sys.stderr
-    print(_table(entries, result), file=err, end="", flush=True)
+    this_run = _figures(entries)  # the table and the exit status are this run's, not the folder's
+    print(_table(entries, this_run), file=err, end="", flush=True)
+    if result["photos"] != len(entries):
+        print(f"{out / 'summary.json'}: {result['photos']} photo(s) of this and earlier runs, "
+              f"{result['failed']} failed", file=err)  # fmt: skip
     if stopped is not None:
         left = len(photos) - len(entries)
         print(f"stopped: a file could not be written; {left} photo(s) after it not done", file=err)
         return stopped.exit_code
-    failed = result["failed"]
+    failed = this_run["failed"]
     if failed:
         print(f"{failed} of {len(photos)} photo(s) failed", file=err)
         return 2 if failed == len(photos) else 1
@@ -262,7 +266,11 @@ def _capture_each(predictor, photos, out: Path, options, prog: str, entries: lis
 
     from .one import capture_one
 
+    from .material import model_record
+
     used: set[str] = set()
+    made = model_record(predictor)  # in each entry as SOURCE@SHA12: which model, briefly
+    made_by = f"{made['source']}@{(made['sha256'] or '?')[:12]}"
     for path in map(Path, photos):
         raise_if_interrupted()  # a signal whose interrupt Python dropped (see sigterm_as_interrupt)
         now.clear()
@@ -275,23 +283,29 @@ def _capture_each(predictor, photos, out: Path, options, prog: str, entries: lis
         except OutputError as e:  # the disk, not the photo: the photos after it would fail alike
             bar.close()
             print(f"{prog}: error: {e}", file=sys.stderr)
-            entries.append({"photo": str(path), "status": "failed", "error": str(e)})
+            entries.append(_failed(name, path, str(e), made_by))
             return e
         except (SVBRDFError, OSError, RuntimeError) as e:  # RuntimeError: out of memory, a broken model
             bar.close()
             what = str(e) if isinstance(e, (SVBRDFError, OSError)) else f"{type(e).__name__}: {e}"
             text = what if what.startswith(str(path)) else f"{path}: {what}"
             print(f"{prog}: error: {text}", file=sys.stderr)
-            entries.append({"photo": str(path), "status": "failed", "error": text})
+            entries.append(_failed(name, path, text, made_by))
             continue
         bar.close()
         used.add(name)
         for note in entry["notes"]:
             print(f"{prog}: note: {path}: {note}", file=sys.stderr)
-        entries.append({"name": name, **entry})
+        entries.append({"name": name, **entry, "model": made_by})
         print(str(out / name), flush=True)
     now.clear()
     return None
+
+
+def _failed(name: str, path: Path, error: str, model: str) -> dict:
+    """The summary entry of a photo that failed: the folder it would have had (so that its next
+    capture replaces the entry), the photo, why, and the model that tried."""
+    return {"name": name, "photo": str(path), "status": "failed", "error": error, "model": model}
 
 
 def _announce_cost(path: Path, options, prog: str) -> None:
@@ -366,8 +380,16 @@ def write_summary(path, entries: list[dict], **extra) -> dict:
         return _write_summary(path, _merged(_earlier_entries(path), entries), extra)
 
 
-def _entry_key(entry: dict) -> str:
-    return f"folder:{entry['name']}" if entry.get("name") else f"photo:{entry.get('photo')}"
+def _photo_key(entry: dict) -> str:
+    return str(Path(str(entry.get("photo"))).expanduser().resolve())
+
+
+def _replaced(earlier: dict, new: dict) -> bool:
+    """Whether entry ``new`` of this run replaces ``earlier``: the same photo (captured or failed
+    again), or a capture into the folder ``earlier`` names (what the folder now holds)."""
+    if _photo_key(earlier) == _photo_key(new):
+        return True
+    return new.get("status") == "ok" and bool(earlier.get("name")) and earlier.get("name") == new.get("name")
 
 
 def _earlier_entries(path: Path) -> list[dict]:
@@ -381,8 +403,7 @@ def _earlier_entries(path: Path) -> list[dict]:
 
 
 def _merged(earlier: list[dict], entries: list[dict]) -> list[dict]:
-    new = {_entry_key(e) for e in entries}
-    return [e for e in earlier if _entry_key(e) not in new] + list(entries)
+    return [e for e in earlier if not any(_replaced(e, n) for n in entries)] + list(entries)
 
 
 #: What the re-rendering RMSE of summary.json and of the printed table says, and what not.
@@ -393,18 +414,20 @@ RMSE_MEANS = (
 )
 
 
-def _write_summary(path: Path, entries: list[dict], extra: dict) -> dict:
+def _figures(entries: list[dict]) -> dict:
+    """The counts and the median re-rendering RMSE of ``entries``."""
     import statistics
 
     values = [e["rmse"] for e in entries if e.get("status") == "ok" and e.get("rmse") is not None]
-    summary = {
-        **extra,
+    return {
         "photos": len(entries),
         "captured": sum(e.get("status") == "ok" for e in entries),
         "failed": sum(e.get("status") != "ok" for e in entries),
         "median_rmse": statistics.median(values) if values else None,
-        "rmse_means": RMSE_MEANS,
-        "entries": entries,
     }
+
+
+def _write_summary(path: Path, entries: list[dict], extra: dict) -> dict:
+    summary = {**extra, **_figures(entries), "rmse_means": RMSE_MEANS, "entries": entries}
     write_text(path, json.dumps(summary, indent=2) + "\n")  # atomic: never a 0-byte summary
     return summary
