@@ -8,7 +8,7 @@
 # its best.pt.
 # Stage 2 (`stage2`): the phone's flash as it is: data.capture=handheld (the LED beside the
 # lens, its beam, the camera up to 0.6 half-widths off-centre, vignetting, a residual tone
-# curve, JPEG for 80%) for the procedural and the real samples alike, the real ones
+# curve, measured against real-dev's photos) for the procedural and the real samples alike, the real ones
 # drawn balanced by kind (data.balance=kind) with the stated albedo prior (median diffuse
 # luminance 0.12, log-sd 0.7: darker than the two folders' 0.17), from stage 1's best step,
 # into out-2/, 240 CPU minutes, fold 1/5 kept out as before. `resume-2` resumes it.

@@ -198,7 +198,9 @@ class MaterialStrips(Dataset):
         if albedo_prior is not None:
             median, sigma = (float(v) for v in albedo_prior)
             if not (0 < median < 1 and 0 <= sigma <= 3):
-                raise DataError(f"albedo prior: expected (median in (0, 1), sigma in [0, 3]), got {albedo_prior}")
+                raise DataError(
+                    f"albedo prior: expected (median in (0, 1), sigma in [0, 3]), got {albedo_prior}"
+                )
             self.albedo_prior = (median, sigma)
             self._luminance = [float(_LUMA @ m[3:6].reshape(3, -1).mean(1)) / 255 for m in bank.maps]
 
@@ -215,7 +217,8 @@ class MaterialStrips(Dataset):
         if not self.augment or (self._cumulative is None and self.albedo_prior is None):
             return index % len(self.bank), None
         g = _generator(self.seed, self.epoch, index, _MIX_STREAM)
-        u, z = torch.rand((), generator=g, dtype=torch.float64), torch.randn((), generator=g, dtype=torch.float64)
+        u = torch.rand((), generator=g, dtype=torch.float64)
+        z = torch.randn((), generator=g, dtype=torch.float64)
         m = index % len(self.bank)
         if self._cumulative is not None:
             m = min(int(np.searchsorted(self._cumulative, float(u), side="right")), len(self.bank) - 1)

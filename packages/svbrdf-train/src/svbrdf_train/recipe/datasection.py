@@ -86,7 +86,7 @@ class DataSection:
         "intensity 10-21 drawn independently, white balance within 8%, half of the photos "
         "JPEG-compressed at quality 75-95) or handheld (phone, plus the LED beside the lens with "
         "a cone-shaped beam, the camera up to 0.6 half-widths off-centre, vignetting, a residual "
-        "tone curve and JPEG for 80% of the photos: svbrdf_train.data.capture.CAPTURE_PRESETS)",
+        "tone curve and exposure measured against real phone photos: svbrdf_train.data.capture.CAPTURE_PRESETS)",
         choices=CAPTURES,
     )
     balance: str = param(
@@ -130,7 +130,8 @@ class DataSection:
     def _check_material_draws(self) -> None:
         if self.albedo_prior is not None:
             prior = tuple(self.albedo_prior)
-            ok = len(prior) == 2 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in prior)
+            numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in prior)
+            ok = len(prior) == 2 and numbers
             if not (ok and 0 < prior[0] < 1 and 0 <= prior[1] <= 3):
                 raise ValueError(
                     f"albedo_prior must be [median, sigma] with median in (0, 1) and sigma in [0, 3], "

@@ -274,7 +274,8 @@ class TrainSection:
                 isinstance(marks, (list, tuple)) and len(marks) > 0
                 and all(_number(m) and math.isfinite(m) and m > 0 and (not whole or int(m) == m) for m in marks)
             )  # fmt: skip
-            _check(ok, name, marks, "null or a list of " + ("whole numbers of steps > 0" if whole else "minutes > 0"))
+            what = "whole numbers of steps > 0" if whole else "minutes > 0"
+            _check(ok, name, marks, f"null or a list of {what}")
 
 
 #: The sections of a recipe and their classes.
