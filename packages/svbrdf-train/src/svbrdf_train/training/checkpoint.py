@@ -38,6 +38,7 @@ from a network instead of torch's list of every key. :func:`check_resumable` che
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from collections.abc import Mapping
@@ -60,6 +61,8 @@ __all__ = [
     "load_checkpoint",
     "load_weights",
     "check_finite",
+    "check_checksum",
+    "file_sha256",
     "HEADER",
     "check_header",
     "check_resumable",
@@ -94,8 +97,40 @@ def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
         torch.save(state, f)  # through a Python file, so a failed write keeps its errno
     summary = {k: state.get(k) for k in ("step", "epoch", "run_id", "train_seconds", "world_size")}
     summary["recipe"] = (state.get("recipe") or {}).get("name")
-    write_text(path.with_suffix(".json"), json.dumps(summary, indent=2))
+    summary["sha256"] = file_sha256(path)
+    try:
+        write_text(path.with_suffix(".json"), json.dumps(summary, indent=2))
+    except BaseException:  # the old summary would call the new checkpoint damaged: it goes
+        path.with_suffix(".json").unlink(missing_ok=True)
+        raise
     return path
+
+
+def file_sha256(path: str | Path) -> str:
+    """The SHA-256 of a file's bytes, in hex."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def check_checksum(path: str | Path, source: str) -> None:
+    """Refuse a checkpoint whose bytes differ from the SHA-256 that :func:`save_checkpoint`
+    recorded in the summary beside it (no summary, or one without a checksum: nothing to check).
+    A zip's own checks miss most damage: 64 zeroed bytes in a tensor read back as other weights."""
+    path = Path(path)
+    try:
+        recorded = json.loads(path.with_suffix(".json").read_text()).get("sha256")
+    except (OSError, ValueError, AttributeError):
+        return
+    if isinstance(recorded, str) and recorded != file_sha256(path):
+        raise CheckpointError(
+            f"{source}: its bytes do not match the SHA-256 recorded beside it "
+            f"({path.with_suffix('.json').name}) when it was written: the file is damaged (disk, "
+            "copy); use another copy, resume from the weights alone (--init OUT/weights.pt, without "
+            "the optimiser's state) or start afresh (--force)"
+        )
 
 
 def remove_leftovers(folder: str | Path) -> list[Path]:
@@ -128,6 +163,7 @@ def load_checkpoint(
     source = source or str(path)
     if not path.is_file():
         raise CheckpointError(f"{source}: no checkpoint there")
+    check_checksum(path, source)
     try:
         state = torch.load(path, map_location=map_location, weights_only=True, mmap=mmap)
     except Exception as e:  # torch raises many kinds for a damaged or foreign file
