@@ -34,6 +34,7 @@ __all__ = [
     "capture_batch",
     "check_material_folders",
     "set_threads",
+    "rechoose_threads",
     "write_summary",
     "write_summary",
     "folder_name",
@@ -141,11 +142,38 @@ def set_threads(requested: int | None):
     when the machine is busy. Returns the :class:`~svbrdf_render.machine.ThreadChoice`."""
     from svbrdf_render.machine import choose_threads
 
-    choice = choose_threads(requested)
+    global _CHOICE
+    choice = _CHOICE = choose_threads(requested)
     print(choice.describe(), file=sys.stderr)
+    _busy_note(choice)
+    return choice
+
+
+#: The thread choice of the command in progress (:func:`set_threads`), chosen again before
+#: each photo of a batch when it was made from the free cores (:func:`rechoose_threads`).
+_CHOICE = None
+
+
+def _busy_note(choice) -> None:
     plural = "s" if choice.threads > 1 else ""
     ProgressBar.busy_note = f" (busy machine: {choice.threads} thread{plural})" if choice.busy else ""
-    return choice
+
+
+def rechoose_threads(prog: str) -> None:
+    """Before each photo after the first: the threads chosen again from the cores free now,
+    when the command chose them so (not ``--threads`` nor ``OMP_NUM_THREADS``): a machine that
+    gets busy half-way through a batch would otherwise keep threads spinning for cores that
+    another program holds (a 3.5 s refinement took 42-181 s). A change is said in one line."""
+    global _CHOICE
+    from svbrdf_render.machine import choose_threads
+
+    if _CHOICE is None or _CHOICE.source != "free cores":
+        return
+    choice = choose_threads(None)
+    if choice.threads != _CHOICE.threads:
+        print(f"{prog}: now {choice.describe()}", file=sys.stderr, flush=True)
+    _CHOICE = choice
+    _busy_note(choice)
 
 
 def load_scene(path):
@@ -271,8 +299,10 @@ def _capture_each(predictor, photos, out: Path, options, prog: str, entries: lis
     used: set[str] = set()
     made = model_record(predictor)  # in each entry as SOURCE@SHA12: which model, briefly
     made_by = f"{made['source']}@{(made['sha256'] or '?')[:12]}"
-    for path in map(Path, photos):
+    for k, path in enumerate(map(Path, photos)):
         raise_if_interrupted()  # a signal whose interrupt Python dropped (see sigterm_as_interrupt)
+        if k:
+            rechoose_threads(prog)
         now.clear()
         now["path"] = path
         name = folder_name(path, used)
