@@ -173,7 +173,9 @@ def main(argv=None) -> int:
     ap.add_argument("--big-batch", type=int, default=4, help="factor of the last rung's batch (default 4)")
     ap.add_argument("--rungs", type=int, default=None, help="measure only the first N option sets (dry runs)")
     ap.add_argument(
-        "--recipes", default="no-attn,no-adv,no-svbrdf,multigan,radn", help="measured under the best options"
+        "--recipes",
+        default="no-attn,no-attn-wide,no-adv,no-svbrdf,multigan,radn",
+        help="measured under the best options",
     )
     ap.add_argument("--train-recipe", default="ours-materials", help="trained with the best options")
     ap.add_argument(

@@ -89,7 +89,7 @@ def measure(
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--recipes", default="ours,no-attn,no-adv,no-svbrdf,multigan,radn")
+    ap.add_argument("--recipes", default="ours,no-attn,no-attn-wide,no-adv,no-svbrdf,multigan,radn")
     ap.add_argument("--size", default="cpu", choices=("paper", "cpu", "smoke"))
     ap.add_argument(
         "--steps", type=int, default=20, help="timed steps per recipe (after the trainer's warm-up)"

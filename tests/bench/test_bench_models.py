@@ -369,3 +369,23 @@ def test_budget_words(provenance, words):
     assert budget_words(model) == words
     model.precision = "fp16"
     assert budget_words(model) == words + ", fp16"
+
+
+def test_two_materials_are_said_to_be_too_few_with_per_strip_intervals(bench):
+    """The two judged strips blend the same two materials: the report says its intervals over 2
+    materials are unreliable, and counts its comparisons (each trained row against ``mean`` on
+    5 columns, and the one pair of "what accuracy costs")."""
+    out, result, _ = bench
+    results = json.loads((out / "results.json").read_text())
+    assert results["small_sample"].startswith("SMALL SAMPLE: 2 materials, fewer than 8")
+    assert results["small_sample"] in result.stdout
+    comparisons = results["comparisons"]
+    assert comparisons["count"] == len(comparisons["verdicts"]) == 2 * len(COLUMNS) + 1
+    assert f"{comparisons['count']} comparisons (verdicts) in this report" in result.stdout
+    for v in comparisons["verdicts"]:
+        assert 0 <= v["p_value"] <= v["holm_p"] <= 1 and v["survives_holm"] == (
+            v["verdict"] == "within noise" or v["holm_p"] <= 0.05
+        )
+        assert v["per_strip"]["low"] <= v["per_strip"]["rmse_difference"] <= v["per_strip"]["high"]
+    head = _section(result.stdout, "Verdicts: 11 comparisons")[1]
+    assert "difference per material [95%]" in head and head.split()[-4:] == ["strip", "[95%]", "per", "strip"]

@@ -34,6 +34,7 @@ TOGGLES = [
     "+exposure",
     "+noise",
     "+clip",
+    "+tone",
     "+gamma",
 ]
 

@@ -467,3 +467,55 @@ def test_a_fine_tuned_fit_counts_the_time_behind_its_starting_weights(bench, tmp
     (entry,) = build_report(json.loads((tmp_path / "r" / "results.json").read_text())["parent_run"]).trained
     own = _client().get_metric_history(tuned, "val/train_seconds")
     assert entry.curve[0] and min(entry.curve[0]) == pytest.approx(before + min(m.value for m in own), abs=0.2)
+
+
+# -- svbrdf-bench export: the paper table, from the parent run alone ---------------------------------
+
+
+def test_export_prints_the_paper_table_from_the_parent_run(bench, tmp_path):
+    out, _, parent_id = bench
+    md = _invoke("export", parent_id)
+    assert md.exit_code == 0, md.output
+    lines = md.stdout.splitlines()
+    assert lines[0].startswith("**Table.** RMSE (lower is better) on ") and "6 test images" in lines[0]
+    assert f"parent run {parent_id}" in lines[0] and "`mean`: constant maps" in lines[0]
+    rows = [line.split(" | ")[0][2:] for line in lines[4:]]
+    assert rows == ["ours", "radn", "mean (baseline)", "photo (baseline)"]
+    records = {r["model"]: r for r in json.loads((out / "results.json").read_text())["models"]}
+    for i, column in enumerate(("normal", "diffuse", "roughness", "specular", "render"), start=1):
+        cells = {row: line.split(" | ")[i].strip(" |") for row, line in zip(rows, lines[4:], strict=True)}
+        best = min(records, key=lambda m: records[m][f"rmse_{column}"])
+        assert cells[best if best in cells else f"{best} (baseline)"].startswith("**"), column
+        assert f"{records['ours'][f'rmse_{column}']:.3f} [" in cells["ours"]  # the report's own figures
+    tex = tmp_path / "table.tex"
+    latex = _invoke("export", parent_id, "--format", "latex", "-o", tex)
+    assert latex.exit_code == 0 and latex.stdout == "" and f"export: {tex}" in latex.stderr
+    text = tex.read_text()
+    for needle in (r"\begin{table}", r"\begin{tabular}{lccccc}", r"\toprule", r"\bottomrule", r"\end{table}",
+                   r"95\% percentile-bootstrap", r"\texttt{mean}", r"\textbf{"):  # fmt: skip
+        assert needle in text, needle
+    assert "photo (baseline) & " in text
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--format", "html"], "unknown export format 'html': choose one of latex, markdown"),
+        (["--format", "latex"], "not the parent run of an svbrdf-bench run"),  # a child run's id
+    ],
+)
+def test_export_errors_are_one_line_exit_2(bench, args, needle):
+    child = _children(bench[2])[0].info.run_id
+    result = _invoke("export", child, *args)
+    assert result.exit_code == 2 and result.stdout == ""
+    err = [line for line in result.stderr.splitlines() if " INFO mlflow." not in line]
+    assert err == [f"svbrdf-bench: error: {err[0].split('error: ', 1)[1]}"] and needle in err[0]
+
+
+def test_export_of_an_unknown_run_and_its_help():
+    result = _invoke("export", "0123456789abcdef0123456789abcdef", "--format", "latex")
+    assert result.exit_code == 2 and "no MLflow run 0123456789abcdef0123456789abcdef" in result.stderr
+    helped = _invoke("export", "--help")
+    assert helped.exit_code == 0
+    assert "svbrdf-bench export 3f2a... --format latex -o table.tex" in helped.stdout
+    assert "Examples:" in helped.stdout and "-f, --format latex|markdown" in helped.stdout

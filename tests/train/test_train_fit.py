@@ -15,7 +15,7 @@ from svbrdf_train.recipe import list_recipes, load_recipe
 from svbrdf_train.training.checkpoint import load_checkpoint
 from svbrdf_train.training.trainer import FitOptions, fit
 
-BUILT_IN = ("ours", "no-attn", "no-adv", "no-svbrdf", "multigan", "radn")
+BUILT_IN = ("ours", "no-attn", "no-attn-wide", "no-adv", "no-svbrdf", "multigan", "radn")
 
 
 def _client():

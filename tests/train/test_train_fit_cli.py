@@ -124,7 +124,7 @@ def test_help_teaches_with_examples():
 def test_recipes_lists_and_resolves(tmp_path):
     listed = CliRunner().invoke(cli, ["recipes"])
     assert listed.exit_code == 0
-    for name in ("ours", "no-attn", "no-adv", "no-svbrdf", "multigan", "radn"):
+    for name in ("ours", "no-attn", "no-attn-wide", "no-adv", "no-svbrdf", "multigan", "radn"):
         assert any(line.startswith(name + " ") for line in listed.output.splitlines()), name
     import yaml
 

@@ -8,7 +8,7 @@ import yaml
 from svbrdf_train.errors import RecipeError
 from svbrdf_train.recipe import SIZES, list_recipes, load_recipe, parse_overrides
 
-BUILTIN = ["ours", "no-attn", "no-adv", "no-svbrdf", "multigan", "radn"]
+BUILTIN = ["ours", "no-attn", "no-attn-wide", "no-adv", "no-svbrdf", "multigan", "radn"]
 
 
 def test_builtin_recipes_are_registered():
@@ -44,6 +44,30 @@ def test_the_ablations_differ_from_ours_in_what_the_paper_says():
     assert (radn.loss.adv, radn.loss.svbrdf) == (0, 0) and radn.loss.render > 0
     # Everything not named stays as in ours.
     assert load_recipe("multigan").optim == ours.optim and load_recipe("no-attn").train == ours.train
+
+
+def _generator_parameters(name: str, size: str) -> int:
+    """Parameters of recipe ``name``'s generator at ``size``, built on the meta device (no memory)."""
+    import torch
+
+    import svbrdf_models as sm
+
+    r = load_recipe(name, size)
+    with torch.device("meta"):
+        g = sm.create_generator(r.generator.name, r.generator.config)
+    return sum(p.numel() for p in g.parameters())
+
+
+@pytest.mark.parametrize("size", SIZES)
+def test_the_capacity_control_has_the_parameters_of_ours_and_no_attention(size):
+    """no-attn-wide tells "attention helps" from "more parameters help": its generator is within
+    5% of ours' parameter count at every size, where no-attn's is nearly half of it."""
+    ours = _generator_parameters("ours", size)
+    assert abs(_generator_parameters("no-attn-wide", size) / ours - 1) <= 0.05
+    assert abs(_generator_parameters("no-attn", size) / ours - 1) > 0.05  # the gap the control closes
+    wide, plain = load_recipe("no-attn-wide", size), load_recipe("no-attn", size)
+    assert wide.generator.name == "no-attn" and wide.train == plain.train and wide.loss == plain.loss
+    assert wide.discriminator == plain.discriminator and wide.optim == plain.optim
 
 
 def test_overrides_from_the_command_line():

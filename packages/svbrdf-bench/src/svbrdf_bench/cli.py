@@ -31,6 +31,7 @@ def cli():
     Start with:
       svbrdf-bench run --models ours,no-attn            # ~5 min on a 2-core CPU
       svbrdf-bench report PARENT_RUN_ID                  # rebuild a report from MLflow
+      svbrdf-bench export PARENT_RUN_ID --format latex   # its RMSE table for a paper
       svbrdf-bench render                                # the renderer's accuracy against speed
     """
 
@@ -40,7 +41,7 @@ def _command_modules() -> list:
     import importlib
 
     found = []
-    for name in ("run", "report", "render"):
+    for name in ("run", "report", "export", "render"):
         try:
             found.append(importlib.import_module(f".commands.{name}", __package__))
         except ModuleNotFoundError as e:

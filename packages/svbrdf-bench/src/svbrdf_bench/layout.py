@@ -7,7 +7,10 @@ One invocation of ``svbrdf-bench run``::
     parent run  "bench-<models>-<preset>"  (tag svbrdf.kind=bench; the report, tables and plots)
       child run  per model: the model's training run itself (svbrdf-train fit --parent-run), or,
                  for a reused run (--from-runs), a new run tagged svbrdf.train_run=<that run>
-                 with that run's params
+                 with that run's params; with ``--seeds N``, one per model and seed; with
+                 several training budgets (``--minutes 2,8,32``, ``--steps``), the fit's run is
+                 a child with no row of its own, and each budget a child tagged
+                 svbrdf.train_run=<the fit>, scored from the fit's snapshot at that budget
       child run  per reference model (``--from-models FILE``, ``--models pretrained``): a model
                  file trained elsewhere on its own budget, tagged svbrdf.reference=<short name>,
                  its SHA-256 and source; params ``model.*`` and ``budget.*`` say what the file
@@ -97,6 +100,23 @@ per-sample ``photo/rerender_rmse``  child   with ``--refine`` on: RMSE of the ma
                                             under the refinement's flash against the test photo
                                             (display encoding), logged as
                                             ``test/photo/rerender_rmse`` (:data:`INPUT_RERENDER`)
+tag ``svbrdf.seed``                 child   of a fit's row (and of the fit's run): the seed of
+                                            that fit, set as ``train.seed`` and ``data.seed``
+                                            with ``--seeds N`` (:data:`SEED_TAG`)
+tag ``svbrdf.method``               child   of a fit's row: the model it is a seed or budget of,
+                                            its label without seed and budget (:data:`METHOD_TAG`)
+tag ``svbrdf.budget``               child   of a fit's row: its training budget, ``8 min`` or
+                                            ``500 steps`` (:data:`BUDGET_TAG`, :func:`budget_words`,
+                                            :func:`read_budget`); absent: the recipe's schedule
+                                            or a reused fit's own budget
+tag ``svbrdf.snapshot``             child   of a row scored from a snapshot of its fit
+                                            (``--minutes 2,8,32``): the snapshot's file,
+                                            ``minutes-8.pt`` (:data:`SNAPSHOT_TAG`)
+params ``seeds``, ``train_budgets`` parent  ``--seeds N`` and the training budgets, ``minutes 2,8,32``
+                                            (:data:`SEEDS_PARAM`, :data:`BUDGETS_PARAM`)
+artifact ``eval/missed_*.json``     parent  ``eval/missed_budgets.json``: the budgets a fit never
+                                            reached, each ``{model, seed, budget, why}``
+                                            (:data:`MISSED_BUDGETS`, :func:`read_missed`)
 metrics ``val/*``, ``val_real/*``,  child   the trainer's own (learning curves,
 ``train/*``                                 :data:`FIT_WALL_METRIC`); never figures of the
                                             report's tables (:data:`TRAINER_PREFIXES`)
@@ -165,6 +185,17 @@ __all__ = [
     "PHASE_PREFIX",
     "phase_key",
     "read_phases",
+    "SEED_TAG",
+    "METHOD_TAG",
+    "BUDGET_TAG",
+    "SNAPSHOT_TAG",
+    "SEEDS_PARAM",
+    "BUDGETS_PARAM",
+    "MISSED_BUDGETS",
+    "budget_words",
+    "read_budget",
+    "missed_json",
+    "read_missed",
 ]
 
 #: Tag of the parent run; its value :data:`BENCH_KIND` marks a benchmark's parent.
@@ -297,3 +328,45 @@ def read_phases(metrics: Mapping[str, float]) -> list[tuple[str, float]]:
     """``[(name, seconds)]`` in the order the phases ran, from a parent run's metrics."""
     keys = sorted(k for k in metrics if k.startswith(PHASE_PREFIX))
     return [(k[len(PHASE_PREFIX) :].split(" ", 1)[-1], float(metrics[k])) for k in keys]
+
+
+#: Tags of a fit's row (and of the fit's own run): its seed (``train.seed`` and ``data.seed``), the
+#: model it is a seed or budget of, its training budget (:func:`budget_words`), and the snapshot
+#: of the fit it was scored from.
+SEED_TAG = "svbrdf.seed"
+METHOD_TAG = "svbrdf.method"
+BUDGET_TAG = "svbrdf.budget"
+SNAPSHOT_TAG = "svbrdf.snapshot"
+#: Params of the parent run: ``--seeds N`` and the training budgets (``minutes 2,8,32``).
+SEEDS_PARAM = "seeds"
+BUDGETS_PARAM = "train_budgets"
+#: Artifact of the parent run: the budgets a fit never reached (:func:`missed_json`).
+MISSED_BUDGETS = "eval/missed_budgets.json"
+#: The unit of each kind of training budget, as :data:`BUDGET_TAG` writes it.
+_UNITS = {"minutes": "min", "steps": "steps"}
+
+
+def budget_words(kind: str, mark: float) -> str:
+    """The value of :data:`BUDGET_TAG`: ``8 min``, ``0.5 min``, ``500 steps``, ``1 step``."""
+    unit = _UNITS[kind]
+    return f"{mark:g} {unit[:-1] if unit == 'steps' and mark == 1 else unit}"
+
+
+def read_budget(text: str | None) -> tuple[str, float] | None:
+    """``(kind, mark)`` back from :func:`budget_words`' text; None for none or a text it did not write."""
+    number, _, unit = (text or "").partition(" ")
+    kind = next((k for k, u in _UNITS.items() if unit in (u, u.rstrip("s"))), None)
+    try:
+        return (kind, float(number)) if kind else None
+    except ValueError:
+        return None
+
+
+def missed_json(missed: list[dict]) -> str:
+    """The text of :data:`MISSED_BUDGETS`: ``[{model, seed, budget, why}]``."""
+    return json.dumps(missed, indent=1)
+
+
+def read_missed(text: str) -> list[dict]:
+    """The budgets a fit never reached, back from the text of :data:`MISSED_BUDGETS`."""
+    return list(json.loads(text))

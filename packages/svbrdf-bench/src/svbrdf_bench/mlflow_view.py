@@ -14,6 +14,7 @@ from pathlib import Path
 
 from svbrdf_render import MAP_NAMES
 
+from .inference import FLOPS_METRIC
 from .layout import PARENT_TAG, REPORT_ARTIFACTS
 from .testset import TestSet
 
@@ -38,7 +39,7 @@ BENCH_VIEW = "svbrdf-benchmarks"
 BENCH_VIEW_NAME = "svbrdf: benchmarks (test figures)"
 BENCH_COLUMNS = (
     "test/rmse/render", "test/rmse/normal", "test/rmse/diffuse", "test/rmse/roughness", "test/rmse/specular",
-    "test/ssim/render", "time/latency_ms", "model/params",
+    "test/ssim/render", "time/latency_ms", "model/params", FLOPS_METRIC,
 )  # fmt: skip
 #: Maps of the table in the parent run's description.
 NOTE_COLUMNS = ("render", *MAP_NAMES)
@@ -51,6 +52,7 @@ NOTE_LIMIT = 7500
 METRIC_FIELDS = ("rmse_", "ssim_", "lpips_", "photo_rerender_rmse", "real_rerender_rmse")
 TIME_FIELDS = (
     "time_latency_ms", "time_latency_iqr_ms", "time_train_s", "time_seconds_per_image", "model_params",
+    FLOPS_METRIC.replace("/", "_"),
 )  # fmt: skip
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from .presets import Preset
 from .refinement import RefinePlan
+from .seeding import TrainBudget, train_budget
 
 __all__ = ["BenchOptions", "BASELINES"]
 
@@ -46,4 +47,23 @@ class BenchOptions:
     """Refinement budgets: a row per scored row and budget > 0 (default: none)."""
     group_by: str = "auto"
     """How real test samples are grouped into materials (svbrdf_train.GROUP_BY)."""
+    latency_grid: tuple = ()
+    """Image sizes x batches inference is timed at (``--latency-grid``, parsed by
+    :func:`svbrdf_bench.inference.parse_latency_grid`); empty: the preset's."""
+    seeds: int = 1
+    """Fits per model (``--seeds N``): seed s in 0..N-1 set as ``train.seed`` and ``data.seed``."""
+    budget: TrainBudget | None = None
+    """Training budgets (``--minutes 2,8,32``, ``--steps 500,2000``); None: ``minutes`` or the preset's."""
     say: Callable[[str], None] = print
+
+    def train_budget(self) -> TrainBudget:
+        """How long each fit trains: :attr:`budget`, else :attr:`minutes`, else the preset's."""
+        if self.budget is not None:
+            return self.budget
+        return train_budget(self.minutes, None, self.preset.minutes)
+
+    def latency_points(self) -> tuple:
+        """Where each row's inference is timed: :attr:`latency_grid`, else the preset's."""
+        from .inference import parse_latency_grid
+
+        return self.latency_grid or parse_latency_grid(self.preset.latency_grid, "the preset's latency grid")

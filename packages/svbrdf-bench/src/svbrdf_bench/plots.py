@@ -22,6 +22,7 @@ __all__ = [
     "dominated_by",
     "comparison_grid",
     "accuracy_vs_capture_time",
+    "accuracy_vs_training_time",
 ]
 
 _DPI = 120
@@ -284,6 +285,50 @@ def accuracy_vs_capture_time(
                      fontsize="medium")  # fmt: skip
         ax.grid(True, alpha=0.35, which="both")
     axes[0].legend(fontsize="small")
+    return _save(fig, path)
+
+
+def accuracy_vs_training_time(
+    series: Mapping[str, Sequence[tuple[float, str, tuple[float, float, float]]]],
+    path,
+    *,
+    ylabel: str = "test render RMSE (6 evaluation views)",
+    xlabel: str = "training time, budget clock (min)",
+) -> Path:
+    """Test accuracy against training time, one line per model through its budgets, as a PNG.
+
+    ``series`` maps a model to ``[(training minutes, budget label, (mean, low, high)), ...]``: each
+    point labelled with its budget (``8 min``, ``500 steps``) and given its interval (e.g. the
+    95% bootstrap over seeds and materials) as an error bar. x is on a log scale (budgets such as
+    2, 8, 32 minutes are evenly spaced there): what each minute of training buys, and where a
+    model stops gaining.
+    """
+    drawn = {}
+    for name, points in series.items():
+        pts = sorted((float(t), str(k), tuple(v)) for t, k, v in points)
+        for t, k, _ in pts:
+            if not (math.isfinite(t) and t > 0):
+                raise BenchError(f"training time plot: {name!r} at {k} has {t} training minutes")
+        if pts:
+            drawn[name] = pts
+    if not drawn:
+        raise BenchError("training time plot: no models to draw")
+    fig = _figure()
+    ax = fig.add_subplot()
+    for name, pts in drawn.items():
+        xs, ys = [t for t, _, _ in pts], [v[0] for _, _, v in pts]
+        err = [[max(v[0] - v[1], 0.0) for _, _, v in pts], [max(v[2] - v[0], 0.0) for _, _, v in pts]]
+        ax.errorbar(xs, ys, yerr=err, capsize=2.5, marker="o", markersize=4.5, linewidth=1.4, label=name)
+        for t, k, v in pts:
+            ax.annotate(k, (t, v[0]), xytext=(4, 3), textcoords="offset points", fontsize="x-small")
+    ax.set_xscale("log")
+    ax.margins(x=0.1, y=0.08)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(f"{ylabel} against training time\n(labels: budgets; bars: 95% interval over seeds "
+                 "and materials)", fontsize="medium")  # fmt: skip
+    ax.grid(True, alpha=0.35, which="both")
+    ax.legend(fontsize="small")
     return _save(fig, path)
 
 

@@ -1,4 +1,5 @@
-"""Benchmark presets: how long each model trains, on how many test images, and what that costs.
+"""Benchmark presets: how long each model trains, on how many test images, where inference is
+timed, and what that costs.
 
 Every model of one invocation gets the same training-time budget (``minutes``, training time
 without validation), so the comparison is at equal cost; ``paper`` instead trains each recipe
@@ -15,6 +16,8 @@ __all__ = ["Preset", "PRESETS", "get_preset", "TEST_SEED"]
 
 #: Seed of the default procedural test set: apart from every training (0) and validation (1) seed.
 TEST_SEED = 20_221
+#: The latency grid of the presets that run on a GPU: 256, 512 and 1024 px, batch 1 and 8.
+FULL_GRID = "256x1,256x8,512x1,512x8,1024x1,1024x8"
 
 
 @dataclass(frozen=True)
@@ -35,6 +38,11 @@ class Preset:
     """What the preset takes, for the help text and the report."""
     overrides: tuple[str, ...] = ()
     """Recipe overrides (``section.field=value``) for every model, before the user's ``--set``."""
+    latency_grid: str = FULL_GRID
+    """Image sizes x batches each row's inference is timed at (``--latency-grid`` syntax;
+    :mod:`svbrdf_bench.inference`); 256x1 is always timed, with ``latency_repeats`` runs."""
+    grid_repeats: int = 10
+    """Timed runs per grid point but 256x1, after 2 warm-up runs (the median is reported)."""
 
 
 #: The presets by name.
@@ -47,6 +55,9 @@ PRESETS = {
             # The cpu size's 2 epochs of 2000 samples end before 2 minutes for the faster models,
             # and then the budgets would not be equal: 10x the samples lets the clock decide.
             overrides=("data.count=20000",),
+            # The grid's small corner: about 3 s per cpu-size model on an idle core (7 runs of
+            # 256x8 and of 512x1); 1024x8 alone is 128x the 256 px latency, ~2.5 s a run for ours.
+            latency_grid="256x1,256x8,512x1", grid_repeats=5,
         ),
         Preset(
             "standard", size="paper", minutes=30.0, test_count=256, validate_every=250, latency_repeats=100,

@@ -9,9 +9,14 @@ test photo (:mod:`svbrdf_bench.refinement`), each a child run of its own; with `
 too, each refined row also refines its maps of each real photo (the real-photo figure), and the
 report gets a real-photo sheet: each model's maps and re-renderings, its refined ones under it.
 
-Each invocation is one MLflow parent run with a child run per model and per baseline, laid out
-as :mod:`svbrdf_bench.layout` describes; :mod:`svbrdf_bench.report` builds every table and plot
-from those runs alone, so ``svbrdf-bench report PARENT`` rebuilds them later.
+``--seeds 3`` trains each model three times (seed s set as ``train.seed`` and ``data.seed``), a
+row per seed; ``--minutes 2,8,32`` (or ``--steps 500,2000``) trains one fit per model and seed to
+the largest budget and scores its snapshot at each as a row (:mod:`svbrdf_bench.seeding`,
+:func:`~svbrdf_bench.children.fit_rows`); the report adds "Across seeds and budgets".
+
+Each invocation is one MLflow parent run with a child run per model, seed and budget and per
+baseline, laid out as :mod:`svbrdf_bench.layout` describes; :mod:`svbrdf_bench.report` builds every
+table and plot from those runs alone, so ``svbrdf-bench report PARENT`` rebuilds them later.
 
 :func:`run_bench` reads as its steps: :func:`_plan` checks every argument and builds the test set
 before MLflow is touched; :func:`_open_parent` starts the parent run; then each fit
@@ -25,6 +30,7 @@ from __future__ import annotations
 
 import tempfile
 import time
+from collections import Counter
 from collections.abc import Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -35,12 +41,17 @@ import torch
 from svbrdf_render.formats.files import check_output_folder
 
 from .children import (
+    Fit,
+    FitRow,
     baseline_child,
     fit_checkpoint,
+    fit_rows,
+    fit_seed,
     log_child,
     log_refined_children,
     resolve_reuse,
-    reused_child,
+    snapshot_checkpoint,
+    snapshot_figures,
     tracking_client,
     train,
 )
@@ -49,10 +60,12 @@ from .layout import (
     BASELINE_TAG,
     BASELINES_PARAM,
     BENCH_KIND,
+    BUDGETS_PARAM,
     GROUP_BY_PARAM,
     KIND_TAG,
     LPIPS_TAG,
     MINUTES_PARAM,
+    MISSED_BUDGETS,
     MODEL_TAG,
     PRESET_PARAM,
     REAL_DATA_PARAM,
@@ -62,8 +75,10 @@ from .layout import (
     REFINE_FLASH_PARAM,
     REFINE_PARAM,
     REPORT_ARTIFACTS,
+    SEEDS_PARAM,
     TEST_GROUPS,
     TEST_SET_PARAM,
+    missed_json,
     phase_key,
     test_groups_json,
 )
@@ -78,6 +93,7 @@ from .references import (
     split_pretrained,
 )
 from .scoring import RowScorer, comparison_grid, real_grid, training_figures
+from .seeding import TrainBudget, budget_text, check_overrides, row_label
 from .testset import TestSet
 
 __all__ = ["BenchOptions", "run_bench", "BASELINES", "metric_prefix", "parent_metrics", "parent_note"]
@@ -87,7 +103,8 @@ __all__ = ["BenchOptions", "run_bench", "BASELINES", "metric_prefix", "parent_me
 class _Plan:
     """What one benchmark does, settled before its parent run exists."""
 
-    to_train: list[str]
+    #: The fits to train: ``(recipe, seed)``; seed None: the recipe's own (one fit per model).
+    to_train: list[tuple[str, int | None]]
     #: ``--from-runs`` fits: ``(label, run id)``.
     reuse: list[tuple[str, str]]
     #: Reference model files (:class:`svbrdf_bench.references.Reference`).
@@ -100,15 +117,17 @@ class _Plan:
     #: The LPIPS network (None when skipped) and what the report says of it.
     lpips: object
     lpips_note: str
+    #: How long each fit trains, and at which budgets it is scored.
+    budget: TrainBudget = field(default_factory=TrainBudget)
 
     @property
     def labels(self) -> list[str]:
-        """Every row but the baselines', in the order they are scored."""
-        return (
-            [Path(m).stem for m in self.to_train]
+        """Every model but the baselines, in the order they are scored (a model of several seeds once)."""
+        return list(dict.fromkeys(
+            [Path(m).stem for m, _ in self.to_train]
             + [label for label, _ in self.reuse]
             + [r.short for r in self.refs]
-        )
+        ))  # fmt: skip
 
 
 class _Phases:
@@ -181,11 +200,12 @@ def run_bench(options: BenchOptions) -> str:
                 parent.log_artifact(groups_file, str(Path(TEST_GROUPS).parent))
             p = options.preset
             scorer = RowScorer(plan.test, plan.device, plan.lpips, plan.photos, options.refine,
-                               p.latency_repeats, options.say)  # fmt: skip
+                               p.latency_repeats, options.say, options.latency_points(),
+                               p.grid_repeats)  # fmt: skip
             bench = _Bench(options, plan, client, parent, work, scorer, phases)
-            for job in _fits(bench):
-                with phases(f"scoring {job[0]}"):
-                    _score_fit(bench, *job)
+            for row in _fits(bench):
+                with phases(f"scoring {row.label}"):
+                    _score_fit(bench, row)
             for ref in plan.refs:  # trained elsewhere: scored, not trained; the label says so
                 with phases(f"scoring the reference {ref.name}"):
                     _score_reference(bench, ref)
@@ -227,18 +247,19 @@ def _plan(options: BenchOptions) -> _Plan:
     refs = load_references(
         [(s, "--models") for s in shipped] + [(s, "--from-models") for s in options.from_models], device
     )
+    budget = options.train_budget()
+    check_overrides([*p.overrides, *options.overrides], budget, options.seeds)
     test = None
     if recipes:
         overrides = parse_overrides([*p.overrides, *options.overrides])
         resolution = load_recipe(recipes[0], size, overrides).train.resolution
         check_resolution(refs, resolution, f"the resolution of recipe {recipes[0]!r} at size {size!r}")
         test = _test_set(options, resolution)
-    reuse = resolve_reuse(options.from_runs)
-    reused_labels = {label for label, _ in reuse}
-    to_train = [m for m in recipes if Path(m).stem not in reused_labels]
+    reuse = resolve_reuse(options.from_runs, options.seeds, [Path(m).stem for m in recipes])
+    to_train = _to_train(recipes, reuse, options.seeds)
     if not to_train and not reuse and not refs:
         raise BenchError("no models to compare: give --models, --from-runs and/or --from-models")
-    _check_baselines(options.baselines, [Path(m).stem for m in to_train] + list(reused_labels))
+    _check_baselines(options.baselines, [Path(m).stem for m, _ in to_train] + [r for r, _ in reuse])
     if test is None:
         test = _test_set(options, _models_resolution(reuse, refs))
     check_trained_strips(refs, test, options.allow_trained_strips, options.say)
@@ -246,7 +267,20 @@ def _plan(options: BenchOptions) -> _Plan:
     if options.real_data is not None:
         photos = PhotoFolder(options.real_data, encoding=options.real_encoding, pattern=options.real_pattern)
     lpips, lpips_note = load_lpips()
-    return _Plan(to_train, reuse, refs, test, photos, size, device, lpips, lpips_note)
+    return _Plan(to_train, reuse, refs, test, photos, size, device, lpips, lpips_note, budget)
+
+
+def _to_train(
+    recipes: Sequence[str], reuse: list[tuple[str, str]], seeds: int
+) -> list[tuple[str, int | None]]:
+    """``(recipe, seed)`` of each fit to train: every seed of each recipe that no reused fit has
+    (one seed: the recipe's own, unless a fit of the recipe is reused)."""
+    if seeds == 1:
+        reused = {label for label, _ in reuse}
+        return [(m, None) for m in recipes if Path(m).stem not in reused]
+    client = tracking_client()
+    have = {(label, fit_seed(client.get_run(run))) for label, run in reuse}
+    return [(m, s) for m in recipes for s in range(seeds) if (Path(m).stem, s) not in have]
 
 
 def _check_models(models: Sequence[str]) -> None:
@@ -301,19 +335,8 @@ def _models_resolution(reuse: list[tuple[str, str]], refs: list) -> int:
 
 
 def _budget(options: BenchOptions, plan: _Plan) -> tuple[str, str]:
-    """The training budget as the parent's param, and in words."""
-    minutes = options.minutes if options.minutes is not None else options.preset.minutes
-    if plan.to_train:
-        budget = "recipe schedule" if minutes is None else str(minutes)
-        words = "each recipe's full schedule" if minutes is None else f"{minutes:g} min of training per model"
-    elif plan.reuse:
-        budget = "reused fits, each with its own training budget (see the time table)"
-        words = "reused fits, each with its own training budget"
-    else:
-        budget = words = "reference models only, each with the training budget its file records"
-    if plan.refs and (plan.to_train or plan.reuse):
-        words += "; reference rows: their own budgets, not equal"
-    return budget, words
+    """The training budget as the parent's param, and in words (:func:`~svbrdf_bench.seeding.budget_text`)."""
+    return budget_text(plan.budget, options.seeds, bool(plan.to_train), bool(plan.reuse), bool(plan.refs))
 
 
 def _open_parent(options: BenchOptions, plan: _Plan, sha: str, dirty: bool):
@@ -330,6 +353,7 @@ def _open_parent(options: BenchOptions, plan: _Plan, sha: str, dirty: bool):
               LPIPS_TAG: plan.lpips_note, **source_tags("svbrdf-bench run", sha)},
         params={
             PRESET_PARAM: p.name, "recipe_size": plan.size, MINUTES_PARAM: budget,
+            SEEDS_PARAM: str(options.seeds), BUDGETS_PARAM: plan.budget.param,
             TEST_SET_PARAM: test.description, "test_count": str(len(test)), GROUP_BY_PARAM: test.group_by,
             "overrides": " ".join([*p.overrides, *options.overrides]) or "-",
             REAL_DATA_PARAM: f"{len(plan.photos)} photos of {options.real_data} ({options.real_encoding})"
@@ -358,36 +382,54 @@ def _open_parent(options: BenchOptions, plan: _Plan, sha: str, dirty: bool):
 # -- the rows ---------------------------------------------------------------------------------------
 
 
-def _fits(bench: _Bench) -> list[tuple[str, str, float | None, str | None, Path | None]]:
-    """The fits to score: each recipe trained now, then each reused fit (its child run made):
-    ``(label, evaluation run, training wall seconds, reused run, local checkpoint)``."""
-    options, plan, parent = bench.options, bench.plan, bench.parent
-    jobs = []
-    for i, model in enumerate(plan.to_train, 1):
-        options.say(f"[{i}/{len(plan.labels)}] training {model} ({plan.size} size)")
-        with bench.phases(f"training {Path(model).stem}"):
-            run_id, wall, local = train(model, options, parent.run_id, bench.work)
-        jobs.append((Path(model).stem, run_id, wall, None, local))
+def _fits(bench: _Bench) -> list[FitRow]:
+    """The rows to score: each fit trained now (per model and seed), then each reused fit, as one
+    row or a row per budget (:func:`~svbrdf_bench.children.fit_rows`, their child runs made);
+    budgets a fit never reached are said, and logged on the parent run."""
+    options, plan, client, parent = bench.options, bench.plan, bench.client, bench.parent
+    counts = Counter([Path(m).stem for m, _ in plan.to_train] + [label for label, _ in plan.reuse])
+    fits = []
+    for i, (model, seed) in enumerate(plan.to_train, 1):
+        stem = Path(model).stem
+        label = row_label(stem, seed if counts[stem] > 1 else None, None)
+        options.say(f"[{i}/{len(plan.to_train)}] training {label} ({plan.size} size)")
+        with bench.phases(f"training {label}"):
+            run_id, wall, out = train(model, options, parent.run_id, bench.work, seed=seed,
+                                      budget=plan.budget, name=label)  # fmt: skip
+        own = seed if seed is not None else fit_seed(client.get_run(run_id))
+        fits.append(Fit(stem, own, run_id, wall, out, seeds_shown=counts[stem] > 1))
     for label, source in plan.reuse:
-        child = reused_child(bench.client, parent.experiment_id, parent.run_id, label, source)
-        jobs.append((label, child, None, source, None))
-    return jobs
+        fits.append(Fit(label, fit_seed(client.get_run(source)), source, seeds_shown=counts[label] > 1))
+    rows, missed = [], []
+    for fit in fits:
+        more, lost = fit_rows(client, parent, fit, plan.budget)
+        rows, missed = rows + more, missed + lost
+    if missed:
+        for m in missed:
+            options.say(f"{m['model']} seed {m['seed']}: no row at {m['budget']}: {m['why']}")
+        target = bench.work / Path(MISSED_BUDGETS).name
+        target.write_text(missed_json(missed))
+        parent.log_artifact(target, str(Path(MISSED_BUDGETS).parent))
+    return rows
 
 
-def _score_fit(bench: _Bench, label: str, run_id: str, wall: float | None, source: str | None,
-               local: Path | None) -> None:  # fmt: skip
-    """A fit's row: its generator scored, its training figures, its refined rows."""
+def _score_fit(bench: _Bench, row: FitRow) -> None:
+    """A fit's row (the fit, or its snapshot at one budget) scored, its training figures, its
+    seed and budget tags, its refined rows."""
     from svbrdf_train import load_generator
 
-    state = fit_checkpoint(source or run_id, local)
+    state = snapshot_checkpoint(row, bench.work) if row.snapshot else fit_checkpoint(row.fit_run, row.local)
     generator, recipe = load_generator(state, bench.plan.device)
-    figures, per_sample, refined = bench.scorer.score(label, generator)
-    figures |= training_figures(bench.client, source or run_id, wall, recipe.train.batch, state["step"])
-    bench.client.set_tag(run_id, MODEL_TAG, label)
-    log_child(run_id, figures, per_sample, bench.work)
-    if source is not None:
-        bench.client.set_terminated(run_id)
-    bench.refined_children((label, run_id, {}), refined, figures["model/params"])
+    figures, per_sample, refined = bench.scorer.score(row.label, generator)
+    figures |= training_figures(bench.client, row.fit_run, row.wall, recipe.train.batch, state["step"])
+    if row.snapshot:
+        figures = snapshot_figures(figures, state["snapshot"])
+    for key, value in {MODEL_TAG: row.label, **row.tags}.items():
+        bench.client.set_tag(row.run_id, key, value)
+    log_child(row.run_id, figures, per_sample, bench.work)
+    if row.run_id != row.fit_run:  # a child made here (a reused fit's, a budget's): finished now
+        bench.client.set_terminated(row.run_id)
+    bench.refined_children((row.label, row.run_id, {}), refined, figures["model/params"])
 
 
 def _score_reference(bench: _Bench, ref) -> None:

@@ -1,5 +1,6 @@
 """Scoring one row of the benchmark: every row (a fit, a reference model file, a baseline) is
-scored alike by :class:`RowScorer`: its figures on the test images, its latency and size, its
+scored alike by :class:`RowScorer`: its figures on the test images, its latency and size (and
+its FLOPs and latency grid: :mod:`svbrdf_bench.inference`), its
 self-consistency on real photos, and the rows of its refinement budgets; a fit's row adds its
 training figures (:func:`training_figures`). The scorer keeps what the comparison sheets show
 (:func:`comparison_grid`, :func:`real_grid`).
@@ -16,6 +17,7 @@ import torch
 
 from svbrdf_render import MAP_NAMES
 
+from .inference import inference_cost
 from .layout import FIT_WALL_METRIC, REAL_PREFIX, REAL_RERENDER, STEPS_METRIC, STEPS_WALL_METRIC, TEST_PREFIX
 from .refinement import RefinedRow, RefinePlan, refine_real, refine_rows, refined_label
 from .testset import TestSet
@@ -73,23 +75,13 @@ def _self_consistency(generator, photos, resolution: int, device: torch.device) 
 @torch.no_grad()
 def _latency(generator, device: torch.device, repeats: int) -> dict[str, float]:
     """Inference time of one image of ``LATENCY_SIZE``: ``repeats`` timed runs after 3 warm-up
-    runs (:func:`svbrdf_bench.timing.time_call`), as metrics ``time/latency_ms`` (the median),
-    ``time/latency_iqr_ms``, ``time/latency_runs`` and the machine's load while they ran.
-
-    On the CPU with one torch thread, as the fits train: on an idle 2-core machine two threads
-    spread the runs by 5-14% of the median against 4-6% with one (50 runs of the cpu-size
-    generators), and a second thread is the first to wait when anything else runs."""
-    from .timing import LATENCY_METRIC, time_call
+    runs (:func:`svbrdf_bench.timing.time_inference`: on the CPU one torch thread, as the fits
+    train), as metrics ``time/latency_ms`` (the median), ``time/latency_iqr_ms``,
+    ``time/latency_runs`` and the machine's load while they ran."""
+    from .timing import LATENCY_METRIC, time_inference
 
     x = torch.rand(1, 3, LATENCY_SIZE, LATENCY_SIZE, device=device)
-    if device.type != "cpu":
-        return time_call(lambda: generator(x), repeats, warmup=3).metrics(LATENCY_METRIC)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        return time_call(lambda: generator(x), repeats, warmup=3, threads=1).metrics(LATENCY_METRIC)
-    finally:
-        torch.set_num_threads(threads)
+    return time_inference(lambda: generator(x), repeats, device, warmup=3).metrics(LATENCY_METRIC)
 
 
 def _step_spread(client, run_id: str, batch: int) -> dict[str, float]:
@@ -121,6 +113,10 @@ class RowScorer:
     refine: RefinePlan
     latency_repeats: int
     say: Callable[[str], None] = print
+    #: Where the latency is timed beyond 256x1 (:func:`svbrdf_bench.inference.parse_latency_grid`),
+    #: and the timed runs per point there; FLOPs are counted whatever the grid.
+    latency_grid: tuple = ()
+    grid_repeats: int = 5
     shown: dict[str, list] = field(default_factory=dict)
     real_shown: dict[str, list] = field(default_factory=dict)
 
@@ -135,6 +131,7 @@ class RowScorer:
         per_sample, shown = _evaluate(generator, test, device, self.lpips)
         figures = {
             **_latency(generator, device, self.latency_repeats),
+            **inference_cost(generator, device, self.latency_grid, self.grid_repeats, label, self.say),
             "model/params": float(sum(q.numel() for q in generator.parameters())),
         }
         if self.photos is not None:

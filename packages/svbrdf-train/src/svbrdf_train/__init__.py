@@ -23,9 +23,13 @@ _PUBLIC: dict[str, tuple[str, ...]] = {
     # recipes: the registered names, one loaded and checked, ``--set`` overrides parsed
     ".recipe": ("list_recipes", "load_recipe", "parse_overrides"),
     # a fit's checkpoint (a local file, or the one logged in its MLflow run) and its generator
-    ".training.checkpoint": ("load_checkpoint", "check_run_kept"),
+    ".training.checkpoint": ("load_checkpoint", "check_run_kept", "SNAPSHOTS_DIR"),
     ".training.init": ("download_run_checkpoint",),
+    # the weights a fit saves at training budgets (train.snapshot_minutes / snapshot_steps)
+    ".training.hooks": ("snapshot_name",),
     ".inference": ("load_generator",),
+    # the FLOPs torch.utils.flop_counter counts while a function runs (a network's cost)
+    ".training.flops": ("count_flops",),
     # MLflow: the fits' tracker and client, the run's source and datasets, links to the UI
     ".tracking": (
         "MlflowTracker", "open_client", "check_store", "tracking_uri", "git_revision", "source_tags",

@@ -24,6 +24,9 @@ Examples:
   svbrdf-bench run --models ours --from-models fold0.pt --test-data DIR   # + fold0.pt, a reference row
   svbrdf-bench run --models pretrained --test-data DIR       # the model shipped with svbrdf-models
   svbrdf-bench run --models ours --refine 0,50,200           # + each row's maps refined 50 and 200 steps
+  svbrdf-bench run --models ours,no-attn --seeds 3           # 3 fits per model: verdicts across seeds
+  svbrdf-bench run --models ours,no-attn --minutes 2,8,32    # one fit per model scored at 2, 8, 32 min
+  svbrdf-bench run --models ours --from-runs ours --seeds 3  # reuse finished seeds, train the others
 
 \b
 Presets (every model gets the same training-time budget, counted on the fit's train.clock:
@@ -57,6 +60,29 @@ constant maps: the pure-optimisation baseline, against which each refined model 
 same N. Plot: accuracy_vs_capture_time.png. Default 0: no refinement.
 
 \b
+Seeds and budgets: --seeds N trains N fits per model, seed s = 0..N-1 set as train.seed and
+data.seed (everything else equal), a row per seed (`ours seed 1`). --minutes 2,8,32 (or --steps
+500,2000 for equal steps) trains one fit per model and seed to the largest budget, saving its
+weights at every budget (train.snapshot_minutes / snapshot_steps), and scores each as a row
+(`ours @ 8 min`); a budget a fit never reached is said, never dropped. A single --minutes keeps
+its meaning: one budget, no snapshots. With several seeds or budgets the report adds "Across
+seeds and budgets": per model and budget, each RMSE averaged over seeds with the between-seed
+spread and a 95% interval that resamples seeds, then materials; "A beats B at a budget" only
+when that interval of the paired difference excludes 0; each model's gain from one budget to
+the next; the front of render RMSE against training minutes; and accuracy_vs_training_time.png.
+--from-runs takes finished fits of a recipe as its seeds (several run ids of one recipe with
+different train.seed; a recipe name: its last finished fit of each seed).
+
+\b
+Inference cost: every row gets its FLOPs per 256x256 image (torch.utils.flop_counter; they grow
+with the pixel count, x4 at 512 px, x16 at 1024 px) and its latency on --device at each
+SIZExBATCH point of the latency grid: ms per forward pass of BATCH images of SIZE px, median of
+a few timed runs after 2 warm-ups, torch.no_grad, one torch thread on a CPU. The grid is the
+preset's (quick: 256x1,256x8,512x1; standard and paper: 256, 512, 1024 px x batch 1 and 8) or
+--latency-grid's; 256x1 is always in. A point a network cannot take (a U-Net takes multiples
+of 2**depth px) is left out of its row. On CUDA each point also gets the peak memory.
+
+\b
 Test data: Des18 tiles and shards larger than the models are resized to the models'
 resolution (area filter), never centre-cropped: models see the field of view they trained at.
 
@@ -73,11 +99,13 @@ training: svbrdf-train data folds.
 Output: the tables in the terminal (a headline per model on whether it beats `mean`; rows =
 models, reference rows, then baselines; RMSE and SSIM per map and on renderings under 6 fixed
 light/view pairs, each with a 95% bootstrap interval; the difference to `mean`; time and
-memory; what each trained model's extra accuracy costs against each other one), and in --out:
+memory; inference cost; what each trained model's extra accuracy costs against each other one),
+and in --out:
 report.md, results.csv, results.json, costs.csv, against_mean.csv, learning_curves.png,
 pareto.png, comparison.png (and accuracy_vs_capture_time.png with --refine; real_comparison.png
-with --refine and --real-data). MLflow: one parent
-run, one child per model, reference row, baseline and refined row; `svbrdf-bench report
+with --refine and --real-data; accuracy_vs_training_time.png with several seeds or budgets).
+MLflow: one parent run, one child per model (and seed and budget), reference row, baseline and
+refined row; `svbrdf-bench report
 PARENT_RUN_ID` rebuilds the report later. The parent's description gives the verdict and links
 the report (logged under report/), its metrics hold each row's figures (ours/rmse_render with
 ours/rmse_render_lower and _upper, the 95% interval; SSIM and latency likewise); every run
@@ -172,7 +200,26 @@ def _once(flag: str, values: tuple):
     "--real-pattern", default="*", show_default=True, help="Shell pattern on the real photos' names."
 )
 @click.option("--test-count", type=click.IntRange(min=1), help="Size of the procedural test set [preset's].")
-@click.option("--minutes", type=click.FloatRange(min=0), help="Training minutes per model [preset's].")
+@click.option(
+    "--minutes",
+    metavar="M[,M,...]",
+    help="Training minutes per model [preset's]; several (increasing) score one fit per model and seed at "
+    "each, from its snapshots. Example: --minutes 2,8,32.",
+)
+@click.option(
+    "--steps",
+    metavar="N[,N,...]",
+    help="Equal steps instead of equal minutes: generator steps per model; several score one fit at each. "
+    "Example: --steps 500,2000.",
+)
+@click.option(
+    "--seeds",
+    default="1",
+    show_default=True,
+    metavar="N",
+    help="Fits per model, seed s = 0..N-1 as train.seed and data.seed; the report's verdicts then hold "
+    "across seeds. Example: --seeds 3.",
+)
 @click.option(
     "--set", "sets", multiple=True, metavar="SECTION.FIELD=VALUE", help="Recipe override for every model."
 )
@@ -188,6 +235,13 @@ def _once(flag: str, values: tuple):
 )
 @click.option(
     "--size", type=click.Choice(["paper", "cpu", "smoke"]), help="Recipe size instead of the preset's."
+)
+@click.option(
+    "--latency-grid",
+    metavar="SxB,SxB,...",
+    help="Where each row's inference latency is timed: SIZExBATCH points, SIZE the image side in px "
+    "(16-8192), BATCH the images per forward pass (1-256); 256x1 is always in [preset's: quick "
+    "256x1,256x8,512x1; standard, paper 256/512/1024 x 1/8]. Example: --latency-grid 256x1,256x8,1024x1.",
 )
 @experiment_option("svbrdf-bench")
 @click.option(
@@ -237,11 +291,17 @@ def _bench_options(flags: dict):
     """The benchmark's :class:`~svbrdf_bench.runner.BenchOptions` from the command's flags;
     refuses a bad refinement budget, a reused run in the trash, and nothing to compare."""
     from ..errors import BenchError
+    from ..inference import parse_latency_grid
     from ..presets import get_preset
     from ..refinement import RefinePlan, parse_budgets, parse_flash
     from ..runner import BASELINES, BenchOptions
+    from ..seeding import parse_seeds, train_budget
 
     refine = parse_budgets(flags["refine"])
+    seeds, preset = parse_seeds(flags["seeds"]), get_preset(flags["preset"])
+    budget = None
+    if flags["minutes"] is not None or flags["steps"] is not None:
+        budget = train_budget(flags["minutes"], flags["steps"], preset.minutes)
     plan = RefinePlan(refine, flags["refine_backend"], parse_flash(flags["refine_flash"]))
     chosen, reused, files = _split(flags["models"]), _split(flags["from_runs"]), _split(flags["from_models"])
     for item in reused:
@@ -258,7 +318,7 @@ def _bench_options(flags: dict):
     test_data, real_data = flags["test_data"], flags["real_data"]
     return BenchOptions(
         models=chosen,
-        preset=get_preset(flags["preset"]),
+        preset=preset,
         from_runs=reused,
         from_models=files,
         allow_trained_strips=flags["allow_trained_strips"],
@@ -268,7 +328,9 @@ def _bench_options(flags: dict):
         real_encoding=flags["real_encoding"],
         real_pattern=flags["real_pattern"],
         test_count=flags["test_count"],
-        minutes=flags["minutes"],
+        minutes=budget.marks[0] if budget and budget.kind == "minutes" and not budget.curve else None,
+        seeds=seeds,
+        budget=budget,
         overrides=list(flags["sets"]),
         out=flags["out"],
         device=flags["device"],
@@ -276,6 +338,7 @@ def _bench_options(flags: dict):
         size=flags["size"],
         baselines=[] if flags["no_baselines"] else list(BASELINES),
         refine=plan,
+        latency_grid=parse_latency_grid(flags["latency_grid"]) if flags["latency_grid"] is not None else (),
         say=lambda s: click.echo(s, err=not s.startswith("svbrdf-bench:")),
     )
 

@@ -40,21 +40,30 @@ runner that writes them. It keeps the figures apart from how they are shown:
 - :mod:`~svbrdf_bench.report.figures`: :class:`Report`, every number (intervals, verdicts against
   ``mean``, costs, the latency front, one record per row);
 - :mod:`~svbrdf_bench.report.words`: the headline and the notes, as sentences;
+- :mod:`~svbrdf_bench.report.verdicts`: every verdict of the report as one family, Holm-corrected
+  for their number (:func:`family`), and the warning for a test set of few materials, with
+  per-strip intervals beside the per-material ones;
 - :mod:`~svbrdf_bench.report.tables`: each table as data (:class:`~svbrdf_bench.report.tables.Table`);
+- :mod:`~svbrdf_bench.report.seeds`: "Across seeds and budgets" (``--seeds N``, ``--minutes
+  2,8,32``): each model at each budget over its seeds, the hierarchical bootstrap, the verdicts;
 - :mod:`~svbrdf_bench.report.text`: the renderers, :func:`terminal` and :func:`markdown`;
 - :mod:`~svbrdf_bench.report.files`: the report folder (:func:`write_report`: Markdown, CSV,
   JSON, plots);
-- :mod:`~svbrdf_bench.report.read`: :func:`build_report`, the report read back from MLflow.
+- :mod:`~svbrdf_bench.report.read`: :func:`build_report`, the report read back from MLflow;
+- :mod:`~svbrdf_bench.report.export`: :func:`export_table`, the RMSE table as a paper prints it
+  (``svbrdf-bench export``: Markdown or LaTeX).
 """
 
 from __future__ import annotations
 
+from .export import EXPORT_FORMATS, export_table
 from .figures import Report
 from .files import csv_text, results_json, write_report
 from .read import build_report, link_refined
 from .rows import COLUMNS, PURE_OPTIMISATION, REFERENCE, ModelEntry
 from .tables import Table
 from .text import markdown, table_lines, terminal
+from .verdicts import Family, Verdict, family, small_sample_note
 from .words import (
     REAL_CAVEAT,
     REAL_REFINED_CAVEAT,
@@ -77,6 +86,12 @@ __all__ = [
     "link_refined",
     "Table",
     "table_lines",
+    "family",
+    "Family",
+    "Verdict",
+    "small_sample_note",
+    "export_table",
+    "EXPORT_FORMATS",
     "headline",
     "averaging_note",
     "clock_note",

@@ -19,10 +19,15 @@ import numpy as np
 
 from ..errors import BenchError
 from ..layout import INPUT_RERENDER, REAL_PREFIX, REAL_RERENDER
+from ..inference import CUDA_MEMORY_PREFIX, FLOPS_METRIC
 from ..timing import LATENCY_METRIC, Load
 from .rows import COLUMNS, METRICS, REFERENCE, TIME_COLUMNS, ModelEntry
 
 __all__ = ["Report"]
+
+#: Figures a row's record carries beyond the time columns: the spreads and the load while timing,
+#: the latency grid, FLOPs and inference memory (:mod:`svbrdf_bench.inference`).
+_RECORDED = (f"{LATENCY_METRIC}_", "time/train_ms_per_step_", FLOPS_METRIC, CUDA_MEMORY_PREFIX)
 
 
 @dataclass
@@ -51,6 +56,9 @@ class Report:
     #: Wall seconds of each phase of the benchmark, in order (parent metrics ``phase/*``; empty in
     #: older runs): ``[(name, seconds)]``.
     phases: list[tuple[str, float]] = field(default_factory=list)
+    #: The training budgets a fit never reached (parent artifact ``eval/missed_budgets.json``):
+    #: ``[{model, seed, budget, why}]`` (:mod:`~svbrdf_bench.report.seeds`).
+    missed_budgets: list[dict] = field(default_factory=list)
     #: :meth:`latency_front`'s last answer, with the rows it was computed for.
     _front_cache: dict = field(default_factory=dict, repr=False, compare=False)
 
@@ -138,6 +146,8 @@ class Report:
         ``verdict`` is ``"beats"`` when the whole 95% paired bootstrap interval lies below 0,
         ``"worse"`` when it lies above, ``"within noise"`` when it contains 0. A row refined for N
         steps is held against ``mean`` refined for N steps (the pure-optimisation baseline).
+        ``p_value``: the bootstrap's two-sided p (:func:`svbrdf_bench.metrics.bootstrap_p_value`),
+        which :mod:`~svbrdf_bench.report.verdicts` corrects for the report's number of verdicts.
         """
         from ..metrics import paired_difference
 
@@ -159,7 +169,7 @@ class Report:
                 verdict = "within noise" if d.within_noise else "beats" if d.mean < 0 else "worse"
                 base = float(np.mean(b))
                 out.append({"model": e.label, "versus": ref.label, "column": c, "rmse_difference": d.mean,
-                            "low": d.low, "high": d.high, "verdict": verdict,
+                            "low": d.low, "high": d.high, "verdict": verdict, "p_value": d.p_value,
                             "relative": d.mean / base if base > 0 else math.nan})  # fmt: skip
         return out
 
@@ -216,6 +226,7 @@ class Report:
                         "low": d.low,
                         "high": d.high,
                         "within_noise": bool(d.within_noise),
+                        "p_value": d.p_value,
                         "train_time_per_step_ratio": ratio("time/train_ms_per_step"),
                         "latency_ratio": ratio("time/latency_ms"),
                         "params_ratio": ratio("model/params"),
@@ -288,6 +299,8 @@ class Report:
                 rec |= {"refine_steps": e.refine_steps, "refined_from": e.base_label or "-",
                         "pure_optimisation": e.pure_optimisation}  # fmt: skip
             rec["train_run_id"] = "-" if e.baseline or e.is_reference else e.train_run_id
+            if e.seed is not None:  # a fit's row: its seed and training budget
+                rec |= {"seed": e.seed, "budget": e.budget_text}
             if e.is_reference:  # trained elsewhere: its file, and the budget the file records
                 rec["clock"] = "its own (not this benchmark's budget)"
                 rec["reference_name"] = e.reference_name
@@ -303,7 +316,7 @@ class Report:
                 if key in e.figures:
                     rec[key.replace("/", "_")] = e.figures[key]
             for key in sorted(e.figures):  # spreads and the load while timing
-                if key.startswith((f"{LATENCY_METRIC}_", "time/train_ms_per_step_")) and key not in rec:
+                if key.startswith(_RECORDED) and key not in rec:
                     rec[key.replace("/", "_")] = e.figures[key]
             load = Load.from_metrics(e.figures, LATENCY_METRIC)
             if load is not None:

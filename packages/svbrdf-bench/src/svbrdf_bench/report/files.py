@@ -16,12 +16,13 @@ from pathlib import Path
 from svbrdf_render.formats.files import atomic_output, write_text
 
 from ..layout import SECONDS_PER_IMAGE
-from . import words
+from . import seeds, words
 from .figures import Report
 from .rows import PURE_OPTIMISATION, REFERENCE
 from .text import markdown
+from .verdicts import ALPHA, Family, family, holm_note, small_sample_note
 
-__all__ = ["write_report", "csv_text", "results_json"]
+__all__ = ["write_report", "csv_text", "results_json", "comparisons_json"]
 
 
 def csv_text(rows: list[dict], columns: list[str] | None = None) -> str:
@@ -57,7 +58,27 @@ def results_json(report: Report, records: list[dict], costs: list[dict], against
             "within_noise": [list(p) for p in front["within_noise"]],
         },  # fmt: skip
         "per_strip": report.per_strip_json(),
+        "small_sample": small_sample_note(report),
+        "comparisons": comparisons_json(family(report)),
+        "across_seeds": seeds.section_json(report),  # None: one seed and one budget per model
     }
+
+
+def comparisons_json(fam: Family) -> dict:
+    """results.json's ``comparisons``: every verdict with its p-value, Holm-adjusted p and whether it
+    survives, and the per-strip interval where the test set has few materials."""
+    rows = []
+    for v in fam.verdicts:
+        row = {"kind": v.kind, "model": v.model, "versus": v.versus, "column": v.column,
+               "rmse_difference": v.difference, "low": v.low, "high": v.high, "verdict": v.verdict,
+               "p_value": v.p_value, "holm_p": v.holm_p, "survives_holm": v.survives,
+               "words": fam.words(v)}  # fmt: skip
+        if v.strips is not None:
+            d = v.strips
+            row["per_strip"] = {"rmse_difference": d.mean, "low": d.low, "high": d.high,
+                                "verdict": d.verdict()}  # fmt: skip
+        rows.append(row)
+    return {"count": fam.count, "alpha": ALPHA, "method": "holm", "note": holm_note(fam), "verdicts": rows}
 
 
 def _capture_series(report: Report) -> tuple[dict[str, list], set[str]]:
@@ -87,7 +108,7 @@ def _capture_series(report: Report) -> tuple[dict[str, list], set[str]]:
 
 def _plots(report: Report, out: Path) -> dict[str, Path]:
     """The plots that have something to show: ``{key of text.PLOTS: file written}``."""
-    from ..plots import accuracy_vs_capture_time, learning_curves, pareto
+    from ..plots import accuracy_vs_capture_time, accuracy_vs_training_time, learning_curves, pareto
 
     written = {}
     curves = {e.label: e.curve for e in report.models if e.curve[0]}
@@ -99,6 +120,8 @@ def _plots(report: Report, out: Path) -> dict[str, Path]:
     front = report.latency_front()
     if front["points"]:
         written["pareto"] = pareto(front["points"], out / "pareto.png", within_noise=front["within_noise"])
+    if series := seeds.training_time_series(report):  # several seeds or budgets
+        written["training_time"] = accuracy_vs_training_time(series, out / "accuracy_vs_training_time.png")
     series, baselines = _capture_series(report)
     if series:
         target = out / "accuracy_vs_capture_time.png"

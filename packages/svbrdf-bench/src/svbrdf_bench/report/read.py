@@ -15,11 +15,13 @@ from ..layout import (
     BASELINES_PARAM,
     BENCH_KIND,
     BUDGET_PREFIX,
+    BUDGETS_PARAM,
     FIT_WALL_METRIC,
     GROUP_BY_PARAM,
     KIND_TAG,
     LPIPS_TAG,
     MINUTES_PARAM,
+    MISSED_BUDGETS,
     MODEL_SHA_TAG,
     MODEL_SOURCE_TAG,
     MODEL_TAG,
@@ -37,6 +39,7 @@ from ..layout import (
     TEST_SET_PARAM,
     TRAINER_PREFIXES,
     is_baseline,
+    read_missed,
     read_per_sample,
     read_phases,
     read_test_groups,
@@ -46,6 +49,7 @@ from ..layout import (
 )
 from .figures import Report
 from .rows import INHERITED, ModelEntry
+from .seeds import one_curve_per_fit, tag_entry
 
 __all__ = ["build_report", "link_refined"]
 
@@ -68,8 +72,10 @@ def build_report(parent_id: str) -> Report:
         [parent.info.experiment_id], filter_string=f"tags.`{PARENT_TAG}` = '{parent_id}'"
     )
     with tempfile.TemporaryDirectory() as tmp:
-        models = [_entry(client, child, tmp) for child in sorted(children, key=lambda r: r.info.start_time)]
+        models = [tag_entry(_entry(client, child, tmp), child.data.tags)  # seed, model, budget
+                  for child in sorted(children, key=lambda r: r.info.start_time)]  # fmt: skip
     models = [e for e in models if e is not None]  # None: trained but never evaluated (interrupted)
+    one_curve_per_fit(models)
     if not models:
         raise BenchError(f"run {parent_id} has no evaluated models yet")
     params = parent.data.params
@@ -87,6 +93,7 @@ def build_report(parent_id: str) -> Report:
             k: params[k] for k in (REFINE_PARAM, REFINE_BACKEND_PARAM, REFINE_FLASH_PARAM) if k in params
         },
         phases=read_phases(parent.data.metrics),
+        missed_budgets=_missed(client, parent_id, params),
         **_grouping(client, parent_id, params),
     )
 
@@ -163,6 +170,19 @@ def _grouping(client, parent_id: str, params: dict) -> dict:
             return {}
         group_by, names, groups = read_test_groups(Path(local).read_text())
     return {"group_by": group_by, "sample_names": names, "groups": groups}
+
+
+def _missed(client, parent_id: str, params: dict) -> list[dict]:
+    """The training budgets a fit never reached (the parent's ``eval/missed_budgets.json``); empty
+    without several budgets (param ``train_budgets``) or when every fit reached them."""
+    if "," not in params.get(BUDGETS_PARAM, ""):
+        return []
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            local = client.download_artifacts(parent_id, MISSED_BUDGETS, tmp)
+        except Exception:  # absent: every fit reached every budget
+            return []
+        return read_missed(Path(local).read_text())
 
 
 def link_refined(models: list[ModelEntry]) -> list[ModelEntry]:

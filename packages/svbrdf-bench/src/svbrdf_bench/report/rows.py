@@ -13,7 +13,7 @@ import numpy as np
 
 from svbrdf_render import MAP_NAMES
 
-from ..layout import SECONDS_PER_IMAGE, STEPS_METRIC, STEPS_WALL_METRIC
+from ..layout import SECONDS_PER_IMAGE, STEPS_METRIC, STEPS_WALL_METRIC, budget_words
 
 __all__ = [
     "COLUMNS",
@@ -101,6 +101,17 @@ class ModelEntry:
     #: Of a refined row: the child run of the row it refined, and that row's label.
     refined_from: str | None = None
     base_label: str | None = None
+    #: Of a fit's row: its seed (tag svbrdf.seed), the model it is a seed or budget of (tag
+    #: svbrdf.method) and its training budget, ``("minutes", 8.0)`` (tag svbrdf.budget); None: not
+    #: recorded (older runs, baselines, reference rows). See :mod:`svbrdf_bench.report.seeds`.
+    seed: int | None = None
+    method: str | None = None
+    train_budget: tuple[str, float] | None = None
+
+    @property
+    def budget_text(self) -> str:
+        """The row's training budget, ``8 min`` or ``500 steps``; ``-``: its recipe's or its own."""
+        return "-" if self.train_budget is None else budget_words(*self.train_budget)
 
     @property
     def is_reference(self) -> bool:

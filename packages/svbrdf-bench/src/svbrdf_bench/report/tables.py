@@ -17,6 +17,7 @@ import numpy as np
 from ..layout import INPUT_RERENDER, REAL_RERENDER, SECONDS_PER_IMAGE
 from .figures import Report
 from .rows import COLUMNS, PURE_OPTIMISATION, REFERENCE, SPREADS, TIME_COLUMNS
+from .verdicts import ALPHA, Family, family
 from .words import REAL_CAVEAT, REAL_REFINED_CAVEAT, cost_notes, ratio
 
 __all__ = [
@@ -28,6 +29,7 @@ __all__ = [
     "time_table",
     "phase_table",
     "cost_table",
+    "verdict_table",
 ]
 
 
@@ -58,12 +60,16 @@ def accuracy_table(report: Report, metric: str, title: str, sense: str) -> Table
     return Table(f"{title} ({sense}; {over})", ["model", *COLUMNS], rows)
 
 
-def against_table(report: Report) -> Table | None:
-    """Each trained row's RMSE minus ``mean``'s, per column, with its interval and verdict."""
+def against_table(report: Report, fam: Family | None = None) -> Table | None:
+    """Each trained row's RMSE minus ``mean``'s, per column, with its interval and verdict (marked
+    where it does not survive Holm over the report's ``fam``ily of verdicts)."""
+    fam = family(report) if fam is None else fam
     rows_by_model: dict[str, dict[str, str]] = {}
     for r in report.against_reference():
         rel = "" if math.isnan(r["relative"]) else f" ({100 * r['relative']:+.0f}%)"
-        cell = f"{r['rmse_difference']:+.4f}{rel} [{r['low']:+.4f}, {r['high']:+.4f}] {r['verdict']}"
+        v = fam.get(r["model"], r["versus"], r["column"])
+        verdict = r["verdict"] if v is None else fam.words(v)
+        cell = f"{r['rmse_difference']:+.4f}{rel} [{r['low']:+.4f}, {r['high']:+.4f}] {verdict}"
         rows_by_model.setdefault(r["model"], {})[r["column"]] = cell
     if not rows_by_model:
         return None
@@ -162,15 +168,21 @@ def real_table(report: Report) -> Table | None:
     return Table(title, head, rows, after)
 
 
-def cost_table(report: Report) -> Table:
+def cost_table(report: Report, fam: Family | None = None) -> Table:
     """What each pair of trained rows' accuracy costs (:meth:`Report.costs`), the pairs in words after."""
     costs = report.costs()
+    fam = family(report) if fam is None else fam
     short = {e.label: e.short for e in report.costed}
+
+    def noise(c: dict) -> str:
+        v = fam.get(c["model"], c["versus"], "render")
+        return fam.words(v) if v is not None else "within noise" if c["within_noise"] else "beyond noise"
+
     rows = [
         [
             f"{short[c['model']]} vs {short[c['versus']]}",
             f"{c['render_rmse_difference']:+.4f} [{c['low']:+.4f}, {c['high']:+.4f}]",
-            "within noise" if c["within_noise"] else "beyond noise",
+            noise(c),
             ratio(c["train_time_per_step_ratio"]),
             ratio(c["latency_ratio"]),
             ratio(c["params_ratio"]),
@@ -182,3 +194,31 @@ def cost_table(report: Report) -> Table:
         "; reference rows: not equal-budget)" if any(c["reference"] for c in costs) else ")"
     )
     return Table(title, head, rows, cost_notes(report, costs))
+
+
+def verdict_table(report: Report, fam: Family | None = None) -> Table | None:
+    """Every verdict of the report (:func:`~svbrdf_bench.report.verdicts.family`): the difference
+    per material (or image) with its 95% interval, its p-value and Holm-adjusted p, the verdict
+    after Holm; on a test set of few materials, the per-strip interval and verdict beside."""
+    fam = family(report) if fam is None else fam
+    if not fam.count:
+        return None
+    strips = any(v.strips is not None for v in fam.verdicts)
+    unit = "material" if report.per_material_on else "image"
+    head = ["comparison", "column", f"difference per {unit} [95%]", "p", "Holm p", "verdict"]
+    head += ["per strip [95%]", "per strip"] if strips else []
+    rows = []
+    for v in fam.verdicts:
+        cells = [fam.pair(v), v.column, f"{v.difference:+.4f} [{v.low:+.4f}, {v.high:+.4f}]",
+                 f"{v.p_value:.4f}", f"{v.holm_p:.4f}", fam.words(v)]  # fmt: skip
+        if strips:
+            d = v.strips
+            cells += ["-", "-"] if d is None else [f"{d.mean:+.4f} [{d.low:+.4f}, {d.high:+.4f}]",
+                                                   d.verdict()]  # fmt: skip
+        rows.append(cells)
+    title = (
+        f"Verdicts: {fam.count} comparisons, corrected together by Holm at {ALPHA:.0%} (RMSE of the model "
+        "minus the other's, paired bootstrap; p: two-sided, twice the share of resamples on the far side "
+        "of 0, 0.0000 when none is; Holm p: adjusted for the number of comparisons)"
+    )
+    return Table(title, head, rows)

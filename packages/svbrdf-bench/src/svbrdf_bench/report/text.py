@@ -6,7 +6,7 @@ in the same order: the headline, the notes, then the tables.
 
 from __future__ import annotations
 
-from . import words
+from . import seeds, words
 from .figures import Report
 from .tables import (
     Table,
@@ -17,7 +17,10 @@ from .tables import (
     real_table,
     refine_table,
     time_table,
+    verdict_table,
 )
+from .inference import inference_table
+from .verdicts import family, holm_note, small_sample_note
 
 __all__ = ["terminal", "markdown", "table_lines", "PLOTS"]
 
@@ -25,6 +28,8 @@ __all__ = ["terminal", "markdown", "table_lines", "PLOTS"]
 PLOTS = (
     ("learning_curves", "Validation render RMSE against training time"),  # dashed: real materials
     ("pareto", "Inference latency against render RMSE"),
+    ("training_time", "Test render RMSE against training minutes (mean over seeds, 95% interval "
+     "resampling seeds, then materials)"),
     ("capture_time", "Render and diffuse RMSE against seconds per image (network + refinement)"),
     ("comparison", "Input, true maps and each model's maps, with flash re-renderings"),
     ("real_comparison", "Real photos: each model's maps and their re-rendering under the fitted "
@@ -56,16 +61,27 @@ def table_lines(table: Table | None, markdown: bool) -> list[str]:
 
 def _tables(report: Report, markdown: bool) -> list[str]:
     """Every table, each followed by an empty line: accuracy per metric, against ``mean``, real
-    photos, refinement, time (with the timing notes), what accuracy costs, the Pareto front."""
+    photos, refinement, time (with the timing notes), inference cost, what accuracy costs, every
+    verdict with its Holm correction, the Pareto front."""
+    fam = family(report)
     blocks = [table_lines(accuracy_table(report, *m), markdown) for m in report.metrics_present()]
-    blocks += [table_lines(t, markdown) for t in (against_table(report), real_table(report))]
+    blocks += [table_lines(t, markdown) for t in (against_table(report, fam), real_table(report))]
     blocks += [table_lines(refine_table(report), markdown), table_lines(time_table(report), markdown)]
     blocks.append([f"- {n}" if markdown else n for n in words.timing_notes(report)])
+    blocks.append(table_lines(inference_table(report), markdown))
     if len(report.costed) > 1:
-        blocks.append(table_lines(cost_table(report), markdown))
+        blocks.append(table_lines(cost_table(report, fam), markdown))
+    blocks.append(table_lines(verdict_table(report, fam), markdown))
     blocks.append(words.front_lines(report))
+    blocks.append(table_lines(seeds.seeds_table(report), markdown))  # several seeds or budgets
     blocks.append(table_lines(phase_table(report), markdown))
     return [line for block in blocks if block for line in (*block, "")]
+
+
+def _trust_notes(report: Report) -> list[str]:
+    """After the other notes: a warning when the test set has few materials, and how many
+    comparisons the report makes and which Holm overturns."""
+    return [line for line in (small_sample_note(report), holm_note(family(report))) if line]
 
 
 def terminal(report: Report) -> str:
@@ -82,6 +98,7 @@ def terminal(report: Report) -> str:
         *words.init_notes(report),
         *([note] if note else []),
         *([refine] if refine else []),
+        *_trust_notes(report),
         "",
         *_tables(report, False),
     ]
@@ -91,12 +108,13 @@ def terminal(report: Report) -> str:
 def markdown(report: Report, files: dict[str, str]) -> str:
     """report.md: the headline in bold, the notes as a list, the tables, then the images of
     ``files`` (``{key of PLOTS: file name}``) that were written."""
-    warning = words.timing_warning(report)
+    warning, small = words.timing_warning(report), small_sample_note(report)
     lines = [
         f"# Benchmark: {', '.join(e.name for e in report.models)}",
         "",
         *(line for h in words.headline(report) for line in (f"**{h}**", "")),
         *((f"**{warning}**", "") if warning else ()),
+        *((f"**{small}**", "") if small else ()),
         f"- preset: {report.preset} ({words.budget_words(report)})",
         f"- {words.clock_note(report)}",
         *(f"- {line}" for line in words.init_notes(report)),
@@ -104,6 +122,7 @@ def markdown(report: Report, files: dict[str, str]) -> str:
         *(f"- {line}" for line in [words.refine_note(report)] if line),
         f"- test set: {report.test_set}",
         f"- {words.averaging_note(report)}",
+        *(f"- {line}" for line in [holm_note(family(report))] if line),
         f"- {report.lpips_note}",
         f"- MLflow parent run: `{report.parent_id}`; rebuild with `svbrdf-bench report {report.parent_id}`",
         "",

@@ -14,6 +14,7 @@ from ..layout import REFINE_BACKEND_PARAM, REFINE_FLASH_PARAM
 from ..timing import CPU_WAIT_LIMIT, LATENCY_METRIC, SPREAD_LIMIT, Load
 from .figures import Report
 from .rows import CLOCK_WORDS, PURE_OPTIMISATION, REFERENCE, ModelEntry
+from .verdicts import family, holm_clause
 
 __all__ = [
     "headline",
@@ -116,7 +117,8 @@ def reference_note(report: Report) -> str | None:
 
 
 def headline(report: Report) -> list[str]:
-    """What a reader must see first: per trained model, whether it beats the constant maps."""
+    """What a reader must see first: per trained model, whether it beats the constant maps, and
+    which of those verdicts do not survive Holm over the report's comparisons."""
     if report.reference() is None:
         if report.baselines in ("-", ""):
             return ["No baseline was evaluated (--no-baselines): nothing here says whether the models "
@@ -124,17 +126,17 @@ def headline(report: Report) -> list[str]:
         return []
     synthetic = "procedural" in report.test_set
     lines = []
-    failing = report.not_beating()
+    failing, fam = report.not_beating(), family(report)
     for e in report.trained:
         label, rows, ref = e.label, failing[e.label], report.reference(e.refine_steps)
         if ref is None:
             continue
         if e.refine_steps:
-            lines.append(_refined_headline(e, ref, rows))
+            lines.append(_refined_headline(e, ref, rows) + holm_clause(fam, label))
             continue
         if not rows:
             lines.append(f"{label} beats the constant-map baseline `{REFERENCE}` on every map and on "
-                         "renderings (RMSE, 95% paired bootstrap).")  # fmt: skip
+                         "renderings (RMSE, 95% paired bootstrap)." + holm_clause(fam, label))  # fmt: skip
             continue
         cols = [r["column"] for r in rows]
         worse = [r["column"] for r in rows if r["verdict"] == "worse"]
@@ -150,7 +152,7 @@ def headline(report: Report) -> list[str]:
         )
         lines.append(
             f"{label} does NOT beat the constant-map baseline `{REFERENCE}` on {', '.join(cols)}: it has "
-            f"learned nothing {where} ({why})."
+            f"learned nothing {where} ({why})." + holm_clause(fam, label)
         )
     return lines
 
@@ -290,13 +292,17 @@ def cost_notes(report: Report, costs: list[dict]) -> list[str]:
     renderings."""
     notes = []
     short = {e.label: e.short for e in report.costed}
+    fam = family(report)
     for c in costs:
+        v = fam.get(c["model"], c["versus"], "render")
+        holm = "" if v is None or v.survives else f", but not after Holm over {fam.count} comparisons"
+        after = f"{holm}," if holm else ""
         a, b = short[c["model"]], short[c["versus"]]
         if c["reference"]:
             difference = (
                 "a render RMSE difference within the noise of this test set"
                 if c["within_noise"]
-                else f"{-c['render_rmse_difference']:.4f} render RMSE better"
+                else f"{-c['render_rmse_difference']:.4f} render RMSE better{holm}"
             )
             notes.append(
                 f"{a} against {b}: {difference}, at {ratio(c['latency_ratio'])} the latency and "
@@ -310,7 +316,8 @@ def cost_notes(report: Report, costs: list[dict]) -> list[str]:
             )
         else:
             notes.append(
-                f"{c['model']} renders {-c['render_rmse_difference']:.4f} RMSE better than {c['versus']} "
+                f"{c['model']} renders {-c['render_rmse_difference']:.4f} RMSE better than "
+                f"{c['versus']}{after} "
                 f"for {ratio(c['train_time_per_step_ratio'])} the training time per step and "
                 f"{ratio(c['latency_ratio'])} the latency."
             )

@@ -9,6 +9,7 @@ _HERE = Path(__file__).resolve().parent
 
 OURS = _HERE / "ours.yaml"
 NO_ATTN = _HERE / "no-attn.yaml"
+NO_ATTN_WIDE = _HERE / "no-attn-wide.yaml"
 NO_ADV = _HERE / "no-adv.yaml"
 NO_SVBRDF = _HERE / "no-svbrdf.yaml"
 MULTIGAN = _HERE / "multigan.yaml"

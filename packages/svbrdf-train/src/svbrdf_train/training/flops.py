@@ -23,7 +23,7 @@ import torch
 
 from ..recipe import Recipe
 
-__all__ = ["GPU_PEAK_TFLOPS", "step_flops", "peak_tflops"]
+__all__ = ["GPU_PEAK_TFLOPS", "count_flops", "step_flops", "peak_tflops"]
 
 #: Dense peak TFLOP/s from NVIDIA's data sheets: name substring -> (tf32, bf16).
 GPU_PEAK_TFLOPS: dict[str, tuple[float, float]] = {
@@ -36,7 +36,9 @@ GPU_PEAK_TFLOPS: dict[str, tuple[float, float]] = {
 }
 
 
-def _count(fn) -> int:
+def count_flops(fn) -> int:
+    """FLOPs ``torch.utils.flop_counter`` counts while ``fn()`` runs: convolutions, matrix
+    products and attention, a multiply-add as 2; element-wise ops, norms and pooling count 0."""
     from torch.utils.flop_counter import FlopCounterMode
 
     with FlopCounterMode(display=False) as counter:
@@ -64,10 +66,10 @@ def step_flops(recipe: Recipe, device: str | torch.device = "cpu") -> dict[str, 
     batch = ProceduralMaterials(t.batch, t.resolution, seed=1).batch(list(range(t.batch)))
     photo = batch["input"].to(device)
     with torch.no_grad():
-        forward = _count(lambda: gan.generator(photo))
+        forward = count_flops(lambda: gan.generator(photo))
     every = recipe.optim.g_steps_per_d if gan.discriminator is not None else 1
-    with_d = _count(lambda: gan(batch))  # step 0: the discriminator steps too
-    without_d = _count(lambda: gan(batch)) if every > 1 else with_d
+    with_d = count_flops(lambda: gan(batch))  # step 0: the discriminator steps too
+    without_d = count_flops(lambda: gan(batch)) if every > 1 else with_d
     per_step = (with_d + (every - 1) * without_d) / every
     return {"generator_forward": forward / t.batch, "step": per_step / t.batch}
 
