@@ -27,7 +27,8 @@ from conftest import free_port, load_benchmark, serving
 
 pytest.importorskip("starlette")
 pytest.importorskip("uvicorn")
-from svbrdf_models.modelfile.serve import ServeLimits, build_app, check_depth, parse_request  # noqa: E402
+from svbrdf_models.modelfile.serve import build_app  # noqa: E402
+from svbrdf_models.modelfile.serve_limits import ServeLimits, check_depth, parse_request  # noqa: E402
 
 LIMITS = ["--max-body-mb", "1", "--max-pixels", "20000", "--max-refine", "100000", "--timeout", "4"]
 
@@ -167,10 +168,12 @@ def test_the_nesting_check_counts_across_chunks():
 class _Stuck:
     """A model whose prediction never returns until released: a stuck worker."""
 
+    resolution = 128
+
     def __init__(self):
         self.release = threading.Event()
 
-    def predict(self, photo, refine=0, seconds=None, callback=None):
+    def predict(self, photo, refine=0, seconds=None, callback=None, backend=None):
         self.release.wait(60)
         return sm.load_model("pretrained").predict(photo)
 

@@ -8,7 +8,7 @@ from svbrdf_render.cli import float_range, int_range
 from svbrdf_render.machine import THREADS_HELP
 
 from .._registry import Registry
-from ..modelfile.serve import ServeLimits
+from ..modelfile.serve_limits import ServeLimits
 
 __all__ = ["add_parser", "run"]
 
@@ -21,11 +21,15 @@ examples:
 
 The protocol is MLflow's (what `mlflow models serve` answers): "inputs" holds linear RGB
 photos in [0, 1], channels last, (N, H, W, 3); the answer is {"predictions": {"normal": ...,
-"diffuse": ..., "roughness": ..., "specular": ...}}. Every limit is checked before any work,
-and a refusal is one line of text (413 body too large, 400 bad photo or parameter, 415 not
-JSON, 503 busy, 504 late). A refinement stops at the request's deadline with the maps it
-reached; GET /ping answers 503 while a request holds the worker past its timeout. SIGTERM or
-Ctrl-C ends the server and its work. Needs svbrdf-models[mlflow] (starlette and uvicorn).
+"diffuse": ..., "roughness": ..., "specular": ...}}: at refine 0 maps of the model's size
+(128 px), refined maps at the photo's shorter side. Every limit is checked before any work,
+the answer's size, memory and time estimated from the photos' shape, and a refusal is one
+line of text (413 body too large, 400 bad photo or parameter or a request over a limit, 408
+upload stalled, 415 not JSON, 503 busy or too many connections, 504 late). The timeout covers
+the whole request; a refinement gets what the other stages leave and stops with the maps it
+reached. GET /ping answers 503 while a request holds the worker past its timeout. The log has
+one line per kind of failure every 10 s. SIGTERM or Ctrl-C ends the server and its work.
+Needs svbrdf-models[mlflow] (starlette and uvicorn).
 """
 
 
@@ -46,13 +50,27 @@ def add_parser(sub) -> None:
     p.add_argument("--port", type=int_range(1, 65535), default=5001, help="port [5001]")
     p.add_argument("--max-body-mb", type=float_range(0, above=True), default=d.body_mb, metavar="MB",
                    help=f"largest request body [{d.body_mb:g}]; a 2048 px photo is 60-120 MB of JSON")  # fmt: skip
+    p.add_argument("--max-photos", type=int_range(1), default=d.photos, metavar="N",
+                   help=f"photos in one request [{d.photos}]; each is its own network pass and maps, so send "
+                   "more in several requests")  # fmt: skip
     p.add_argument("--max-pixels", type=int_range(1), default=d.pixels, metavar="N",
                    help=f"pixels of all the photos of one request [{d.pixels:,}]")  # fmt: skip
     p.add_argument("--max-refine", type=int_range(0), default=d.refine, metavar="STEPS",
                    help=f"refinement steps one request may ask [{d.refine}]")  # fmt: skip
+    p.add_argument("--max-answer-mb", type=float_range(0, above=True), default=d.answer_mb, metavar="MB",
+                   help=f"largest answer, estimated before any work [{d.answer_mb:g}]; 10 values a "
+                   "pixel, about 11 bytes each: a 128 px material is 1.7 MB, a 1024 px refined one "
+                   "110 MB")  # fmt: skip
     p.add_argument("--timeout", type=float_range(1), default=d.timeout, metavar="S",
-                   help=f"seconds a request may take, its wait included; refinement stops before "
-                   f"[{d.timeout:g}]")  # fmt: skip
+                   help=f"seconds a request may take, upload, queue and answer included [{d.timeout:g}]; "
+                   "one that cannot end in time is refused before any work, a refinement stops in "
+                   "time")  # fmt: skip
+    p.add_argument("--read-timeout", type=float_range(0, above=True), default=d.read_timeout, metavar="S",
+                   help=f"seconds an upload may go without a byte (then 408), and a connection may take "
+                   f"to send its request's headers (then it is closed) [{d.read_timeout:g}]")  # fmt: skip
+    p.add_argument("--max-connections", type=int_range(1), default=d.connections, metavar="N",
+                   help=f"connections at once [{d.connections}]; beyond, a request is answered 503; at "
+                   "most the open-file limit (ulimit -n) less 64")  # fmt: skip
     p.add_argument("--threads", type=int_range(1), metavar="N", help=THREADS_HELP)
 
 
@@ -60,11 +78,15 @@ def run(args, registry: Registry, out) -> None:
     from svbrdf_render.machine import choose_threads
 
     from ..modelfile.files import load_model
-    from ..modelfile.serve import serve
+    from ..modelfile.serve import check_open_files, serve
 
+    limits = ServeLimits(body_mb=args.max_body_mb, pixels=args.max_pixels, refine=args.max_refine,
+                         timeout=args.timeout, photos=args.max_photos, answer_mb=args.max_answer_mb,
+                         read_timeout=args.read_timeout, connections=args.max_connections)  # fmt: skip
+    check_open_files(limits)  # before the model loads: a bad value is one line at once
     choice = choose_threads(args.threads)
     model = load_model(args.source)
-    limits = ServeLimits(args.max_body_mb, args.max_pixels, args.max_refine, args.timeout)
+
     def say(line: str) -> None:
         print(f"{line}; {choice.describe()}", file=out, flush=True)
 

@@ -51,7 +51,8 @@ from svbrdf_render.maps import MAP_CHANNELS
 
 from ..errors import DataError
 from .files import PYFUNC_ARTIFACT, TrainedModel, load_model
-from .serve import ServeLimits, check_photo_array, maps_arrays, refine_budget
+from .serve import maps_arrays
+from .serve_limits import ServeLimits, check_photo_array, refine_budget
 
 __all__ = [
     "SERVE_LIMITS",
@@ -86,7 +87,7 @@ class PhotoInputError(DataError, MlflowException):
 def check_photos(photos: Any) -> np.ndarray:
     """``photos`` as a float32 ``(N, H, W, 3)`` array of linear RGB in [0, 1] (an ``(H, W, 3)``
     photo gets a batch axis), or a :class:`PhotoInputError` that says what is wrong
-    (:func:`svbrdf_models.modelfile.serve.check_photo_array` under ``SVBRDF_SERVE_MAX_PIXELS``)."""
+    (:func:`svbrdf_models.modelfile.serve_limits.check_photo_array` under ``SVBRDF_SERVE_MAX_PIXELS``)."""
     try:
         return check_photo_array(photos, serve_limit("MAX_PIXELS"), "SVBRDF_SERVE_MAX_PIXELS")
     except DataError as e:

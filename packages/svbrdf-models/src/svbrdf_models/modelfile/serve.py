@@ -10,17 +10,24 @@ change::
     # -> {"predictions": {"normal": [...], "diffuse": [...], "roughness": [...], "specular": [...]}}
 
 ``GET /ping`` (and ``/health``) answer 200 while the worker can take a request, ``GET /version``
-the package's version. What it does that MLflow's own server does not (docs/serving.md has the
-cases, measured against ``mlflow models serve``):
+the package's version. What it does that MLflow's own server does not (docs/svbrdf-models.md
+has the cases, measured against ``mlflow models serve``):
 
-- every limit (:class:`ServeLimits`: body size, JSON nesting, pixels per request, refinement
-  steps, time per request) is checked before any work, and a refusal is one line of text whose
-  first words say what was wrong, never an echo of the input (413 for a body over the limit,
-  400 for the rest, 415 for a body that is not JSON);
-- a request's refinement stops at its deadline (:attr:`ServeLimits.timeout`, less a margin for
-  the network and the answer) and answers with the maps it reached, so no request holds the
-  worker past its time; the predictions run one at a time on one worker thread (torch already
-  uses every core), and a request that waited in the queue past its deadline is answered 503;
+- every limit (:class:`~svbrdf_models.modelfile.serve_limits.ServeLimits`: body size, JSON
+  nesting, photos and pixels per request, refinement steps, the answer's size, memory, time) is
+  checked before any work, and a refusal is one line of text whose first words say what was
+  wrong, never an echo of the input (413 for a body over the limit, 400 for the rest, 415 for a
+  body that is not JSON); the answer, memory and time are estimated from the photos' shape
+  (:func:`~svbrdf_models.modelfile.serve_limits.estimate_request`);
+- the deadline covers the whole request: upload, queue, network, refinement and answer; the
+  refinement gets what the other stages' estimates leave and answers with the maps it reached,
+  so no request holds the worker past its time; the predictions run one at a time on one worker
+  thread (torch already uses every core), and a request that waited in the queue until too
+  little was left is answered 503;
+- connections are bounded (503 beyond ``--max-connections``), an upload or a connection that
+  sends nothing for ``--read-timeout`` seconds is ended (408 for an upload), a client that
+  leaves mid-upload ends its request quietly, and the log holds one line per kind of failure
+  every 10 s (:mod:`~svbrdf_models.modelfile.serve_log`), never a client's traceback;
 - ``/ping`` answers 503 while one request has held the worker past its timeout (stuck), not a
   healthy 200 over a worker that takes nothing;
 - it is one process: SIGTERM or Ctrl-C ends the server and its work (a running refinement
@@ -36,77 +43,20 @@ import asyncio
 import json
 import threading
 import time
+import traceback
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from ..errors import DataError
+from .serve_limits import Refused, RequestCost, ServeLimits, check_cost, estimate_request, parse_request
+from .serve_log import FailureLog, quiet_logs
 
-__all__ = [
-    "ServeLimits",
-    "build_app",
-    "serve",
-    "check_photo_array",
-    "refine_budget",
-    "maps_arrays",
-    "encode_answer",
-]
+__all__ = ["build_app", "serve", "server_config", "maps_arrays", "encode_answer"]
 
-#: What a photo array must be, as the refusals say it.
-PHOTOS = "photos (linear RGB in [0, 1], shape (N, H, W, 3) or (H, W, 3))"
-
-
-def check_photo_array(photos: Any, max_pixels: int, limit_name: str) -> np.ndarray:
-    """``photos`` (nested lists or an array) as a float32 ``(N, H, W, 3)`` array of linear RGB in
-    [0, 1] (an ``(H, W, 3)`` photo gets a batch axis), with at most ``max_pixels`` pixels in all
-    (``limit_name``: the setting that changes it); a :class:`DataError` that says what is wrong."""
-    try:
-        array = np.asarray(photos)
-    except Exception as e:  # ragged nested lists, objects numpy cannot hold in one array
-        raise DataError(f"{PHOTOS}: not an array ({type(e).__name__})") from None
-    if array.dtype.kind not in "fiu":
-        raise DataError(f"{PHOTOS}: expected numbers, got {array.dtype} values ({type(photos).__name__})")
-    if array.ndim == 3:
-        array = array[None]
-    if array.ndim != 4 or array.shape[-1] != 3 or 0 in array.shape:
-        hint = "; channels go last" if array.ndim == 4 and array.shape[1] == 3 else ""
-        raise DataError(f"{PHOTOS}: got shape {tuple(np.shape(photos))}{hint}")
-    pixels = int(np.prod(array.shape[:3]))
-    if pixels > max_pixels:
-        raise DataError(f"{PHOTOS}: {pixels:,} pixels in one request, over this server's limit of "
-                        f"{max_pixels:,} ({limit_name}); send fewer or smaller photos")  # fmt: skip
-    array = array.astype(np.float32, copy=False)
-    bad = int(np.count_nonzero(~np.isfinite(array)))
-    if bad:
-        raise DataError(f"{PHOTOS}: {bad} values are NaN or infinite; give finite pixel values")
-    low, high = float(array.min()), float(array.max())
-    if low < 0:
-        raise DataError(f"{PHOTOS}: values down to {low:.4g}; linear radiance is never below 0")
-    if high > 1:
-        raise DataError(f"{PHOTOS}: values span [{low:.4g}, {high:.4g}]; scale 8-bit values by 1/255, and "
-                        "decode sRGB to linear first")  # fmt: skip
-    return array
-
-
-def refine_budget(refine: Any, limit: int, limit_name: str) -> int:
-    """A request's refinement steps (an integer >= 0; numpy integers too) at most ``limit``
-    (``limit_name``: the setting that changes it); a :class:`DataError` otherwise."""
-    from ..capture.refining import check_refine
-
-    if isinstance(refine, np.integer):  # MLflow's parameter schema may hand numpy integers
-        refine = int(refine)
-    try:
-        steps = check_refine(refine)
-    except DataError as e:
-        raise DataError(f"params: {e}") from None
-    if steps > limit:
-        raise DataError(
-            f"params: refine {steps} is over this server's limit of {limit} steps ({limit_name}); "
-            "ask for fewer"
-        )
-    return steps
+#: Of what the other stages' estimates leave, the share the refinement gets: the estimates are
+#: an idle machine's, and a busy one is slower.
+REFINE_SHARE = 0.9
 
 
 def maps_arrays(svbrdf) -> dict[str, np.ndarray]:
@@ -114,67 +64,8 @@ def maps_arrays(svbrdf) -> dict[str, np.ndarray]:
     return {name: t.permute(0, 2, 3, 1).contiguous().cpu().numpy() for name, t in svbrdf.maps().items()}
 
 
-@dataclass(frozen=True)
-class ServeLimits:
-    """What one request may ask of the server; each has a ``svbrdf-models serve`` option."""
-
-    #: Request body, MiB (``--max-body-mb``): a 2048x2048 photo is 60-120 MB of JSON.
-    body_mb: float = 128.0
-    #: Pixels of all the photos of one request (``--max-pixels``): 2048x2048, about 2 GB refined.
-    pixels: int = 4 * 1024 * 1024
-    #: Refinement steps one request may ask (``--max-refine``).
-    refine: int = 500
-    #: Seconds a request may take, queue included (``--timeout``); refinement stops before it.
-    timeout: float = 60.0
-    #: Nesting of the JSON body: a batch of photos is 4 deep inside its object; 8 leaves room.
-    depth: int = 8
-
-
-class _Refused(Exception):
-    """A request answered with ``status`` and one line, ``reason``."""
-
-    def __init__(self, status: int, reason: str):
-        super().__init__(reason)
-        self.status, self.reason = status, reason
-
-
 class _Stopped(Exception):
     """The server is shutting down: the refinement under way stops at its next step."""
-
-
-def check_depth(body: bytes, limit: int) -> None:
-    """Refuse a body whose brackets nest deeper than ``limit`` (read as bytes in 8 MiB chunks,
-    before any parser recurses into it; brackets inside strings count too, which a photo has
-    none of)."""
-    depth, chunk = 0, 8 << 20
-    for start in range(0, len(body), chunk):
-        b = np.frombuffer(body, np.uint8, min(chunk, len(body) - start), start)
-        step = np.isin(b, (91, 123)).astype(np.int32) - np.isin(b, (93, 125))  # [{ minus ]}
-        levels = depth + np.cumsum(step)
-        if levels.size and int(levels.max()) > limit:
-            raise _Refused(400, f"body: JSON nested more than {limit} deep; a batch of photos is 4 deep")
-        depth = int(levels[-1]) if levels.size else depth
-
-
-def parse_request(body: bytes, limits: ServeLimits) -> tuple[np.ndarray, int]:
-    """``(photos (N, H, W, 3) float32, refinement steps)`` from a request body, or :class:`_Refused`."""
-    check_depth(body, limits.depth)
-    try:
-        doc = json.loads(body)
-    except (ValueError, RecursionError) as e:  # JSONDecodeError, bad UTF-8: the position, not the text
-        raise _Refused(400, f"body: not JSON ({type(e).__name__} {str(e)[:80]})") from None
-    shape = 'expected {"inputs": photos, "params": {"refine": STEPS}}'
-    if not isinstance(doc, dict) or not {"inputs", "instances"} & doc.keys():
-        raise _Refused(400, f"body: {shape}")
-    params = doc.get("params") or {}
-    if not isinstance(params, dict) or set(params) - {"refine"}:
-        raise _Refused(400, f"params: {shape}; refine is the only parameter")
-    try:
-        photos = check_photo_array(doc.get("inputs", doc.get("instances")), limits.pixels, "--max-pixels")
-        steps = refine_budget(params.get("refine", 0), limits.refine, "--max-refine")
-    except DataError as e:
-        raise _Refused(400, str(e)) from None
-    return photos, steps
 
 
 class _Worker:
@@ -191,19 +82,23 @@ class _Worker:
         since = self.busy_since
         return 0.0 if since is None else max(0.0, time.monotonic() - since - self.limits.timeout)
 
-    def run(self, photos: np.ndarray, steps: int, deadline: float) -> dict[str, np.ndarray]:
-        """The maps of ``photos`` (:func:`maps_arrays`), refined until ``deadline`` at most."""
+    def run(self, photos: np.ndarray, steps: int, deadline: float, cost: RequestCost) -> dict:
+        """The maps of ``photos`` (:func:`maps_arrays`); the refinement gets what ``cost``'s other
+        stages leave before ``deadline`` (the renderer's eager backend: no compile stalls)."""
         import torch
 
         now = time.monotonic()
-        if now > deadline:
-            raise _Refused(503, "busy: this request waited in the queue past its timeout; try again")
+        left = deadline - now - cost.least_s
+        if left < 0:
+            raise Refused(503, f"busy: this request waited in the queue until too little of its "
+                               f"{self.limits.timeout:g} s timeout was left; try again")  # fmt: skip
         self.busy_since = now
         try:
-            # the network and the answer's JSON take time too: refinement gets 80% of what is left
-            seconds = max(0.5, 0.8 * (deadline - now)) if steps else None
+            seconds = REFINE_SHARE * left + cost.step_s if steps else None
             photo = torch.from_numpy(photos).permute(0, 3, 1, 2)
-            maps = self.model.predict(photo, refine=steps, seconds=seconds, callback=self._stop_check)
+            maps = self.model.predict(
+                photo, refine=steps, seconds=seconds, callback=self._stop_check, backend="eager"
+            )
             return maps_arrays(maps)
         finally:
             self.busy_since = None
@@ -224,10 +119,12 @@ def encode_answer(arrays: dict[str, np.ndarray]) -> bytes:
     return json.dumps({"predictions": rounded}).encode()
 
 
-def _line(status: int, reason: str):
+def _line(status: int, reason: str, *, close: bool = False):
+    """One line of text; ``close``: the connection ends with it (a body left unread)."""
     from starlette.responses import PlainTextResponse
 
-    return PlainTextResponse(reason.splitlines()[0] + "\n", status_code=status)
+    headers = {"Connection": "close"} if close else None
+    return PlainTextResponse(reason.splitlines()[0] + "\n", status_code=status, headers=headers)
 
 
 #: Bytes of a body over the limit read and thrown away before the 413, so that a client that
@@ -235,7 +132,24 @@ def _line(status: int, reason: str):
 DRAIN_BYTES = 1 << 30
 
 
-async def _read_body(request, limits: ServeLimits) -> bytes:
+async def _chunks(request, limits: ServeLimits, deadline: float):
+    """The body's chunks, each within ``limits.read_timeout`` of the last and all before
+    ``deadline`` (else :class:`Refused` 408); starlette's ``ClientDisconnect`` when the client leaves."""
+    stream = request.stream().__aiter__()
+    while True:
+        wait = min(limits.read_timeout, deadline - time.monotonic())
+        try:
+            chunk = await asyncio.wait_for(stream.__anext__(), max(wait, 0.0))
+        except StopAsyncIteration:
+            return
+        except TimeoutError:
+            why = (f"no byte for {limits.read_timeout:g} s (--read-timeout)" if wait == limits.read_timeout
+                   else f"not all in within the {limits.timeout:g} s timeout (--timeout)")  # fmt: skip
+            raise Refused(408, f"body: the upload stalled, {why}; send the whole body at once") from None
+        yield chunk
+
+
+async def _read_body(request, limits: ServeLimits, deadline: float) -> bytes:
     """The body, refused (413) once it is known to exceed ``limits.body_mb``; what is over the
     limit is read and dropped (up to :data:`DRAIN_BYTES`), never kept."""
     cap = int(limits.body_mb * 2**20)
@@ -243,7 +157,7 @@ async def _read_body(request, limits: ServeLimits) -> bytes:
     length = request.headers.get("content-length", "")
     declared = int(length) if length.isdigit() else None
     chunks, size = [], 0
-    async for chunk in request.stream():
+    async for chunk in _chunks(request, limits, deadline):
         size += len(chunk)
         if size <= cap and (declared is None or declared <= cap):
             chunks.append(chunk)
@@ -252,20 +166,42 @@ async def _read_body(request, limits: ServeLimits) -> bytes:
     if size > cap or (declared or 0) > cap:
         chunks.clear()
         got = f"{max(size, declared or 0) / 2**20:.1f} MB" if size <= DRAIN_BYTES else "more than 1 GB"
-        raise _Refused(413, f"body: {got}, {over}")
+        raise Refused(413, f"body: {got}, {over}")
     return b"".join(chunks)
 
 
-def build_app(model, limits: ServeLimits | None = None):
-    """The Starlette app serving ``model`` (a :class:`svbrdf_models.TrainedModel`) within ``limits``;
-    ``app.state.worker`` is its worker (``close()`` it when the server ends)."""
+async def _answer(request, worker: _Worker, limits: ServeLimits, start: float) -> bytes:
+    """The answer's body to a request that arrived at ``start``, or :class:`Refused`."""
+    from svbrdf_render import machine
+
+    deadline = start + limits.timeout
+    kind = request.headers.get("content-type", "").split(";")[0].strip()
+    if kind != "application/json":
+        raise Refused(415, f"body: Content-Type {kind or 'none'}; send application/json")
+    body = await _read_body(request, limits, deadline)
+    photos, steps = await asyncio.to_thread(parse_request, body, limits)  # /ping is answered meanwhile
+    del body
+    cost = estimate_request(photos.shape, steps, worker.model.resolution)
+    check_cost(cost, steps, limits, spent=time.monotonic() - start, free=machine.available_memory())
+    loop = asyncio.get_running_loop()
+    future = loop.run_in_executor(worker.pool, worker.run, photos, steps, deadline, cost)
+    late = start + 1.5 * limits.timeout  # should the estimates miss: 504 (the refinement keeps its budget)
+    arrays = await asyncio.wait_for(asyncio.shield(future), max(late - time.monotonic(), 0.1))
+    return await asyncio.to_thread(encode_answer, arrays)  # the worker goes on to the next photo
+
+
+def build_app(model, limits: ServeLimits | None = None, log: FailureLog | None = None):
+    """The Starlette app serving ``model`` (a :class:`svbrdf_models.TrainedModel`) within ``limits``,
+    its failures written to ``log``; ``app.state.worker`` is its worker (``close()`` it when the
+    server ends)."""
     from starlette.applications import Starlette
+    from starlette.requests import ClientDisconnect
     from starlette.responses import Response
     from starlette.routing import Route
 
     from .. import __version__
 
-    limits = limits or ServeLimits()
+    limits, log = limits or ServeLimits(), log or FailureLog()
     worker = _Worker(model, limits)
 
     async def ping(request):
@@ -279,34 +215,99 @@ def build_app(model, limits: ServeLimits | None = None):
         return Response(__version__, media_type="application/json")
 
     async def invocations(request):
-        deadline = time.monotonic() + limits.timeout
         try:
-            kind = request.headers.get("content-type", "").split(";")[0].strip()
-            if kind != "application/json":
-                raise _Refused(415, f"body: Content-Type {kind or 'none'}; send application/json")
-            photos, steps = parse_request(await _read_body(request, limits), limits)
-            loop = asyncio.get_running_loop()
-            future = loop.run_in_executor(worker.pool, worker.run, photos, steps, deadline)
-            arrays = await asyncio.wait_for(asyncio.shield(future), limits.timeout * 1.5)
-            body = await asyncio.to_thread(encode_answer, arrays)  # the worker goes on to the next photo
-        except _Refused as e:
-            return _line(e.status, e.reason)
+            body = await _answer(request, worker, limits, time.monotonic())
+        except Refused as e:
+            log.note(f"{e.status} refused", e.reason)
+            return _line(e.status, e.reason, close=e.status in (408, 415))
         except DataError as e:  # what the model refuses once it has the photo (a refinement too large)
+            log.note("400 refused", str(e))
             return _line(400, str(e))
         except TimeoutError:
+            log.note("504 late", f"no answer within {limits.timeout * 1.5:g} s")
             return _line(504, f"timeout: no answer within {limits.timeout * 1.5:g} s; send a smaller photo")
+        except _Stopped:
+            return _line(503, "stopping: the server is shutting down")
+        except ClientDisconnect:  # nobody is left to answer
+            log.note("client gone", "a client closed its connection mid-upload; its request ended")
+            return _line(400, "body: the client closed the connection mid-upload", close=True)
+        except Exception as e:  # the server's own fault: its traceback, once a window
+            log.note("500 server error", "".join(traceback.format_exception(e)).rstrip())
+            return _line(500, f"server error: {type(e).__name__}; the server's log has the details")
         return Response(body, media_type="application/json")
 
     routes = [Route("/ping", ping), Route("/health", ping), Route("/version", version),
               Route("/invocations", invocations, methods=["POST"])]  # fmt: skip
     app = Starlette(routes=routes)
-    app.state.worker = worker
+    app.state.worker, app.state.log = worker, log
     return app
 
 
+def _guarded_protocol(idle_seconds: float):
+    """uvicorn's h11 protocol, closing a connection whose request line and headers have not all
+    come within ``idle_seconds`` of its first byte (or of the connection): uvicorn waits for them
+    without end, so 64 silent sockets would hold every connection. It uses the timer uvicorn
+    keeps for idle keep-alive connections."""
+    import h11
+    from uvicorn.protocols.http.h11_impl import H11Protocol
+
+    class GuardedH11Protocol(H11Protocol):
+        waiting_since: float | None = None  # when this connection began to owe a request
+
+        def _arm(self) -> None:
+            if self.conn.their_state is not h11.IDLE or self.transport.is_closing():
+                self.waiting_since = None  # a request is under way, or the connection ends
+                return
+            now = self.loop.time()
+            self.waiting_since = now if self.waiting_since is None else self.waiting_since
+            if self.timeout_keep_alive_task is None:
+                left = max(self.waiting_since + idle_seconds - now, 0.0)
+                self.timeout_keep_alive_task = self.loop.call_later(left, self.timeout_keep_alive_handler)
+
+        def connection_made(self, transport) -> None:
+            super().connection_made(transport)
+            self._arm()
+
+        def data_received(self, data: bytes) -> None:
+            super().data_received(data)  # cancels the timer; a request still incomplete re-arms it
+            self._arm()
+
+    return GuardedH11Protocol
+
+
+def server_config(app, host: str, port: int, limits: ServeLimits):
+    """The uvicorn configuration of ``app`` within ``limits``: ``limits.connections`` connections
+    at once, a request on one more answered 503 (uvicorn counts the request's own connection),
+    a connection that has not sent its request's headers within ``limits.read_timeout`` s closed."""
+    import uvicorn
+
+    return uvicorn.Config(
+        app, host=host, port=port, log_level="warning", timeout_graceful_shutdown=5,
+        limit_concurrency=limits.connections + 1, http=_guarded_protocol(limits.read_timeout),
+    )  # fmt: skip
+
+
+#: File descriptors a server needs besides its connections (the model, logs, torch's threads).
+SPARE_FILES = 64
+
+
+def check_open_files(limits: ServeLimits) -> None:
+    """Refuse (:class:`DataError`) more connections than this process may open files: past
+    the limit every accept fails, and /ping with it."""
+    import resource
+
+    soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+    if soft != resource.RLIM_INFINITY and limits.connections + SPARE_FILES > soft:
+        raise DataError(
+            f"--max-connections {limits.connections}: this process may open {soft} files (ulimit -n); "
+            f"give at most {max(soft - SPARE_FILES, 1)}, or raise ulimit -n"
+        )
+
+
 def serve(model, host: str, port: int, limits: ServeLimits, say=print) -> None:
-    """Serve ``model`` until SIGTERM or Ctrl-C; the worker ends with the server. A port taken, or
-    starlette/uvicorn missing, is a :class:`DataError` before anything starts."""
+    """Serve ``model`` until SIGTERM or Ctrl-C; the worker ends with the server. A port taken,
+    more connections than open files, or starlette/uvicorn missing, is a :class:`DataError`
+    before anything starts."""
     import socket
 
     try:
@@ -314,18 +315,22 @@ def serve(model, host: str, port: int, limits: ServeLimits, say=print) -> None:
         import uvicorn
     except ImportError as e:
         raise DataError(f"svbrdf-models serve needs {e.name}: pip install 'svbrdf-models[mlflow]'") from None
+    check_open_files(limits)
     with socket.socket() as probe:  # uvicorn would log a traceback-like error and exit 1
         try:
             probe.bind((host, port))
         except OSError as e:
             raise DataError(f"--host {host} --port {port}: cannot listen there ({e.strerror}); "
                             "give another --port") from None  # fmt: skip
-    app = build_app(model, limits)
-    say(f"serving {model.describe()} at http://{host}:{port}/invocations "
-        f"(limits: body {limits.body_mb:g} MB, {limits.pixels:,} pixels, refine {limits.refine} steps, "
-        f"{limits.timeout:g} s); Ctrl-C stops")  # fmt: skip
-    config = uvicorn.Config(app, host=host, port=port, log_level="warning", timeout_graceful_shutdown=5)
+    log = FailureLog()
+    app = build_app(model, limits, log)
+    say(f"serving {model.describe()} at http://{host}:{port}/invocations (limits: body "
+        f"{limits.body_mb:g} MB, {limits.photos} photos, {limits.pixels:,} pixels, refine {limits.refine} "
+        f"steps, answer {limits.answer_mb:g} MB, {limits.timeout:g} s, {limits.connections} connections, "
+        f"{limits.read_timeout:g} s idle); Ctrl-C stops")  # fmt: skip
+    config = server_config(app, host, port, limits)
     try:
-        uvicorn.Server(config).run()
+        with quiet_logs(log):
+            uvicorn.Server(config).run()
     finally:
         app.state.worker.close()
