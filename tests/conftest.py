@@ -65,6 +65,23 @@ def des18_strips(folder: Path, count: int = 3, size: int = 64) -> Path:
     return folder
 
 
+@pytest.fixture(autouse=True, scope="module")
+def _threads_for_the_free_cores():
+    """Each module computes with one thread per free core, as the commands do
+    (:func:`svbrdf_render.machine.choose_threads`; ``OMP_NUM_THREADS`` when set), in torch and
+    in numpy's BLAS: their threads spin while they wait for each other, and on a 2-core machine
+    that another program keeps busy the suite's own threads waited for cores that never came
+    free (test_physics's albedo quadrature took 73 s of CPU with 2 threads there, 4 s with 1).
+    An idle machine keeps every core; a test that sets its own threads puts them back itself."""
+    from svbrdf_render.machine import choose_threads
+
+    threads = choose_threads().threads
+    with contextlib.suppress(ImportError):  # threadpoolctl comes with scikit-learn
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(threads, user_api="blas")
+
+
 @pytest.fixture
 def material() -> SVBRDF:
     return random_svbrdf()
@@ -108,6 +125,39 @@ def run_cli(*args: str, cwd=None, env=None, timeout: float = 300) -> subprocess.
         text=True,
         timeout=timeout,
     )
+
+
+def run_cli_here(
+    *args: str, cwd=None, env=None, program: str = "svbrdf_train"
+) -> subprocess.CompletedProcess[str]:
+    """:func:`run_cli` in this process (``program``: ``svbrdf_train`` or ``svbrdf_bench``): the
+    command's ``main`` with ``env`` set and ``cwd`` entered, its exit status and what it printed.
+    A fresh interpreter spends about 2.5 s of CPU importing torch and MLflow before a refusal
+    that takes milliseconds; a test that checks many refusals runs one of them with
+    :func:`run_cli` and the others here. The environment, the working folder and torch's thread
+    count (``--threads`` sets it) are put back afterwards."""
+    import importlib
+    import io
+
+    main = importlib.import_module(f"{program}.cli").main
+    out, err = io.StringIO(), io.StringIO()
+    saved = {k: os.environ.get(k) for k in env or {}}
+    threads, here = torch.get_num_threads(), os.getcwd()
+    try:
+        os.environ.update(env or {})
+        if cwd is not None:
+            os.chdir(cwd)
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = main([str(a) for a in args])
+    finally:
+        os.chdir(here)
+        torch.set_num_threads(threads)
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    return subprocess.CompletedProcess([program, *args], code, out.getvalue(), err.getvalue())
 
 
 # -- the validators and the browser that the README's set-up installs ------------------------------

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 import svbrdf_models as sm
-from conftest import des18_strips, run_cli
+from conftest import des18_strips, run_cli, run_cli_here
 from svbrdf_train.predict import Predictor
 from svbrdf_train.training.checkpoint import load_checkpoint
 
@@ -194,7 +194,7 @@ def test_predict_takes_a_registry_uri(fit_dir, tmp_path):
 )
 def test_bad_arguments_one_line_exit_2(fit_dir, tmp_path, args, says):
     args = [str(fit_dir / "last.pt") if a == "CKPT" else a for a in args]
-    r = run_cli("export", *args, "-o", str(tmp_path / "m.pt"))
+    r = run_cli_here("export", *args, "-o", str(tmp_path / "m.pt"))  # in this process (a fresh one: below)
     assert r.returncode == 2 and says in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "m.pt").exists()
 
@@ -207,13 +207,13 @@ def test_export_over_a_checkpoint_or_another_file_is_refused_without_force(fit_d
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "--force" in r.stderr and "checkpoint" in r.stderr
     assert (fit_dir / "last.pt").read_bytes() == before
-    notes = tmp_path / "notes.txt"
+    notes = tmp_path / "notes.txt"  # the rest in this process: the same command, no fresh interpreter
     notes.write_text("mine\n")
-    r = run_cli("export", str(fit_dir), "-o", str(notes))
+    r = run_cli_here("export", str(fit_dir), "-o", str(notes))
     assert r.returncode == 2 and str(notes) in r.stderr and notes.read_text() == "mine\n", r.stderr
     model = tmp_path / "model.pt"
     model.write_bytes(exported[0].read_bytes())
-    assert run_cli("export", str(fit_dir), "-o", str(model)).returncode == 0
-    r = run_cli("export", str(fit_dir), "-o", str(notes), "--force")
+    assert run_cli_here("export", str(fit_dir), "-o", str(model)).returncode == 0
+    r = run_cli_here("export", str(fit_dir), "-o", str(notes), "--force")
     assert r.returncode == 0, r.stderr
     assert sm.load_model(notes).steps == load_checkpoint(fit_dir / "last.pt")["step"]
