@@ -12,7 +12,8 @@ from click.testing import CliRunner
 from svbrdf_train.cli import cli
 from svbrdf_train.errors import CheckpointError
 from svbrdf_train.recipe import load_recipe
-from svbrdf_train.training.checkpoint import file_sha256, load_checkpoint
+from svbrdf_models.modelfile.modelcheck import file_sha256
+from svbrdf_train.training.checkpoint import load_checkpoint
 from svbrdf_train.training.trainer import FitOptions, fit
 
 

@@ -191,22 +191,21 @@ class PhotoSettings:
 #: ``cos^0-4``, -0.25 to +0.75 EV), and JPEG at 70-95 on 80% of the photos made them blockier
 #: than real ones (saved at full size, then cropped and resized), hence these ranges. Its draws
 #: come from a stream of their own: the other presets' photos are what they were.
+_PHONE: dict[str, Any] = {
+    "distance": (1.8, 3.7),
+    "intensity": (10.0, 21.0),
+    "exposure_ev": (0.0, 0.5),
+    "white_balance": 0.08,
+    "jpeg_probability": 0.5,
+    "jpeg_quality": (75, 95),
+}
 CAPTURE_PRESETS: dict[str, dict[str, Any]] = {
     "des18": {},
-    "phone": {
-        "distance": (1.8, 3.7),
-        "intensity": (10.0, 21.0),
-        "exposure_ev": (0.0, 0.5),
-        "white_balance": 0.08,
-        "jpeg_probability": 0.5,
-        "jpeg_quality": (75, 95),
-    },
+    "phone": _PHONE,
     "handheld": {
-        "distance": (1.8, 3.7),
-        "intensity": (10.0, 21.0),
+        **_PHONE,
         "exposure_ev": (0.0, 1.0),
         "white_balance": 0.1,
-        "jpeg_probability": 0.5,
         "jpeg_quality": (80, 95),
         "flash_offset": 0.3,
         "flash_offset_min": 0.08,

@@ -38,7 +38,6 @@ from a network instead of torch's list of every key. :func:`check_resumable` che
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 from collections.abc import Mapping
@@ -47,6 +46,7 @@ from typing import Any
 
 import torch
 
+from svbrdf_models.modelfile.modelcheck import file_sha256
 from svbrdf_models.modelfile.files import nonfinite_tensors, unreadable_reason, weights_mismatch
 from svbrdf_render.formats.files import atomic_output, remove_stale_temporaries, write_text
 
@@ -62,7 +62,6 @@ __all__ = [
     "load_weights",
     "check_finite",
     "check_checksum",
-    "file_sha256",
     "HEADER",
     "check_header",
     "check_resumable",
@@ -104,15 +103,6 @@ def save_checkpoint(path: str | Path, state: dict[str, Any]) -> Path:
         path.with_suffix(".json").unlink(missing_ok=True)
         raise
     return path
-
-
-def file_sha256(path: str | Path) -> str:
-    """The SHA-256 of a file's bytes, in hex."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def check_checksum(path: str | Path, source: str) -> None:
