@@ -11,7 +11,9 @@
 # curve, measured against real-dev's photos) for the procedural and the real samples alike, the real ones
 # drawn balanced by kind (data.balance=kind) with the stated albedo prior (median diffuse
 # luminance 0.12, log-sd 0.7: darker than the two folders' 0.17), from stage 1's best step,
-# into out-2/, 240 CPU minutes, fold 1/5 kept out as before. `resume-2` resumes it.
+# into out-2/, 240 CPU minutes, fold 1/5 kept out as before. `resume-2` resumes it. Its
+# last.pt (43 MB with Adam) is not kept in git: a new session goes on from its committed best
+# step with INIT2=fits/ours-real191/out-2/best.pt OUT2=fits/ours-real191/out-2b run.sh stage2.
 # Run from the repository root:
 #   fits/ours-real191/run.sh [start|resume|stage2|resume-2] [extra fit flags]
 # State (checkpoints, MLflow store, log) stays in this folder so that a later session resumes it;
