@@ -63,7 +63,7 @@ def test_svbrdf_train_predict_takes_svbrdf_models_options_and_its_own_two(capsys
 ARGV = ["a.png", "b.jpg", "-o", "maps", "--model", "m.pt", "--refine", "7", "--reference", "1,2,30,40:0.18",
         "--refine-seconds", "2.5", "--backend", "eager", "--linear", "--crop", "1,2,300", "--tiles",
         "--map-size", "full", "--normal", "DX", "--bits", "16", "--albedo-encoding", "srgb", "--exr",
-        "--tileable", "--relit", "png", "--device", "auto", "--threads", "3"]  # fmt: skip
+        "--tileable", "--relit", "png", "--device", "auto", "--threads", "3", "--metal", "none"]  # fmt: skip
 
 
 @pytest.mark.parametrize("argv", [ARGV, ["a.png", "-o", "maps"]], ids=["every option", "defaults"])

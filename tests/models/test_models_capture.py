@@ -209,7 +209,9 @@ def test_command_default_budget_is_the_renderers(tmp_path, photo_file, monkeypat
     assert code == 0, got.err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["refine"] == DEFAULT_REFINE_STEPS and summary["refine_seconds"] == 0.001
-    assert summary["entries"][0]["refine"]["steps"] == 1  # the time bound stops it after a step
+    # the photo's time bound, gone before the steps (reading, the network): no step (issue 47: it
+    # bounded the steps alone, and a first step always ran)
+    assert summary["entries"][0]["refine"]["steps"] == 0
 
 
 def _bad_scene(tmp_path):

@@ -253,3 +253,35 @@ def test_a_bounded_load_test_reports_latency_and_memory(served):
     print(bench.table([("2 clients, 32 px, refine 0", figures)]))
     assert figures["errors"] == 0 and figures["requests"] == 6
     assert 0 < figures["p50_s"] <= figures["p95_s"] and figures["peak_mb"] > 0
+
+
+def test_a_single_request_case_reports_the_workers_busy_time_and_sampled_memory(served):
+    bench = load_benchmark("serve_load")
+    url, proc = served
+    assert bench.server_timing("upload;dur=12, parse;dur=3") == {"upload": 0.012, "parse": 0.003}
+    figures = bench.single_request(url, photos=1, side=16, refine=2, pid=proc.pid)
+    print(bench.cases_table([("one 16x16 photo at refine 2", figures)]))
+    assert figures["status"] == 200 and figures["answer"] == "maps"
+    assert set(figures["stages"]) == {"upload", "parse", "queue", "work", "encode"}
+    assert figures["busy_s"] == figures["stages"]["work"] > 0  # the Server-Timing header's work stage
+    assert figures["server_mb"] > 0 and figures["tree_mb"] > 0
+    refused = bench.single_request(url, photos=3, side=100, refine=0, pid=proc.pid)  # over --max-pixels
+    assert refused["status"] == 400 and refused["busy_s"] == 0  # refused before any work
+
+
+def test_serve_starts_again_on_its_port_at_once_after_closing_an_idle_keep_alive_connection(tmp_path):
+    # issue 47: "Address already in use" for a minute once the server had closed an idle keep-alive
+    # connection (its side of it waits in TIME_WAIT), though nothing listened on the port
+    import http.client
+
+    port = free_port()
+    url = f"http://127.0.0.1:{port}"
+    with serving(_command(port), f"{url}/ping", tmp_path / "first.log"):
+        kept = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
+        kept.request("GET", "/ping")
+        assert kept.getresponse().read() == b"\n"  # the connection stays open, idle
+    try:
+        with serving(_command(port), f"{url}/ping", tmp_path / "second.log", timeout=60):
+            assert _get(f"{url}/ping")[0] == 200
+    finally:
+        kept.close()

@@ -212,3 +212,71 @@ def test_a_bad_highlight_is_refused(point, match):
 def test_a_bad_dielectric_setting_is_refused():
     with pytest.raises(ValueError, match="dielectric"):
         RefineSettings(dielectric=1.5)
+
+
+def _full_size_blur_point(photo: torch.Tensor) -> torch.Tensor:
+    """``(B, 2)``: the brightest point of ``photo`` after the box blur an eighth of its width wide
+    at full size (what :func:`highlight_point` searched before issue 47: ``avg_pool2d`` at
+    stride 1, padding not counted), computed exactly from an integral image, so cheaply."""
+    b, _, h, w = photo.shape
+    y = photo.double().mean(1)
+    r = (max(3, round(w / 8)) | 1) // 2
+    s = torch.nn.functional.pad(y.cumsum(1).cumsum(2), (1, 0, 1, 0))
+    i0, i1 = (torch.arange(h) - r).clamp(0, h), (torch.arange(h) + r + 1).clamp(0, h)
+    j0, j1 = (torch.arange(w) - r).clamp(0, w), (torch.arange(w) + r + 1).clamp(0, w)
+    total = s[:, i1][:, :, j1] - s[:, i0][:, :, j1] - s[:, i1][:, :, j0] + s[:, i0][:, :, j0]
+    i = (total / ((i1 - i0)[:, None] * (j1 - j0)[None])).flatten(1).argmax(1)
+    rows, cols = (i // w).double(), (i % w).double()
+    return torch.stack([2 * (cols + 0.5) / w - 1, 1 - 2 * (rows + 0.5) / h], 1).float()
+
+
+def _spot_photo(h: int, w: int, point: tuple[float, float], seed: int = 0) -> torch.Tensor:
+    """A textured photo with a soft highlight at ``point`` (patch coordinates)."""
+    p = surface_positions(h, w)[:2]
+    spot = torch.exp(-((p - torch.tensor(point).view(2, 1, 1)).norm(dim=0) / 0.2) ** 2)
+    noise = torch.rand(1, 3, h, w, generator=torch.Generator().manual_seed(seed))
+    return (0.2 + 0.2 * noise + 0.8 * spot).clamp(0, 1)
+
+
+def test_the_integral_image_blur_is_the_full_size_box_blur():
+    photo = _spot_photo(40, 56, (0.3, -0.4), seed=1)
+    k = max(3, round(56 / 8)) | 1
+    blurred = torch.nn.functional.avg_pool2d(photo.mean(1, keepdim=True), k, stride=1, padding=k // 2,
+                                             count_include_pad=False).flatten(1)  # fmt: skip
+    i = int(blurred.argmax(1))
+    expected = [2 * (i % 56 + 0.5) / 56 - 1, 1 - 2 * (i // 56 + 0.5) / 40]
+    assert _full_size_blur_point(photo)[0].tolist() == pytest.approx(expected)
+
+
+@pytest.mark.parametrize(("h", "w"), [(2048, 2048), (600, 1500), (1500, 600)])
+def test_a_large_photo_is_searched_at_a_working_size_where_the_full_size_blur_finds_it(h, w, monkeypatch):
+    # issue 47: the blur at full size took 8.3 s at 1024 px and 150 s at 2048 px
+    from svbrdf_render.refinement import rings
+    from svbrdf_render.refinement.rings import WORK_SIDE, find_highlight
+
+    blurred, pool = [], torch.nn.functional.avg_pool2d
+    monkeypatch.setattr(rings.F, "avg_pool2d", lambda y, *a, **k: blurred.append(y.shape) or pool(y, *a, **k))
+    photo = _spot_photo(h, w, (0.3, -0.45))
+    point, clear = find_highlight(photo)
+    assert blurred and max(blurred[0][-2:]) == WORK_SIDE  # the blur's cost does not grow with the photo
+    working = 2 * max(h, w) / WORK_SIDE / torch.tensor([w, h])  # one working pixel, in patch units
+    assert bool(clear[0])
+    assert ((point[0] - _full_size_blur_point(photo)[0]).abs() <= working).all(), point
+    assert point[0].tolist() == pytest.approx([0.3, -0.45], abs=0.02)  # where the highlight is
+
+
+@pytest.mark.parametrize(("h", "w"), [(256, 256), (200, 256), (256, 96), (64, 64)])
+def test_a_photo_at_the_working_size_or_under_gets_the_point_it_always_got(h, w):
+    photo = _spot_photo(h, w, (-0.2, 0.35), seed=2)
+    ignore = torch.zeros(1, 1, h, w, dtype=torch.bool)
+    ignore[..., : h // 4, : w // 4] = True
+    for mask in (None, ignore):
+        y = photo.mean(1, keepdim=True)
+        y = y if mask is None else y.masked_fill(mask, 0.0)
+        k = max(3, round(w / 8)) | 1
+        blurred = torch.nn.functional.avg_pool2d(y, k, stride=1, padding=k // 2,
+                                                 count_include_pad=False).flatten(1)  # fmt: skip
+        i = blurred.max(1)[1]
+        rows, cols = (i // w).float(), (i % w).float()
+        before = torch.stack([2 * (cols + 0.5) / w - 1, 1 - 2 * (rows + 0.5) / h], dim=1)
+        assert torch.equal(highlight_point(photo, mask), before)

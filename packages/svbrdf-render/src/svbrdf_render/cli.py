@@ -17,7 +17,7 @@ from . import __version__
 from .effects import DES18_EFFECTS, EFFECTS
 from .errors import SVBRDFError, exit_status
 from .formats.files import EXIT_STATUS
-from .machine import THREADS_HELP, choose_threads
+from .machine import MAX_THREADS, THREADS_HELP, choose_threads
 from .maps import SVBRDF
 from .renderer import BACKENDS
 from .scene import DES18_DISTANCE, Camera, PointLight, Scene
@@ -80,6 +80,24 @@ def int_range(low: int, high: int | None = None):
 
     parse.__name__ = "integer"
     return parse
+
+
+class Once(argparse.Action):
+    """An argparse ``action`` for an option that may be given once: a second one is a usage
+    error naming the option and both values (argparse would keep the last without a word)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        first = getattr(namespace, self.dest, self.default)
+        if first is not self.default:
+
+            def shown(value) -> str:
+                return value.describe() if hasattr(value, "describe") else str(value)
+
+            parser.error(
+                f"{option_string} given twice ({shown(first)} and {shown(values)}): give it once, the "
+                "second would silently replace the first"
+            )
+        setattr(namespace, self.dest, values)
 
 
 def float_range(low: float | None = None, high: float | None = None, *, above: bool = False):
@@ -255,7 +273,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--backend", choices=BACKENDS, default="eager",
                    help="compiled = torch.compile (faster for repeated renders, slow first call)")
     _add_scene_flags(p, None)
-    p.add_argument("--threads", type=int_range(1), metavar="N", help=THREADS_HELP)
+    p.add_argument("--threads", type=int_range(1, MAX_THREADS), metavar="N", help=THREADS_HELP)
 
     p = sub.add_parser("preview", help="a grid of renderings under moving light",
                        description="Relight a material from several light positions and "
@@ -271,7 +289,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", type=int_range(1, MAX_SIZE),
                    help=f"resample the maps to SIZE x SIZE first; the grid is at most {MAX_SIZE} px a side")
     _add_scene_flags(p, 2.2)
-    p.add_argument("--threads", type=int_range(1), metavar="N", help=THREADS_HELP)
+    p.add_argument("--threads", type=int_range(1, MAX_THREADS), metavar="N", help=THREADS_HELP)
 
     p = sub.add_parser("scene", help="write the default scene as YAML (a template to edit)")
     p.add_argument("-o", "--output", help="file to write (default: print)")

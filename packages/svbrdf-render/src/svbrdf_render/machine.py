@@ -12,7 +12,9 @@ this process may run on, less the other tasks running *now* (Linux: the running 
 load average of the last minute), at least 1. The load average alone lags: a minute after a
 benchmark ends it still reads 1.6 on an idle machine, and a command started then took 1
 thread where 2 were free. A number given by the user (``--threads N``, or ``OMP_NUM_THREADS``
-in the environment) is taken as it is.
+in the environment) is taken as it is, up to :data:`MAX_THREADS` (4096: more than the cores of
+any machine torch runs on; above it, ``--threads`` is refused, as torch's own setter would fail
+with an overflow past 2**31 and start that many threads below it).
 
     from svbrdf_render.machine import choose_threads
     choice = choose_threads(None)        # sets torch's threads; choice.describe() for people
@@ -26,12 +28,22 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["THREADS_HELP", "ThreadChoice", "available_memory", "choose_threads", "usable_cores"]
+__all__ = [
+    "MAX_THREADS",
+    "THREADS_HELP",
+    "ThreadChoice",
+    "available_memory",
+    "choose_threads",
+    "usable_cores",
+]
+
+#: The most torch threads a command takes (``--threads``): more than any machine's cores.
+MAX_THREADS = 4096
 
 #: The ``--threads`` help of every command that computes.
 THREADS_HELP = (
-    "torch threads on the CPU (default: one per free core, the cores less the load average, so "
-    "that a busy machine is not slowed down further by threads waiting for cores; "
+    "torch threads on the CPU, 1 to 4096 (default: one per free core, the cores less the load "
+    "average, so that a busy machine is not slowed down further by threads waiting for cores; "
     "OMP_NUM_THREADS, when set, is taken)"
 )
 
@@ -105,12 +117,12 @@ def choose_threads(requested: int | None = None, *, apply: bool = True) -> Threa
     """The torch threads to compute with (see the module); sets them unless ``apply`` is False.
 
     Raises:
-        ValueError: ``requested`` below 1.
+        ValueError: ``requested`` below 1 or above :data:`MAX_THREADS`.
     """
     cores = usable_cores()
     if requested is not None:
-        if isinstance(requested, bool) or int(requested) < 1:
-            raise ValueError(f"threads must be at least 1, got {requested!r}")
+        if isinstance(requested, bool) or not 1 <= int(requested) <= MAX_THREADS:
+            raise ValueError(f"threads must be from 1 to {MAX_THREADS}, got {requested!r}")
         choice = ThreadChoice(int(requested), cores, None, "--threads")
     elif os.environ.get("OMP_NUM_THREADS", "").strip().isdigit() and int(os.environ["OMP_NUM_THREADS"]) >= 1:
         choice = ThreadChoice(int(os.environ["OMP_NUM_THREADS"]), cores, None, "OMP_NUM_THREADS")

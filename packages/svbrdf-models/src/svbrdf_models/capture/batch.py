@@ -95,7 +95,8 @@ not an image, neither JPEG nor PNG, under {min_side} px on the short side, over 
 grey, translucent alpha, a crop that does not fit. Processed with a note: EXIF rotation,
 16-bit PNG, opaque alpha, palette or CMYK, grey saved as RGB, clipped highlights, a square
 smaller than the model's resolution.""",
-    """stdout: the folder of each photo captured; stderr: progress, notes, errors, a summary table.
+    """stdout: the folder of each photo captured; stderr: progress, where each photo's flash was
+taken to be (over its highlight, or assumed: none clear), notes, errors, a summary table.
 Exit status: 0 every photo captured; 1 some photos failed, others were captured; 2 every
 photo failed, or bad arguments (no model, unreadable model, bad option, -o not writable);
 3 a file could not be written (disk full...): the photos after it are not done; 130
@@ -294,6 +295,7 @@ def _capture_each(predictor, photos, out: Path, options, prog: str, entries: lis
 
     from .one import capture_one
 
+    from .flashpoint import flash_line
     from .material import model_record
 
     used: set[str] = set()
@@ -324,6 +326,7 @@ def _capture_each(predictor, photos, out: Path, options, prog: str, entries: lis
             continue
         bar.close()
         used.add(name)
+        print(f"{prog}: {path}: {flash_line(entry['flash'])}", file=sys.stderr)  # found, or assumed
         for note in entry["notes"]:
             print(f"{prog}: note: {path}: {note}", file=sys.stderr)
         entries.append({"name": name, **entry, "model": made_by})

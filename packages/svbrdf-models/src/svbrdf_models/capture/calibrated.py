@@ -65,7 +65,7 @@ from svbrdf_render import MIN_REFINE_SIDE, Camera, PointLight, Scene, read_image
 from ..errors import DataError
 from ..modelfile.trained import square_photo
 from .multiview import Judged, finite, judge, refine_network, relit_preview, views_figure
-from .refining import check_refine_memory, pick_backend
+from .refining import as_dielectric, check_refine_memory, pick_backend
 
 __all__ = ["CALIBRATED_GAMMA", "CALIBRATED_MAP_SIZE", "CalibratedSet", "capture_calibrated", "check_views",
            "check_options", "read_calibrated"]  # fmt: skip
@@ -330,6 +330,7 @@ def capture_calibrated(predictor, folder, out_dir, options, *, use: list[int] | 
         check_refine_memory(size, options.refine, where, count=len(used), remedy=remedy)
     frontal = cal.frontal(used)
     network = predictor.predict(photos[frontal]).detach().to("cpu", torch.float32)
+    network = as_dielectric(network) if options.metal == "none" else network  # no metal: F0 0.04
     small = torch.stack([square_photo(p, size) for p in photos])
     device = getattr(predictor, "device", torch.device("cpu"))
     result = refine_network(network, small[used], [cal.scene(i) for i in used], options, progress, device)
@@ -374,5 +375,6 @@ def _record(predictor, cal, sha, options, size, used, frontal, judged: Judged, r
         "holdout": _holdout(cal, used, judged),
         "tileable": None,
         "reference": None,
+        "metal": options.metal,
         "provenance": provenance(),
     }

@@ -114,21 +114,22 @@ class CaptureGeometry:
         """Whether the position is the photo's own (not the default's guess)."""
         return self.source != "default"
 
-    def over_highlight(self, photo, ignore=None) -> CaptureGeometry:
+    def over_highlight(self, photo, ignore=None, found=None) -> CaptureGeometry:
         """This geometry with x and y under the clear highlight of ``photo`` ``(3, S, S)`` (the
         captured square; ``ignore``: a reference card's pixels), its height kept. A flash beside
         the lens lights its highlight at the foot of the camera on the surface, so a tilted or
         off-centre phone shows where it was; the lens and the crop alone assume the phone
         parallel to the surface (a 20 degree tilt moves the flash 0.7 half-widths). Without a
         clear highlight, for ``--distance`` (the user says the camera stood on the square's axis)
-        or for the default geometry (placed over the highlight anyway), as it is."""
+        or for the default geometry (placed over the highlight anyway), as it is. ``found``: what
+        :func:`~svbrdf_render.refinement.rings.find_highlight` gave for ``photo``, when known."""
         import dataclasses
 
         from svbrdf_render.refinement.rings import find_highlight
 
         if self.source in ("default", "distance"):
             return self
-        point, clear = find_highlight(photo[None].float(), ignore)
+        point, clear = found if found is not None else find_highlight(photo[None].float(), ignore)
         if not bool(clear[0]):
             return dataclasses.replace(self, over="square")
         x, y = (float(v) for v in point[0])

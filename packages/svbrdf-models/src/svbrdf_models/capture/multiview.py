@@ -7,16 +7,17 @@ preview (:func:`relit_preview`)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
-from svbrdf_render import SVBRDF, Scene, linear_to_srgb, refine_start, refine_views
+from svbrdf_render import SVBRDF, RefineSettings, Scene, linear_to_srgb, refine_start, refine_views
 
 from .figures import HEAT_MAX, error_heatmap, image_grid
-from .refining import pick_backend, rerender, rerender_rmse, without_checkerboard
+from .refining import as_dielectric, pick_backend, rerender, rerender_rmse, without_checkerboard
 
 __all__ = ["Judged", "finite", "judge", "refine_network", "relit_preview", "views_figure"]
 
@@ -72,14 +73,16 @@ def refine_network(network: SVBRDF, photos: Tensor, scenes: list[Scene], options
                    anchor: list[int] | None = None):  # fmt: skip
     """The network's maps (without their 2-pixel pattern, at the photos' size) refined against
     ``photos`` ``(K, 3, S, S)``, each under its own scene, on ``device``
-    (:func:`svbrdf_render.refine_views`; ``options.refine`` steps, 0: none)."""
+    (:func:`svbrdf_render.refine_views`; ``options.refine`` steps, 0: none). ``options.metal``
+    ``"none"``: the specular held at a dielectric's 0.04 (:func:`.refining.as_dielectric`)."""
     size = tuple(photos.shape[-2:])
+    dielectric = getattr(options, "metal", "auto") == "none"
     with torch.inference_mode(False), torch.enable_grad():
         maps = SVBRDF(**{k: t.detach().clone() for k, t in network.maps().items()}, validate=False)
         start = refine_start(without_checkerboard(maps), size).to(device)
-        return refine_views(
+        result = refine_views(
             photos.to(device),
-            start,
+            as_dielectric(start) if dielectric else start,
             scenes,
             masks=None if masks is None else masks.to(device),
             gains=gains,
@@ -88,4 +91,6 @@ def refine_network(network: SVBRDF, photos: Tensor, scenes: list[Scene], options
             seconds=options.refine_seconds,
             backend=pick_backend(options.backend, *size),
             callback=progress,
+            settings=RefineSettings(hold=("specular",)) if dielectric else None,
         )
+    return dataclasses.replace(result, svbrdf=as_dielectric(result.svbrdf)) if dielectric else result

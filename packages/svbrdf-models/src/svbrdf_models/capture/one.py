@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +38,7 @@ from svbrdf_render import MAP_NAMES, MIN_REFINE_SIDE, SVBRDF, Refinement, Scene,
 from ..errors import DataError
 from ..modelfile.trained import square_photo
 from .figures import HEAT_MAX, error_heatmap, image_grid
+from .flashpoint import place_flash, record_flash
 from .geometry import CaptureGeometry, capture_geometry
 from .material import to_directx
 from .photos import MAX_PIXELS, MIN_SIDE, PhotoError, load_photo, orient, square
@@ -44,6 +46,8 @@ from .reference import Reference
 from .refining import (
     BACKEND,
     FULL,
+    as_dielectric,
+    check_metal,
     check_refine,
     check_refine_memory,
     pick_backend,
@@ -132,7 +136,7 @@ class CaptureOptions:
         exr: also write the maps as OpenEXR (linear half floats).
         tileable: make the maps' opposite edges match (:func:`svbrdf_render.tiling.make_tileable`).
         refine: refinement steps after the network (0: the network's maps only).
-        refine_seconds: with ``refine``, stop refining a photo after this many seconds.
+        refine_seconds: with ``refine``, seconds for all of a photo; its refinement gets what the rest leave.
         scene: with ``refine``, the capture's scene (default: the flash found from the maps).
         backend: with ``refine``, the renderer's backend (``"auto"``, ``"eager"`` or ``"compiled"``).
         reference: a region of known albedo (:class:`svbrdf_models.capture.reference.Reference`) that
@@ -143,6 +147,8 @@ class CaptureOptions:
         distance: the camera's height over the square's centre, in half-widths of the square
             (not with ``fov``). Without either, and without EXIF, the refinement's camera and flash
             stand at 2.2 half-widths over the photo's highlight.
+        metal: ``"auto"`` (default) or ``"none"``: a dielectric, specular F0 0.04 grey everywhere
+            and metallic 0, the refinement held to it (:data:`~svbrdf_models.capture.refining.METALS`).
     """
 
     linear: bool = False
@@ -162,6 +168,7 @@ class CaptureOptions:
     reference: Reference | None = None
     fov: float | None = None
     distance: float | None = None
+    metal: str = "auto"
 
     def __post_init__(self):
         convention = NORMAL_ALIASES.get(self.normal_convention, self.normal_convention)
@@ -182,6 +189,7 @@ class CaptureOptions:
             raise DataError("--exr needs the OpenEXR package: pip install 'svbrdf-render[exr]'")
         self._check_geometry()
         self._check_refine()
+        check_metal(self.metal)
 
     def _check_geometry(self) -> None:
         from .geometry import check_geometry_options
@@ -242,7 +250,7 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None,
     """
     from .material import MaterialContent, check_material_folder, write_material
 
-    options = options or CaptureOptions()
+    options, began = options or CaptureOptions(), time.monotonic()  # the photo's --refine-seconds from here
     path, out_dir = Path(path), Path(out_dir)
     if not checked:
         check_material_folder(out_dir, path)
@@ -257,17 +265,19 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None,
         )
     seen = _without_card(photo, options, path)  # the network does not see a reference card
     square, svbrdf, tiles = _predict_square(predictor, seen, options, notes, path)
+    svbrdf = as_dielectric(svbrdf) if options.metal == "none" else svbrdf  # no metal: F0 0.04 everywhere
     photo = square if seen is photo else square_photo(photo, square.shape[-1])
-    geometry = geometry.over_highlight(photo, None if options.reference is None else _card_mask(options, path, photo))
+    geometry, found = place_flash(photo, _card_mask(options, path, photo), geometry, options)
     pinned = _pin_reference(svbrdf, photo, options, path, geometry)
     if pinned is not None:  # the card's pixels held at the card
         svbrdf = pinned.start(svbrdf)
     reference = None if pinned is None else pinned.record
     if options.refine:  # on the model's device, where the network ran
         device = getattr(predictor, "device", torch.device("cpu"))
-        judged = _judge_refined(photo, svbrdf, options, progress, device, geometry, pinned)
+        judged = _judge_refined(photo, svbrdf, options, progress, device, geometry, pinned, found[0], began)
     else:
         judged = _judge_network(photo, svbrdf, options)
+    notes += record_flash(judged.entry["flash"], found, geometry, options)  # placed how; at the edge?
     svbrdf, relit, tileable = _finished(judged, options)
     entry = {
         "photo": str(path),
@@ -309,8 +319,10 @@ def _without_card(photo: Tensor, options: CaptureOptions, path: Path) -> Tensor:
     return fill_card(photo, _card_mask(options, path, photo))
 
 
-def _card_mask(options: CaptureOptions, path: Path, photo: Tensor) -> Tensor:
-    """``(1, 1, S, S)``: the reference card's pixels in the square ``photo``."""
+def _card_mask(options: CaptureOptions, path: Path, photo: Tensor) -> Tensor | None:
+    """``(1, 1, S, S)``: the reference card's pixels in the square ``photo``; None without one."""
+    if options.reference is None:
+        return None
     from .photos import square_box
     from .reference import reference_mask
 
@@ -349,12 +361,13 @@ def _material_record(predictor, path: Path, options: CaptureOptions, entry: dict
                      geometry: CaptureGeometry) -> dict:  # fmt: skip
     """material.json's fields that the capture knows: photo, model, refinement, geometry, provenance."""
     from .material import model_record, photo_sha256, provenance
+    from .photos import photo_encoding
 
     return {
         "name": path.stem,
         "photo": {"file": path.name, "sha256": photo_sha256(path), "square": entry["square"],
                   "crop": list(options.crop) if options.crop else None,
-                  "encoding": "linear" if options.linear else "srgb"},  # fmt: skip
+                  "encoding": photo_encoding(path, options.linear)},  # fmt: skip
         "model": model_record(predictor),
         "maps_size": entry["maps"],
         "tiles": entry["tiles"],
@@ -363,6 +376,7 @@ def _material_record(predictor, path: Path, options: CaptureOptions, entry: dict
         "refine": entry["refine"] or {"budget": 0},
         "tileable": entry["tileable"],
         "reference": entry.get("reference"),
+        "metal": options.metal,
         "geometry": geometry.record(used=bool(options.refine) and options.scene is None),
         "provenance": provenance(),
     }
@@ -385,22 +399,24 @@ def _judge_network(photo: Tensor, svbrdf: SVBRDF, options: CaptureOptions) -> _J
     return _Judged(svbrdf, figure, frames, ["network"], entry)
 
 
-def _judge_refined(photo: Tensor, network: SVBRDF, options: CaptureOptions, progress, device,
-                   geometry: CaptureGeometry | None = None, pinned=None) -> _Judged:  # fmt: skip
+def _judge_refined(photo: Tensor, network: SVBRDF, options: CaptureOptions, progress, device, geometry:
+                   CaptureGeometry | None = None, pinned=None, point=None, began=None) -> _Judged:
     """The network's maps refined against ``photo`` on ``device`` (camera and flash where
     ``geometry`` puts them, when it knows); both judged under the refinement's scene. With
-    ``pinned`` (a reference card), under the flash measured on it, the card's pixels held."""
+    ``pinned`` (a reference card), under the flash measured on it, the card's pixels held.
+    ``point``: ``(1, 2)``, the photo's highlight (:mod:`~svbrdf_models.capture.flashpoint`)."""
     known = geometry is not None and geometry.known and options.scene is None and pinned is None
     result: Refinement = refine_prediction(
         photo[None],
         network.to(device),
         options.refine,
-        seconds=options.refine_seconds,
+        seconds=options.refine_seconds, began=began,
         scene=options.scene if pinned is None else pinned.scene,
         callback=progress,
         backend=options.backend,
         camera=torch.tensor(geometry.position) if known else None,
         held=None if pinned is None else (pinned.mask, pinned.card),
+        metal=options.metal, highlight=point,
     )
     size = tuple(photo.shape[-2:])
     renderings = [rerender(network, result.scene, size)[0], rerender(result.svbrdf, result.scene)[0]]

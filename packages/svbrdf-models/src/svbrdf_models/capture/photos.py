@@ -10,10 +10,13 @@ Photos are judged before any pixel is decoded where the file header allows it. R
 :class:`PhotoError` naming the file and what to do: a missing file or a folder, a file that is no
 image, an image that is neither JPEG nor PNG, fewer than :data:`MIN_SIDE` pixels on the short side
 (or a crop that small), more than :data:`MAX_PIXELS` pixels, a grey image (the albedo's colour
-cannot be recovered from it), a translucent alpha channel, a crop that does not fit in the photo.
+cannot be recovered from it), a translucent alpha channel, an animated PNG (which frame is the
+photo?), a crop that does not fit in the photo.
 Read with a note: an EXIF orientation (applied), a 16-bit PNG (read at full precision), an opaque
 alpha channel (dropped), a palette or CMYK image (converted), RGB channels that are all equal (a
-grey picture saved as RGB), many clipped pixels, a black square (nothing lit).
+grey picture saved as RGB), many clipped pixels, a black square (nothing lit), a PNG tagged
+linear (a gAMA chunk of 1.0 and no sRGB chunk or ICC profile: decoded as linear values, as the
+tag says, though ``linear`` was not given: :func:`tagged_linear`).
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from svbrdf_render import MapFileError, read_image, srgb_to_linear
+from svbrdf_render import MapFileError, read_image, read_png_encoding, srgb_to_linear
 
 from ..errors import DataError
 from ..modelfile.trained import square_photo
@@ -39,10 +42,12 @@ __all__ = [
     "file_orientation",
     "load_photo",
     "orient",
+    "photo_encoding",
     "read_oriented",
     "square",
     "square_box",
     "square_side",
+    "tagged_linear",
 ]
 
 #: The EXIF tag saying how to turn the stored pixels to show the photo upright (1-8).
@@ -216,6 +221,12 @@ def _check_header(path: Path, im) -> None:
     fmt, mode, (w, h) = im.format, im.mode, im.size
     if fmt not in PHOTO_FORMATS:
         raise PhotoError(path, f"is a {fmt} image, not a JPEG or PNG", "convert it to PNG or JPEG")
+    if fmt == "PNG" and getattr(im, "n_frames", 1) > 1:  # APNG; a phone's MPO JPEG holds 2 on purpose
+        raise PhotoError(
+            path,
+            f"is an animated PNG ({im.n_frames} frames), not one photo",
+            "save the frame to capture as a still PNG or JPEG",
+        )
     if w * h > MAX_PIXELS:
         raise PhotoError(
             path,
@@ -256,10 +267,48 @@ def _check_alpha(path: Path, im, notes: list[str]) -> None:
 
 def read_oriented(path, *, linear: bool = False) -> tuple[Tensor, list[str]]:
     """The whole photo as it is shown, ``(3, H, W)`` linear float32 (its EXIF orientation
-    applied; decoded from sRGB unless ``linear``), and notes. Judged as :func:`load_photo`
-    judges it (a :class:`PhotoError` when refused)."""
+    applied; decoded from sRGB unless ``linear`` or :func:`tagged_linear`), and notes. Judged
+    as :func:`load_photo` judges it (a :class:`PhotoError` when refused)."""
     image, notes = _oriented(Path(path))
-    return (image if linear else srgb_to_linear(image)), notes
+    return _decoded(image, Path(path), linear, notes), notes
+
+
+#: The note of a PNG read as linear because its header says so (:func:`tagged_linear`).
+LINEAR_TAG_NOTE = (
+    "the PNG is tagged linear (gAMA 1.0, no sRGB chunk or ICC profile): read as linear values, as "
+    "the tag says; give --linear to say so yourself, or save it without the gAMA chunk if it is sRGB"
+)
+
+
+def tagged_linear(path) -> bool:
+    """Whether ``path`` is a PNG whose header says its values are linear
+    (:func:`svbrdf_render.read_png_encoding`: a cICP chunk of linear transfer, else a gAMA chunk
+    of 1.0 with no sRGB chunk) and holds no ICC profile, which would say otherwise. Any other
+    file (a JPEG, an untagged PNG, one tagged sRGB or gAMA 1/2.2) is not."""
+    try:
+        if read_png_encoding(path) != "linear":
+            return False
+        with _open_image(Path(path)) as im:
+            return not im.info.get("icc_profile")
+    except (OSError, PhotoError):
+        return False
+
+
+def photo_encoding(path, linear: bool) -> str:
+    """How the capture decodes ``path``: ``"linear"`` when ``linear`` is given or the file is
+    :func:`tagged_linear`, else ``"srgb"`` (material.json's ``photo.encoding``)."""
+    return "linear" if linear or tagged_linear(path) else "srgb"
+
+
+def _decoded(image: Tensor, path: Path, linear: bool, notes: list[str]) -> Tensor:
+    """``image`` (values as stored, 0-1) as linear values: as they are with ``linear`` or a
+    linear tag (noted), else decoded from sRGB."""
+    if linear:
+        return image
+    if tagged_linear(path):
+        notes.append(LINEAR_TAG_NOTE)
+        return image
+    return srgb_to_linear(image)
 
 
 def _oriented(path: Path) -> tuple[Tensor, list[str]]:
@@ -291,7 +340,8 @@ def load_photo(
     """Read a flash photo: ``(3, S, S)`` linear float32, the square to capture, and notes.
 
     The EXIF orientation is applied; ``crop = (x, y, size)`` in pixels of the oriented photo picks
-    the square, else the largest centred one; values are decoded from sRGB unless ``linear``.
+    the square, else the largest centred one; values are decoded from sRGB unless ``linear``
+    or the PNG is :func:`tagged_linear` (noted).
     Refused photos raise :class:`PhotoError` (see the module's docstring for which).
     """
     path = Path(path)
@@ -305,4 +355,4 @@ def load_photo(
             "the square is black (no value above 1/255): nothing lit to recover, so the maps are "
             "guesses and a re-rendering RMSE near 0 says nothing; check the exposure and the flash"
         )
-    return (image if linear else srgb_to_linear(image)), notes
+    return _decoded(image, path, linear, notes), notes

@@ -18,14 +18,25 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import time
 from collections.abc import Callable
 
 import torch
 from torch import Tensor
 
 from svbrdf_render import BACKENDS as RENDER_BACKENDS
-from svbrdf_render import MIN_REFINE_SIDE, SVBRDF, Refinement, Scene, refine_maps, refine_start, render
+from svbrdf_render import (
+    MIN_REFINE_SIDE,
+    SVBRDF,
+    RefineSettings,
+    Refinement,
+    Scene,
+    refine_maps,
+    refine_start,
+    render,
+)
 from svbrdf_render.compare import per_sample_rmse
+from svbrdf_render.metalrough import DIELECTRIC_F0  # glTF's F0 of every non-metal: metallic 0
 from svbrdf_render.refinement.fit import axis_flash
 from svbrdf_render.refinement.rings import dering, highlight_point
 
@@ -42,7 +53,9 @@ __all__ = [
     "check_refine_memory",
     "refine_cost",
     "refine_map_size",
-    "check_refine", "check_scene", "refine_prediction", "rerender", "rerender_rmse"]
+    "MAX_UNTIMED_REFINE", "check_refine", "check_scene", "refine_prediction", "rerender", "rerender_rmse",
+    "AFTER_REFINE_SECONDS_PER_PIXEL", "seconds_left",
+    "METALS", "as_dielectric", "check_metal"]
 
 #: The renderer backend the photo tools refine with. ``"auto"``: ``compiled`` for photos of at
 #: least :data:`COMPILE_PIXELS` pixels, ``eager`` below. Measured on 2 CPU cores, 100 steps
@@ -70,6 +83,54 @@ FULL = "full"
 #: ``benchmarks/refine_speed.py``). Estimates, to warn and refuse, not to promise.
 REFINE_BYTES_PER_PIXEL = 1400
 REFINE_SECONDS_PER_PIXEL_STEP = 2.6e-7
+#: The stages of a captured photo after its refinement (re-renderings, the comparison figure,
+#: the relit preview, the maps and files written), per pixel of the maps: what a photo's time
+#: budget (``--refine-seconds``) keeps back for them. Measured on one busy core: 7.4 s at
+#: 1024 px, 32 s at 2048 px, most of it writing the PNGs.
+AFTER_REFINE_SECONDS_PER_PIXEL = 7e-6
+
+
+def seconds_left(seconds: float | None, since: float) -> float | None:
+    """What is left of a time budget of ``seconds`` counted from ``since`` (``time.monotonic()``),
+    at least 0; None for no budget."""
+    return None if seconds is None else max(0.0, seconds - (time.monotonic() - since))
+
+
+def _refine_seconds(seconds: float | None, since: float, pixels: int, photo: bool) -> float | None:
+    """The steps' own budget (:func:`svbrdf_render.refine_maps`'s ``seconds``): what is left of
+    ``seconds`` since ``since``, less :data:`AFTER_REFINE_SECONDS_PER_PIXEL` when the budget is a
+    captured ``photo``'s; 0, no step, when that cannot hold the first step (about two steps'
+    worth: a step, once begun, ends)."""
+    left = seconds_left(seconds, since)
+    if left is None:
+        return None
+    left -= pixels * AFTER_REFINE_SECONDS_PER_PIXEL if photo else 0.0
+    return left if left >= 2 * pixels * REFINE_SECONDS_PER_PIXEL_STEP else 0.0
+
+
+#: ``--metal`` (``metal=``): ``auto``, the maps say where the material is a metal (the network,
+#: then the refinement); ``none``, it is a dielectric (plastic, paint, wood, stone, fabric): the
+#: specular albedo F0 is the grey 0.04 (:data:`svbrdf_render.metalrough.DIELECTRIC_F0`) at every
+#: pixel, metallic 0 in the metal/rough maps, and the refinement holds it there
+#: (``RefineSettings(hold=("specular",))``).
+METALS = ("auto", "none")
+
+
+def check_metal(metal) -> str:
+    """``metal`` when it is one of :data:`METALS`, else a :class:`DataError` (one line)."""
+    if not isinstance(metal, str) or metal not in METALS:
+        raise DataError(
+            f"metal must be auto (the maps say where the material is a metal) or none (it is no metal: "
+            f"specular 0.04 grey everywhere), got {metal!r}"
+        )
+    return metal
+
+
+def as_dielectric(maps: SVBRDF) -> SVBRDF:
+    """``maps`` with the specular albedo of a dielectric, the grey 0.04, at every
+    pixel (metallic 0 once converted to metal/rough); normal, diffuse and roughness kept."""
+    specular = torch.full_like(maps.specular, DIELECTRIC_F0)
+    return SVBRDF(maps.normal, maps.diffuse, maps.roughness, specular, validate=False)
 
 
 def refine_map_size(side: int, map_size: int | str | None) -> int:
@@ -115,9 +176,16 @@ def pick_backend(backend: str, height: int, width: int) -> str:
     return "compiled" if height * width >= COMPILE_PIXELS else "eager"
 
 
+#: The most refinement steps run without a time limit (``--refine-seconds``, ``seconds=``):
+#: about 7 h at 1024 px on 2 CPU cores (:data:`REFINE_SECONDS_PER_PIXEL_STEP`), a thousand times
+#: the default 100. More steps must come with seconds, which then bound the run.
+MAX_UNTIMED_REFINE = 100_000
+
+
 def check_refine(refine, seconds=None) -> int:
-    """``refine`` as a number of steps: an integer >= 0 (not a bool); ``seconds`` None or a
-    finite number >= 0. A :class:`DataError` (one line) otherwise."""
+    """``refine`` as a number of steps: an integer >= 0 (not a bool), at most
+    :data:`MAX_UNTIMED_REFINE` unless ``seconds`` bounds the run; ``seconds`` None or a finite
+    number >= 0. A :class:`DataError` (one line) otherwise."""
     if isinstance(refine, bool) or not isinstance(refine, numbers.Integral) or refine < 0:
         raise DataError(
             f"refine must be a whole number of refinement steps >= 0 (0: the network's maps "
@@ -128,6 +196,11 @@ def check_refine(refine, seconds=None) -> int:
         or seconds < 0
     ):  # fmt: skip
         raise DataError(f"refine seconds must be a finite number >= 0 (or None), got {seconds!r}")
+    if seconds is None and refine > MAX_UNTIMED_REFINE:
+        raise DataError(
+            f"refine {refine} steps with no time limit: at most {MAX_UNTIMED_REFINE} steps run without "
+            "one; give fewer steps, or seconds (--refine-seconds S; seconds= in Python) to stop it"
+        )
     return int(refine)
 
 
@@ -169,6 +242,9 @@ def refine_prediction(
     backend: str = BACKEND,
     held: tuple[Tensor, SVBRDF] | None = None,
     camera: Tensor | None = None,
+    metal: str = "auto",
+    highlight: Tensor | None = None,
+    began: float | None = None,
 ) -> Refinement:
     """Refine ``start`` (a network's maps, any size) against ``photo`` at the photo's size.
 
@@ -178,7 +254,8 @@ def refine_prediction(
         start: a network's maps of B materials; without their 2-pixel pattern
             (:func:`without_checkerboard`) and their ring around the photo's highlight
             (:func:`svbrdf_render.refinement.rings.dering`), the start and the prior of the refinement.
-        steps, seconds: the budget (see :func:`svbrdf_render.refine_maps`).
+        steps, seconds, began: at most ``steps`` steps, all of this call in about ``seconds`` (from
+            ``began``, a photo's start, when given): the steps get what is left (:func:`_refine_seconds`).
         scene: the capture (default: :func:`svbrdf_render.refinement.fit.axis_flash` over the photo's
             highlight, or over its centre when it shows none).
         callback: ``callback(step, total, loss)`` after each step.
@@ -187,37 +264,44 @@ def refine_prediction(
             capture.reference.pin_flash`), held at its maps and ignored by the highlight finder.
         camera: ``(3,)`` or ``(B, 3)``: where camera and flash stood (:mod:`svbrdf_models.capture.geometry`):
             the default scene's place, instead of over the highlight (which still centres the rings).
+        metal: one of :data:`METALS`; ``"none"``: the maps are refined as a dielectric's, specular
+            held at 0.04 (:func:`as_dielectric`), not a free parameter.
+        highlight: ``(B, 2)``: the point under the flash when the caller found it already
+            (:func:`svbrdf_render.refinement.rings.find_highlight`, with ``held``'s mask ignored).
 
-    The refinement runs on ``start``'s device with gradients on (also when called under
-    ``torch.no_grad`` or ``torch.inference_mode``); the :class:`~svbrdf_render.Refinement`
-    comes back on the CPU.
+    The refinement runs on ``start``'s device with gradients on (also under ``torch.no_grad`` or
+    ``torch.inference_mode``); the :class:`~svbrdf_render.Refinement` comes back on the CPU.
     """
-    steps = check_refine(steps, seconds)
+    steps, since = check_refine(steps, seconds), time.monotonic() if began is None else began
+    dielectric = check_metal(metal) == "none"
     photo = _refinable(photo)
-    h, w = photo.shape[-2:]
-    device = start.device
+    (h, w), device = photo.shape[-2:], start.device
     # Gradients on, even under torch.no_grad or torch.inference_mode (whose tensors are copied
     # into ordinary ones: autograd cannot save inference tensors for the backward pass).
     with torch.inference_mode(False), torch.enable_grad():
         photo = photo.detach().to(device, torch.float32).clone()
-        copy = {k: t.detach().clone() for k, t in start.maps().items()}
-        point = highlight_point(photo, ignore=None if held is None else held[0])
-        start = dering(without_checkerboard(SVBRDF(**copy, validate=False)), point)
-        start = refine_start(start, (h, w))  # once: refine_maps takes a photo-sized start as it is
+        start, point = _start(photo, start, dielectric, None if held is None else held[0], highlight)
         if scene is None:  # the flash at the camera, else over the highlight (the centre when none)
             scene = axis_flash(start, photo, over=point, position=camera)
         result = refine_maps(
-            photo,
-            start,
-            scene=scene.to(device),
-            steps=steps,
-            seconds=seconds,
-            backend=pick_backend(backend, h, w),
-            callback=callback,
-            held=held,
-            highlight=None if camera is None else point,  # None: under the scene's light
-        )
-    return dataclasses.replace(result, svbrdf=result.svbrdf.to("cpu"), scene=result.scene.to("cpu"))
+            photo, start, scene=scene.to(device), steps=steps, callback=callback, held=held,
+            seconds=_refine_seconds(seconds, since, photo.numel() // 3, began is not None),
+            backend=pick_backend(backend, h, w), highlight=None if camera is None else point,  # None: light's
+            settings=RefineSettings(hold=("specular",)) if dielectric else None,
+        )  # fmt: skip
+    maps = as_dielectric(result.svbrdf) if dielectric else result.svbrdf  # 0.04 exactly, not its logit's
+    return dataclasses.replace(result, svbrdf=maps.to("cpu"), scene=result.scene.to("cpu"))
+
+
+def _start(photo: Tensor, start: SVBRDF, dielectric: bool, ignore: Tensor | None, point: Tensor | None):
+    """``(start, point)``: a refinement's start, a copy of ``start`` (a dielectric's with
+    ``dielectric``) without its 2-pixel pattern and its ring around the point under the flash,
+    at the photo's size; and that point (``point``, else found on ``photo``, ``ignore`` left out)."""
+    copy = SVBRDF(**{k: t.detach().clone() for k, t in start.maps().items()}, validate=False)
+    copy = as_dielectric(copy) if dielectric else copy
+    point = point if point is not None else highlight_point(photo, ignore=ignore)
+    start = dering(without_checkerboard(copy), point.to(copy.device))
+    return refine_start(start, tuple(photo.shape[-2:])), point  # once: refine_maps takes it as it is
 
 
 def _refinable(photo: Tensor) -> Tensor:

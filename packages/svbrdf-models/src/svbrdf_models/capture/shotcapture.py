@@ -28,12 +28,13 @@ def capture_shots(predictor, shots: ShotSet, options, *, progress=None) -> dict:
     from svbrdf_render import refine_start
 
     from .material import MaterialContent, write_material
-    from .refining import without_checkerboard
+    from .refining import as_dielectric, without_checkerboard
 
     f = shots.frontal
     windows = torch.stack([s.window for s in shots.shots])
     masks = torch.stack([s.mask for s in shots.shots])
     network = predictor.predict(windows[f]).detach().to("cpu", torch.float32)
+    network = as_dielectric(network) if options.metal == "none" else network  # no metal: F0 0.04
     start = refine_start(without_checkerboard(network), (shots.size, shots.size))
     exposure = exposures(shots, start)
     scenes = [shot_scene(s, exposure.intensity[i], exposure.color[i]) for i, s in enumerate(shots.shots)]
@@ -130,6 +131,7 @@ def record(predictor, shots: ShotSet, options, exposure: Exposure, result, resid
            judged: Judged) -> dict:  # fmt: skip
     """material.json's fields that a capture of shots knows."""
     from .material import model_record, provenance
+    from .photos import photo_encoding
     from .refining import pick_backend
 
     f, k, size = shots.frontal, len(shots.shots), shots.size
@@ -138,7 +140,7 @@ def record(predictor, shots: ShotSet, options, exposure: Exposure, result, resid
     return {
         "name": shots.folder.name,
         "photo": {"file": shots.shots[0].path.name, "sha256": shots.sha256(), "square": int(size),
-                  "crop": None, "encoding": "linear" if options.linear else "srgb",
+                  "crop": None, "encoding": photo_encoding(shots.shots[0].path, options.linear),
                   "network_view": shots.shots[f].path.name},  # fmt: skip
         "model": model_record(predictor),
         "maps_size": int(size),
@@ -161,5 +163,6 @@ def record(predictor, shots: ShotSet, options, exposure: Exposure, result, resid
         "holdout": None,
         "tileable": None,
         "reference": None,
+        "metal": options.metal,
         "provenance": provenance(),
     }

@@ -11,11 +11,11 @@ import sys
 from pathlib import Path
 
 from svbrdf_render import BACKENDS, DEFAULT_REFINE_STEPS
-from svbrdf_render.cli import float_range, int_range
-from svbrdf_render.machine import THREADS_HELP
+from svbrdf_render.cli import Once, float_range, int_range
+from svbrdf_render.machine import MAX_THREADS, THREADS_HELP
 
 from .._registry import Registry
-from ..capture.refining import DEFAULT_MAP_SIZE, FULL
+from ..capture.refining import DEFAULT_MAP_SIZE, FULL, METALS
 from .predict_shots import add_shots_options, run_shots
 
 __all__ = ["MAX_MAP_SIZE", "add_options", "add_parser", "run", "run_predict"]
@@ -87,9 +87,11 @@ def add_options(p, *, refine: int, refine_note: str, sources=None):
         metavar="STEPS",
         help=f"refinement steps per photo, 0 for the network's maps only (default: {refine}; {refine_note})",
     )
+    _add_metal_option(p)
     more.add_argument(
         "--reference",
         type=_reference,
+        action=Once,
         metavar="X,Y,W,H:ALBEDO",
         help="a region of known albedo in the photo (pixels as displayed), such as an 18%% grey card "
         "(0.18): the diffuse albedo's level is pinned to it before refinement (one photo cannot tell "
@@ -99,7 +101,8 @@ def add_options(p, *, refine: int, refine_note: str, sources=None):
         "--refine-seconds",
         type=float_range(0, above=True),
         metavar="S",
-        help="stop refining a photo after S seconds (default: no time bound)",
+        help="about S seconds for all of a photo: its refinement gets what reading, the network and "
+        "writing leave (default: no time bound)",
     )
     more.add_argument(
         "--scene",
@@ -119,6 +122,18 @@ def add_options(p, *, refine: int, refine_note: str, sources=None):
     add_shots_options(more)
     _add_output_options(p, more)
     return more
+
+
+def _add_metal_option(p) -> None:
+    """``--metal auto|none``: whether the maps may say the material is a metal."""
+    p.add_argument(
+        "--metal",
+        choices=METALS,
+        default="auto",
+        help="none: the material is no metal (plastic, paint, wood, stone, fabric): specular F0 0.04 "
+        "grey everywhere, metallic.png 0, the refinement held to it. auto (default): the maps say "
+        "where it is metal; dark glossy plastics then come out as metal: check metallic.png",
+    )
 
 
 def _add_geometry_options(more) -> None:
@@ -235,7 +250,7 @@ def _add_output_options(p, more) -> None:
     )
     more.add_argument("--relit", choices=RELIT_FORMATS, default="gif", help="relit preview (default: gif)")
     more.add_argument("--device", default="cpu", help="cpu, cuda, cuda:K or auto (default: cpu)")
-    more.add_argument("--threads", type=int_range(1), metavar="N", help=THREADS_HELP)
+    more.add_argument("--threads", type=int_range(1, MAX_THREADS), metavar="N", help=THREADS_HELP)
 
 
 def _reference(text: str):
@@ -342,6 +357,7 @@ def _capture_options(args):
         backend=args.backend,
         fov=args.fov,
         distance=args.distance,
+        metal=args.metal,
     )
 
 

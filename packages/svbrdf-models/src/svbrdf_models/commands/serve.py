@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from svbrdf_render.cli import float_range, int_range
-from svbrdf_render.machine import THREADS_HELP
+from svbrdf_render.machine import MAX_THREADS, THREADS_HELP
 
 from .._registry import Registry
 from ..modelfile.serve_limits import ServeLimits
@@ -25,9 +25,9 @@ photos in [0, 1], channels last, (N, H, W, 3); the answer is {"predictions": {"n
 (128 px), refined maps at the photo's shorter side. Every limit is checked before any work,
 the answer's size, memory and time estimated from the photos' shape, and a refusal is one
 line of text (413 body too large, 400 bad photo or parameter or a request over a limit, 408
-upload stalled, 415 not JSON, 503 busy or too many connections, 504 late). The timeout covers
-the whole request; a refinement gets what the other stages leave and stops with the maps it
-reached. GET /ping answers 503 while a request holds the worker past its timeout. The log has
+upload stalled or too slow, 415 not JSON, 503 busy or too many connections, 504 late). The
+timeout covers the whole request; a refinement gets what the other stages leave and stops with
+the maps it reached; the Server-Timing header says each stage's seconds. GET /ping answers 503 while a request holds the worker past its timeout. The log has
 one line per kind of failure every 10 s. SIGTERM or Ctrl-C ends the server and its work.
 Needs svbrdf-models[mlflow] (starlette and uvicorn).
 """
@@ -71,7 +71,7 @@ def add_parser(sub) -> None:
     p.add_argument("--max-connections", type=int_range(1), default=d.connections, metavar="N",
                    help=f"connections at once [{d.connections}]; beyond, a request is answered 503; at "
                    "most the open-file limit (ulimit -n) less 64")  # fmt: skip
-    p.add_argument("--threads", type=int_range(1), metavar="N", help=THREADS_HELP)
+    p.add_argument("--threads", type=int_range(1, MAX_THREADS), metavar="N", help=THREADS_HELP)
 
 
 def run(args, registry: Registry, out) -> None:

@@ -8,8 +8,9 @@ loading, the shipped models); the work is done beneath it:
 - :mod:`~svbrdf_models.modelfile.download`: URLs and MLflow URIs;
 - :mod:`~svbrdf_models.modelfile.pyfunc`: the MLflow model of a file (needs mlflow);
 - :mod:`~svbrdf_models.modelfile.serve`: ``svbrdf-models serve`` (needs starlette, uvicorn), with
-  :mod:`~svbrdf_models.modelfile.serve_limits` (what a request may ask) and
-  :mod:`~svbrdf_models.modelfile.serve_log` (one log line per kind of failure).
+  :mod:`~svbrdf_models.modelfile.serve_limits` (what a request may ask),
+  :mod:`~svbrdf_models.modelfile.serve_json` (large bodies parsed in a child process, answers
+  written by numpy) and :mod:`~svbrdf_models.modelfile.serve_log` (one log line per kind of failure).
 """
 
 from .files import *  # noqa: F403

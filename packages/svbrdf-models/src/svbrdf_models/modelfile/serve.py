@@ -19,19 +19,25 @@ has the cases, measured against ``mlflow models serve``):
   wrong, never an echo of the input (413 for a body over the limit, 400 for the rest, 415 for a
   body that is not JSON); the answer, memory and time are estimated from the photos' shape
   (:func:`~svbrdf_models.modelfile.serve_limits.estimate_request`);
-- the deadline covers the whole request: upload, queue, network, refinement and answer; the
-  refinement gets what the other stages' estimates leave and answers with the maps it reached,
-  so no request holds the worker past its time; the predictions run one at a time on one worker
-  thread (torch already uses every core), and a request that waited in the queue until too
-  little was left is answered 503;
+- the deadline covers the whole request: upload, parsing, queue, network, refinement and
+  answer; the model's time budget (the network, the refinement's start, its steps) is what the
+  stages before it took leave, less the answer's estimate, and the refinement answers with the
+  maps it reached, so no request holds the worker past its time; the predictions run one at a
+  time on one worker thread (torch already uses every core); a request left too little time is
+  answered 503 when the queue took it, 408 when its upload did; each answer's ``Server-Timing``
+  header gives the seconds of each stage (``work``: the worker's);
+- a large body is parsed in a child process (json's C code holds the GIL all through), and the
+  answer is encoded by numpy on a thread (1.7 s for a 1024 px material, where json took 14-28 s),
+  so ``/ping`` answers meanwhile;
 - connections are bounded (503 beyond ``--max-connections``), an upload or a connection that
   sends nothing for ``--read-timeout`` seconds is ended (408 for an upload), a client that
   leaves mid-upload ends its request quietly, and the log holds one line per kind of failure
   every 10 s (:mod:`~svbrdf_models.modelfile.serve_log`), never a client's traceback;
 - ``/ping`` answers 503 while one request has held the worker past its timeout (stuck), not a
   healthy 200 over a worker that takes nothing;
-- it is one process: SIGTERM or Ctrl-C ends the server and its work (a running refinement
-  stops at its next step), and frees the port.
+- SIGTERM or Ctrl-C ends the server, its child and its work (a running refinement stops at
+  its next step), and frees the port; the port is bound with ``SO_REUSEADDR``, so the server
+  starts again on it at once, even while a connection it closed waits in TIME_WAIT.
 
 Needs starlette and uvicorn (they come with ``svbrdf-models[mlflow]``: MLflow's own server is
 built on them); mlflow itself only for ``models:/`` and ``runs:/`` sources.
@@ -40,7 +46,6 @@ built on them); mlflow itself only for ``models:/`` and ``runs:/`` sources.
 from __future__ import annotations
 
 import asyncio
-import json
 import threading
 import time
 import traceback
@@ -49,6 +54,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from ..errors import DataError
+from .serve_json import CHILD_BYTES, JsonPool, encode_answer
 from .serve_limits import Refused, RequestCost, ServeLimits, check_cost, estimate_request, parse_request
 from .serve_log import FailureLog, quiet_logs
 
@@ -57,6 +63,10 @@ __all__ = ["build_app", "serve", "server_config", "maps_arrays", "encode_answer"
 #: Of what the other stages' estimates leave, the share the refinement gets: the estimates are
 #: an idle machine's, and a busy one is slower.
 REFINE_SHARE = 0.9
+#: The answer's encoding is estimated (``serve_limits.ANSWER_SECONDS_PER_VALUE``); a busier
+#: machine takes longer (3.5 s for the 3.1 s estimated of a 1024 px material, up to twice on
+#: a loaded one): the refinement leaves it this many times its estimate.
+ANSWER_MARGIN = 1.5
 
 
 def maps_arrays(svbrdf) -> dict[str, np.ndarray]:
@@ -74,6 +84,7 @@ class _Worker:
     def __init__(self, model, limits: ServeLimits):
         self.model, self.limits = model, limits
         self.pool = ThreadPoolExecutor(1, thread_name_prefix="svbrdf-serve")
+        self.json = JsonPool()
         self.busy_since: float | None = None
         self.stopping = threading.Event()
 
@@ -82,19 +93,21 @@ class _Worker:
         since = self.busy_since
         return 0.0 if since is None else max(0.0, time.monotonic() - since - self.limits.timeout)
 
-    def run(self, photos: np.ndarray, steps: int, deadline: float, cost: RequestCost) -> dict:
-        """The maps of ``photos`` (:func:`maps_arrays`); the refinement gets what ``cost``'s other
-        stages leave before ``deadline`` (the renderer's eager backend: no compile stalls)."""
+    def run(self, photos: np.ndarray, steps: int, deadline: float, cost: RequestCost, timing: dict) -> dict:
+        """The maps of ``photos`` (:func:`maps_arrays`), the request queued at ``timing["queued"]``
+        and due at ``deadline``. The model's time budget covers the network and the refinement,
+        all of what is left but the answer's estimate; each stage's seconds go to ``timing``."""
         import torch
 
         now = time.monotonic()
-        left = deadline - now - cost.least_s
-        if left < 0:
-            raise Refused(503, f"busy: this request waited in the queue until too little of its "
-                               f"{self.limits.timeout:g} s timeout was left; try again")  # fmt: skip
+        timing["queue"] = now - timing.pop("queued")
+        if deadline - now < cost.least_s:
+            raise self._too_late(deadline - now, cost, timing)
         self.busy_since = now
         try:
-            seconds = REFINE_SHARE * left + cost.step_s if steps else None
+            # The refinement stops after the step that reaches its budget: one step short of it.
+            left = REFINE_SHARE * (deadline - now - ANSWER_MARGIN * cost.answer_s) - cost.step_s
+            seconds = max(0.0, left) if steps else None
             photo = torch.from_numpy(photos).permute(0, 3, 1, 2)
             maps = self.model.predict(
                 photo, refine=steps, seconds=seconds, callback=self._stop_check, backend="eager"
@@ -102,6 +115,19 @@ class _Worker:
             return maps_arrays(maps)
         finally:
             self.busy_since = None
+            timing["work"] = time.monotonic() - now
+
+    def _too_late(self, left: float, cost: RequestCost, timing: dict) -> Refused:
+        """The refusal of a request with ``left`` seconds to go when its work needs more: 503 when
+        it waited in the queue for them, 408 when its upload and parsing took them."""
+        need = (f"too little of the {self.limits.timeout:g} s timeout (--timeout) was left for this "
+                f"request's work (about {cost.least_s:.0f} s)")  # fmt: skip
+        waited = timing["queue"]
+        if left + waited >= cost.least_s:
+            return Refused(503, f"busy: this request waited {waited:.1f} s in the queue behind others "
+                                f"and {need}; try again")  # fmt: skip
+        return Refused(408, f"body: the upload took {timing.get('upload', 0.0):.1f} s and {need}; send it "
+                            "faster, or fewer photos")  # fmt: skip
 
     def _stop_check(self, step: int, total: int, loss: float) -> None:
         if self.stopping.is_set():
@@ -109,14 +135,8 @@ class _Worker:
 
     def close(self) -> None:
         self.stopping.set()
+        self.json.close()
         self.pool.shutdown(wait=True, cancel_futures=True)
-
-
-def encode_answer(arrays: dict[str, np.ndarray]) -> bytes:
-    """The answer's body, ``{"predictions": {name: nested lists}}``, values rounded to 6 decimals
-    (a 4000th of an 8-bit step): half the bytes and time of every float32's 17 digits."""
-    rounded = {k: np.round(v.astype(np.float64), 6).tolist() for k, v in arrays.items()}
-    return json.dumps({"predictions": rounded}).encode()
 
 
 def _line(status: int, reason: str, *, close: bool = False):
@@ -170,8 +190,9 @@ async def _read_body(request, limits: ServeLimits, deadline: float) -> bytes:
     return b"".join(chunks)
 
 
-async def _answer(request, worker: _Worker, limits: ServeLimits, start: float) -> bytes:
-    """The answer's body to a request that arrived at ``start``, or :class:`Refused`."""
+async def _answer(request, worker: _Worker, limits: ServeLimits, start: float, timing: dict) -> bytes:
+    """The answer's body to a request that arrived at ``start``, or :class:`Refused`; the seconds
+    of each stage go to ``timing``."""
     from svbrdf_render import machine
 
     deadline = start + limits.timeout
@@ -179,15 +200,33 @@ async def _answer(request, worker: _Worker, limits: ServeLimits, start: float) -
     if kind != "application/json":
         raise Refused(415, f"body: Content-Type {kind or 'none'}; send application/json")
     body = await _read_body(request, limits, deadline)
-    photos, steps = await asyncio.to_thread(parse_request, body, limits)  # /ping is answered meanwhile
-    del body
+    timing["upload"] = time.monotonic() - start
+    try:
+        photos, steps = await worker.json.run(len(body) >= CHILD_BYTES, parse_request, body, limits)
+    finally:
+        del body
+        timing["parse"] = time.monotonic() - start - timing["upload"]
     cost = estimate_request(photos.shape, steps, worker.model.resolution)
-    check_cost(cost, steps, limits, spent=time.monotonic() - start, free=machine.available_memory())
+    spent = time.monotonic() - start
+    check_cost(cost, steps, limits, spent=spent, free=machine.available_memory(), upload=timing["upload"])
+    timing["queued"] = time.monotonic()
     loop = asyncio.get_running_loop()
-    future = loop.run_in_executor(worker.pool, worker.run, photos, steps, deadline, cost)
+    future = loop.run_in_executor(worker.pool, worker.run, photos, steps, deadline, cost, timing)
     late = start + 1.5 * limits.timeout  # should the estimates miss: 504 (the refinement keeps its budget)
     arrays = await asyncio.wait_for(asyncio.shield(future), max(late - time.monotonic(), 0.1))
-    return await asyncio.to_thread(encode_answer, arrays)  # the worker goes on to the next photo
+    encoded = time.monotonic()  # the worker goes on to the next photo meanwhile
+    body = await asyncio.to_thread(encode_answer, arrays)  # numpy's: the GIL let go for most of it
+    timing["encode"] = time.monotonic() - encoded
+    return body
+
+
+def _timed(response, timing: dict):
+    """``response`` with a ``Server-Timing`` header: the seconds of each stage the request went
+    through (upload, parse, queue, work: the worker's, encode), in milliseconds as the header has them."""
+    stages = ", ".join(f"{k};dur={v * 1000:.0f}" for k, v in timing.items() if k != "queued")
+    if stages:
+        response.headers["Server-Timing"] = stages
+    return response
 
 
 def build_app(model, limits: ServeLimits | None = None, log: FailureLog | None = None):
@@ -215,8 +254,12 @@ def build_app(model, limits: ServeLimits | None = None, log: FailureLog | None =
         return Response(__version__, media_type="application/json")
 
     async def invocations(request):
+        timing: dict = {}
+        return _timed(await _invoke(request, timing), timing)
+
+    async def _invoke(request, timing: dict):
         try:
-            body = await _answer(request, worker, limits, time.monotonic())
+            body = await _answer(request, worker, limits, time.monotonic(), timing)
         except Refused as e:
             log.note(f"{e.status} refused", e.reason)
             return _line(e.status, e.reason, close=e.status in (408, 415))
@@ -304,26 +347,44 @@ def check_open_files(limits: ServeLimits) -> None:
         )
 
 
+def listen(host: str, port: int):
+    """The server's listening socket on ``host:port``, with ``SO_REUSEADDR``: started again
+    within a minute of closing a connection (whose side then waits in TIME_WAIT), the server
+    binds at once; a port another socket listens on is still a :class:`DataError` (uvicorn
+    would log a traceback-like error and exit 1)."""
+    import socket
+
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+        sock = socket.socket(family, kind, proto)
+    except OSError as e:  # an unknown host included
+        raise DataError(f"--host {host}: cannot listen there ({e.strerror or e}); give an address of "
+                        "this machine") from None  # fmt: skip
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind(address)
+        sock.listen(2048)
+    except OSError as e:
+        sock.close()
+        raise DataError(f"--host {host} --port {port}: cannot listen there ({e.strerror}); "
+                        "give another --port") from None  # fmt: skip
+    return sock
+
+
 def serve(model, host: str, port: int, limits: ServeLimits, say=print) -> None:
     """Serve ``model`` until SIGTERM or Ctrl-C; the worker ends with the server. A port taken,
     more connections than open files, or starlette/uvicorn missing, is a :class:`DataError`
     before anything starts."""
-    import socket
-
     try:
         import starlette  # noqa: F401
         import uvicorn
     except ImportError as e:
         raise DataError(f"svbrdf-models serve needs {e.name}: pip install 'svbrdf-models[mlflow]'") from None
     check_open_files(limits)
-    with socket.socket() as probe:  # uvicorn would log a traceback-like error and exit 1
-        try:
-            probe.bind((host, port))
-        except OSError as e:
-            raise DataError(f"--host {host} --port {port}: cannot listen there ({e.strerror}); "
-                            "give another --port") from None  # fmt: skip
+    sock = listen(host, port)
     log = FailureLog()
     app = build_app(model, limits, log)
+    app.state.worker.json.start()  # the forkserver of the parse children, ready before the first large body
     say(f"serving {model.describe()} at http://{host}:{port}/invocations (limits: body "
         f"{limits.body_mb:g} MB, {limits.photos} photos, {limits.pixels:,} pixels, refine {limits.refine} "
         f"steps, answer {limits.answer_mb:g} MB, {limits.timeout:g} s, {limits.connections} connections, "
@@ -331,6 +392,7 @@ def serve(model, host: str, port: int, limits: ServeLimits, say=print) -> None:
     config = server_config(app, host, port, limits)
     try:
         with quiet_logs(log):
-            uvicorn.Server(config).run()
+            uvicorn.Server(config).run(sockets=[sock])
     finally:
         app.state.worker.close()
+        sock.close()

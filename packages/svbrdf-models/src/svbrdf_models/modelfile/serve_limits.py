@@ -14,6 +14,7 @@ timeout is answered 504.
 from __future__ import annotations
 
 import json
+import numbers
 from dataclasses import dataclass
 from typing import Any
 
@@ -87,6 +88,9 @@ class Refused(Exception):
         super().__init__(reason)
         self.status, self.reason = status, reason
 
+    def __reduce__(self):  # from the child process that parses a large body
+        return Refused, (self.status, self.reason)
+
 
 def check_photo_array(photos: Any, max_pixels: int, limit_name: str) -> np.ndarray:
     """``photos`` (nested lists or an array) as a float32 ``(N, H, W, 3)`` array of linear RGB in
@@ -127,16 +131,17 @@ def refine_budget(refine: Any, limit: int, limit_name: str) -> int:
 
     if isinstance(refine, np.integer):  # MLflow's parameter schema may hand numpy integers
         refine = int(refine)
-    try:
-        steps = check_refine(refine)
-    except DataError as e:
-        raise DataError(f"params: {e}") from None
-    if steps > limit:
+    # The server's own limit first: its deadline bounds every run, so the library's rule for
+    # steps without a time limit is not the one to quote.
+    if isinstance(refine, numbers.Integral) and not isinstance(refine, bool) and refine > limit:
         raise DataError(
-            f"params: refine {steps} is over this server's limit of {limit} steps ({limit_name}); "
+            f"params: refine {refine} is over this server's limit of {limit} steps ({limit_name}); "
             "ask for fewer"
         )
-    return steps
+    try:
+        return check_refine(refine)
+    except DataError as e:
+        raise DataError(f"params: {e}") from None
 
 
 def check_depth(body: bytes, limit: int) -> None:
@@ -179,13 +184,14 @@ def parse_request(body: bytes, limits: ServeLimits) -> tuple[np.ndarray, int]:
 
 # -- what a request costs, estimated before any work -------------------------------------------
 
-#: Bytes of the answer's JSON per map value: ``-0.123456, `` (:func:`~svbrdf_models.modelfile.
-#: serve.encode_answer` rounds to 6 decimals; measured 10.8 on the shipped model's maps).
+#: Bytes of the answer's JSON per map value: ``-0.123456,`` and the brackets (:func:`~svbrdf_models.
+#: modelfile.serve.encode_answer` writes 6 decimals; measured 10.8).
 ANSWER_BYTES_PER_VALUE = 11
-#: Seconds to encode one value (round, ``tolist``, ``json.dumps``): measured 1.0 us on one busy core.
-ANSWER_SECONDS_PER_VALUE = 1.0e-6
-#: Memory per value while the answer is made: the float32 map, its float64 rounded copy, a
-#: Python float and its list slot (32 B), the JSON text and its bytes (22 B).
+#: Seconds to encode one value (:func:`~svbrdf_models.modelfile.serve.encode_answer`, numpy's
+#: fixed-width text): measured 0.16-0.3 us on one busy core (1.7-3.1 s for a 1024 px material).
+ANSWER_SECONDS_PER_VALUE = 3e-7
+#: Memory per value while the answer is made: the float32 map, its float64 and int64 copies, the
+#: text (10 B) two or three times over while it is nested, its bytes and the body's.
 ANSWER_BYTES_PER_VALUE_HELD = 70
 #: The network, per pixel at the model's resolution: seconds (0.04 s a 128 px photo on one busy
 #: core) and bytes (its activations: 780 MB for 64 photos at 128 px, measured).
@@ -195,10 +201,11 @@ NETWORK_BYTES_PER_PIXEL = 800
 #: and bytes held (the float32 array, its torch square and the resized copy).
 PHOTO_SECONDS_PER_PIXEL = 4e-8
 PHOTO_BYTES_PER_PIXEL = 36
-#: A refinement's start, per photo: finding the flash's highlight blurs the photo with a box an
-#: eighth of its side wide (``svbrdf_render.refinement.rings.find_highlight``), a cost that grows
-#: with the side to the 4th power: measured 0.9 s at 512 px, 16 s at 1024 px, on one busy core.
-REFINE_SETUP_SECONDS_AT_1024 = 16.0
+#: A refinement's start and first step, per pixel of the maps: the highlight found (at a fixed
+#: working size), the start deringed and brought to the photo's size, the flash placed, the loss
+#: built and one step, none of which a time budget can cut short. Measured on one busy core:
+#: 0.9 s at 512 px, 4.1 s at 1024 px, 28 s at 2048 px (its memory traffic costs more a pixel).
+REFINE_START_SECONDS_PER_PIXEL = 5e-6
 
 
 @dataclass(frozen=True)
@@ -234,7 +241,7 @@ def estimate_request(shape: tuple[int, ...], steps: int, resolution: int) -> Req
     values = n * side * side * MAP_VALUES_PER_PIXEL
     network_px = n * int(resolution) ** 2
     refine_s, refine_bytes = refine_cost(side, 1) if steps else (0.0, 0)
-    setup_s = n * (REFINE_SETUP_SECONDS_AT_1024 * (side / 1024) ** 4 + refine_s) if steps else 0.0
+    setup_s = n * side * side * REFINE_START_SECONDS_PER_PIXEL if steps else 0.0
     memory = (n * h * w * PHOTO_BYTES_PER_PIXEL + network_px * NETWORK_BYTES_PER_PIXEL
               + n * refine_bytes + values * ANSWER_BYTES_PER_VALUE_HELD)  # fmt: skip
     return RequestCost(
@@ -244,11 +251,13 @@ def estimate_request(shape: tuple[int, ...], steps: int, resolution: int) -> Req
     )  # fmt: skip
 
 
-def check_cost(cost: RequestCost, steps: int, limits: ServeLimits, *, spent: float, free: int | None) -> None:
+def check_cost(cost: RequestCost, steps: int, limits: ServeLimits, *, spent: float, free: int | None,
+               upload: float | None = None) -> None:  # fmt: skip
     """Refuse (:class:`Refused` 400, one line naming the option to raise) a request whose answer
     would exceed ``limits.answer_mb``, whose memory exceeds ``free`` bytes (None: unknown), or
     whose every stage, with one refinement step, cannot end within ``limits.timeout`` after
-    ``spent`` seconds already gone (its upload)."""
+    ``spent`` seconds already gone, ``upload`` of them its upload (None: all): 408 when the
+    request would fit but for its upload (a slow client), 400 when the server's stages cannot."""
     maps = f"{cost.photos} material{'s' * (cost.photos > 1)} of {cost.side} px"
     smaller = "send fewer photos" + bool(steps) * (
         ", or smaller ones (refined maps come back at the photo's size)"
@@ -261,9 +270,14 @@ def check_cost(cost: RequestCost, steps: int, limits: ServeLimits, *, spent: flo
         need, have = cost.memory_bytes / 2**30, free / 2**30
         raise Refused(400, f"memory: {maps} would need about {need:.1f} GB, and this machine has "
                            f"{have:.1f} GB free; {smaller}")  # fmt: skip
-    total = spent + cost.least_s
+    total, upload = spent + cost.least_s, spent if upload is None else upload
+    if total > limits.timeout and total - upload <= limits.timeout:  # it would fit but for its upload
+        raise Refused(408, f"body: the upload took {upload:.1f} s of the {limits.timeout:g} s timeout "
+                           f"(--timeout), too little left for this request's work (about "
+                           f"{total - upload:.0f} s); send it faster, or fewer photos")  # fmt: skip
     if total > limits.timeout:
-        parts = f"upload {spent:.1f} s, network {cost.network_s:.1f} s, " + (
+        parsing = f"parsing {spent - upload:.1f} s, " if spent > upload else ""
+        parts = f"upload {upload:.1f} s, {parsing}network {cost.network_s:.1f} s, " + (
             f"refinement's start {cost.setup_s:.1f} s, " if steps else "") + f"answer {cost.answer_s:.1f} s"
         raise Refused(400, f"time: this request would take about {total:.0f} s ({parts}), over the "
                            f"{limits.timeout:g} s timeout (--timeout); send a smaller photo or fewer photos"

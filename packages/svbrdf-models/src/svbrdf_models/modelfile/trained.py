@@ -13,6 +13,7 @@ Photos are linear float tensors; the network sees the largest centred square of 
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -30,6 +31,9 @@ __all__ = ["TrainedModel", "square_photo"]
 _MAX_VALUE, _VALUE_SLACK = 1.05, 0.05
 #: The shortest photo side predict takes (the smallest size any network here trains at).
 _MIN_PHOTO_SIDE = 8
+#: Below this short side predict warns that the photo gives little: the command line's least
+#: (:data:`svbrdf_models.capture.photos.MIN_SIDE`, which refuses smaller photos).
+SMALL_PHOTO_SIDE = 64
 
 
 @dataclass
@@ -73,12 +77,14 @@ class TrainedModel:
         callback=None,
         backend: str | None = None,
         reference=None,
+        metal: str = "auto",
     ) -> SVBRDF:
         """Maps of linear photos: ``(3, H, W)`` (one material) or ``(N, 3, H, W)``.
 
         The photo contract: a float tensor of *linear* values in ``[0, 1]`` (radiance as the
         sensor saw it, not sRGB-encoded), RGB channels first, any size of at least a few
-        pixels; the largest centred square is used. :func:`svbrdf_models.load_photo` turns a
+        pixels (under 64 px on the short side, a ``UserWarning``: that gives little to read a
+        material from); the largest centred square is used. :func:`svbrdf_models.load_photo` turns a
         JPEG or PNG file into exactly that (``load_photo(path)[0]``; ``linear=True`` for files
         that hold linear values). Integer codes, values outside ``[0, 1]`` (a photo still in
         0-255, or negative values), NaN and empty tensors are refused with one line
@@ -89,7 +95,8 @@ class TrainedModel:
 
         ``refine=STEPS > 0``: the network's maps of that square are then refined against the
         square at its own resolution (:func:`svbrdf_models.capture.refining.refine_prediction`, start
-        and prior the network's maps) for at most STEPS steps and ``seconds`` seconds, under
+        and prior the network's maps) for at most STEPS steps, and in about ``seconds`` seconds
+        all told (the network, the refinement's start, its steps: they get what is left), under
         ``scene`` (default: the flash found from the network's maps), with the renderer's
         ``backend`` (default :data:`svbrdf_models.capture.refining.BACKEND`); ``callback(step, total,
         loss)`` follows it. The maps are at the square's size (the photo's shorter side), which
@@ -100,6 +107,8 @@ class TrainedModel:
         pixels (or a :class:`~svbrdf_models.capture.reference.Reference`): the flash measured on
         it (:func:`~svbrdf_models.capture.reference.pin_flash`), the network shown the photo
         without it, the refinement run under that flash with the card held; not with ``scene``.
+        ``metal="none"``: the material is no metal: specular F0 0.04 grey everywhere (metallic 0),
+        and a refinement held to it (:data:`~svbrdf_models.capture.refining.METALS`).
 
         ``refine`` is 0 by default here: the network alone, what a caller in a loop wants.
         ``svbrdf-models predict`` refines by default
@@ -107,29 +116,41 @@ class TrainedModel:
         ``refine=100`` for the command line's maps.
         """
         batch = self._check_photo(photo)
-        from ..capture.refining import BACKEND, check_refine, check_refine_memory, refine_prediction
+        _warn_if_small(batch, str(self.source))
+        from ..capture.refining import as_dielectric, check_metal, check_refine
 
-        steps = check_refine(refine, seconds)
+        steps, how = check_refine(refine, seconds), (seconds, scene, callback, backend, check_metal(metal))
         if reference is not None:
-            return self._predict_with_reference(batch, steps, reference, seconds, scene, callback, backend)
+            return self._predict_with_reference(batch, steps, reference, *how)
         if steps == 0:
-            return self._network(batch)
-        side = min(batch.shape[-2:])
+            return self._network(batch) if metal == "auto" else as_dielectric(self._network(batch))
+        return self._refined(batch, steps, *how)
+
+    def _refined(self, batch, steps, seconds, scene, callback, backend, metal) -> SVBRDF:
+        """:meth:`predict` refined, without a reference (see there)."""
+        from ..capture.refining import BACKEND, check_refine_memory, refine_prediction, seconds_left
+
+        began, side = time.monotonic(), min(batch.shape[-2:])  # seconds covers the network too
         remedy = "resize the photo smaller first, or refine=0"
         check_refine_memory(side, steps, str(self.source), count=batch.shape[0], remedy=remedy)
         squares = torch.stack([square_photo(p.float(), None) for p in batch])
+        network = self._network(squares).to(self.device)
         result = refine_prediction(
-            squares, self._network(squares).to(self.device), steps, seconds=seconds, scene=scene,
-            callback=callback, backend=backend or BACKEND,
+            squares, network, steps, seconds=seconds_left(seconds, began), scene=scene,
+            callback=callback, backend=backend or BACKEND, metal=metal,
         )  # fmt: skip
         return result.svbrdf
 
-    def _predict_with_reference(self, batch, steps, reference, seconds, scene, callback, backend) -> SVBRDF:
+    def _predict_with_reference(self, batch, steps, reference, seconds, scene, callback, backend,
+                                metal="auto") -> SVBRDF:  # fmt: skip
         """:meth:`predict` with a reference card (see there)."""
         from ..capture.reference import Reference, fill_card, pin_flash, reference_mask
-        from ..capture.refining import BACKEND, check_refine_memory, refine_prediction
+        from ..capture.refining import (
+            BACKEND, as_dielectric, check_refine_memory, refine_prediction, seconds_left,
+        )  # fmt: skip
         from ..errors import DataError
 
+        began = time.monotonic()  # seconds covers the network too
         if batch.shape[0] != 1:
             raise DataError(f"a reference is for one photo; got {batch.shape[0]} photos: predict them one by one")
         if scene is not None:
@@ -144,14 +165,17 @@ class TrainedModel:
         if steps == 0:
             square = square_photo(full, self.resolution)
             network = self._network(square_photo(seen, self.resolution)[None])
+            network = as_dielectric(network) if metal == "none" else network
             return pin_flash(square, network, ref, box, where).start(network)
         check_refine_memory(side, steps, where, remedy="resize the photo smaller first, or refine=0")
         square = full
         network = self._network(square_photo(seen, self.resolution)[None])
+        network = as_dielectric(network) if metal == "none" else network
         pinned = pin_flash(square, network, ref, box, where)
         result = refine_prediction(
-            square[None], pinned.start(network).to(self.device), steps, seconds=seconds, scene=pinned.scene,
-            callback=callback, backend=backend or BACKEND, held=(pinned.mask, pinned.card),
+            square[None], pinned.start(network).to(self.device), steps, seconds=seconds_left(seconds, began),
+            scene=pinned.scene,
+            callback=callback, backend=backend or BACKEND, held=(pinned.mask, pinned.card), metal=metal,
         )  # fmt: skip
         return result.svbrdf
 
@@ -170,6 +194,7 @@ class TrainedModel:
 
         if not isinstance(photo, Tensor):
             raise DataError(f"{self.source}: expected a photo tensor (3, H, W), got {type(photo).__name__}")
+        _check_tensor_kind(photo, str(self.source))
         batch = photo[None] if photo.dim() == 3 else photo
         if batch.dim() != 4 or batch.shape[1] != 3:
             raise DataError(
@@ -248,3 +273,43 @@ def square_photo(photo: Tensor, size: int | None) -> Tensor:
             photo[None], size=(size, size), mode="bilinear", align_corners=False, antialias=True
         )[0]
     return photo.contiguous()
+
+
+def _check_tensor_kind(photo: Tensor, where: str) -> None:
+    """A :class:`~svbrdf_models.errors.DataError` (one line, what to do) for a tensor that holds
+    no ordinary values to read: a meta tensor (a shape with no values), a nested, sparse or
+    quantized one, complex or float8 values. Each used to fail deep in torch with an error
+    that named none of it."""
+    from ..errors import DataError
+
+    kind, fix = None, ""
+    if photo.is_meta:
+        kind, fix = "a meta tensor (a shape with no values)", "give a tensor that holds the photo's values"
+    elif photo.is_nested:
+        kind, fix = "a nested tensor", "give one (3, H, W) tensor, or photos of one size stacked (N, 3, H, W)"
+    elif photo.layout != torch.strided:
+        kind, fix = f"a sparse tensor ({photo.layout})", "give a dense one: photo.to_dense()"
+    elif photo.is_quantized:
+        kind, fix = f"a quantized tensor ({photo.dtype})", "give its values: photo.dequantize()"
+    elif photo.is_complex():
+        kind, fix = f"complex values ({photo.dtype})", "give real linear values (photo.real when they are)"
+    elif photo.is_floating_point() and photo.element_size() == 1:
+        kind, fix = f"{photo.dtype} values", "give float16, bfloat16, float32 or float64: photo.float()"
+    if kind is not None:
+        raise DataError(f"{where}: the photo is given as {kind}, which predict cannot read; {fix}")
+
+
+def _warn_if_small(batch: Tensor, where: str) -> None:
+    """A ``UserWarning`` (one line) for photos under :data:`SMALL_PHOTO_SIDE` on the short side:
+    taken, but a 16 px photo gives the network a few hundred pixels to read a material from."""
+    side = min(batch.shape[-2:])
+    if side < SMALL_PHOTO_SIDE:
+        import warnings
+
+        warnings.warn(
+            f"{where}: the photo is {batch.shape[-1]}x{batch.shape[-2]} px, under the {SMALL_PHOTO_SIDE} px "
+            "the command line takes: so few pixels give little to read a material from, and the maps are "
+            "mostly the network's guess; give a larger photo",
+            UserWarning,
+            stacklevel=3,
+        )

@@ -96,6 +96,8 @@ class RefineSettings:
             as a dielectric: its specular prior is the grey ``DIELECTRIC_F0`` (0.04, the
             reflectance of most non-metals), not the start's; the photo can still move it,
             paying the prior. ``0`` keeps the start's specular as its prior.
+        hold: maps held at the start's values, no free parameter of the refinement: e.g.
+            ``("specular",)`` for a material known to be a dielectric (``predict --metal none``).
     """
 
     lr: float = 0.05
@@ -107,15 +109,16 @@ class RefineSettings:
     normal_lr_scale: float = 0.5
     rings: float = 3.0
     dielectric: float = 0.1
+    hold: tuple[str, ...] = ()
 
     def __post_init__(self):
         if not (self.lr > 0 and math.isfinite(self.lr)):
             raise ValueError(f"refine: lr must be a finite number > 0, got {self.lr}")
         if not self.eps > 0:
             raise ValueError(f"refine: eps must be > 0, got {self.eps}")
-        unknown = set(self.prior) - set(MAP_NAMES)
+        unknown = (set(self.prior) | set(self.hold)) - set(MAP_NAMES)
         if unknown:
-            raise ValueError(f"refine: prior weights for unknown maps {sorted(unknown)}; maps: {MAP_NAMES}")
+            raise ValueError(f"refine: prior or hold of unknown maps {sorted(unknown)}; maps: {MAP_NAMES}")
         if any(not (w >= 0 and math.isfinite(w)) for w in self.prior.values()):
             raise ValueError(f"refine: prior weights must be finite and >= 0, got {self.prior}")
         if not (self.rings >= 0 and math.isfinite(self.rings)):
@@ -181,10 +184,10 @@ class _Parameters:
 
     Each map is ``activation(base + change)``: ``base`` is the start's (fixed), ``change`` a grid
     at the map's own size (normal, diffuse: per pixel, plus a 1x1 grid, their mean) or at most
-    ``coarse`` on a side (roughness, specular), upsampled bilinearly.
+    ``coarse`` on a side (roughness, specular), upsampled bilinearly; a map of ``hold`` has none.
     """
 
-    def __init__(self, start: SVBRDF, coarse: int):
+    def __init__(self, start: SVBRDF, coarse: int, hold: tuple[str, ...] = ()):
         b, h, w = start.shape
         self.size = (h, w)
         self.base = {
@@ -196,8 +199,8 @@ class _Parameters:
         limit = {"normal": None, "diffuse": None, "roughness": coarse or None, "specular": coarse or None}
         self.delta: dict[str, list[Tensor]] = {}
         for name, base in self.base.items():
-            sizes = [_grid_size(h, w, limit[name])]
-            if limit[name] is None and sizes[-1] != (1, 1):  # per-pixel maps: a mean change too
+            sizes = [] if name in hold else [_grid_size(h, w, limit[name])]
+            if limit[name] is None and sizes and sizes[-1] != (1, 1):  # per-pixel maps: a mean change too
                 sizes.append((1, 1))
             self.delta[name] = [
                 torch.zeros(b, base.shape[1], gh, gw, device=start.device, requires_grad=True)
@@ -479,7 +482,7 @@ def refine_maps(
     held = _check_held(held, photo, size, start.device)
     if steps == 0 or seconds == 0:
         return Refinement(_with_held(start, held), scene, 0, time.perf_counter() - t0, torch.zeros(0))
-    params = _Parameters(start, settings.coarse)
+    params = _Parameters(start, settings.coarse, settings.hold)
     exclude = None if held is None else held[0]  # a held card is no part of the material's rings
     loss_fn = RefineLoss(photo, prior, scene, settings, backend, _check_point(highlight, photo), exclude)
     losses = _optimise(params, loss_fn, settings, steps, seconds, callback, t0, held)

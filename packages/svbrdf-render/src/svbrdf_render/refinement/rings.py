@@ -26,7 +26,7 @@ from torch import Tensor
 from ..geometry import surface_positions
 from ..maps import SVBRDF
 
-__all__ = ["RINGS", "RingBins", "dering", "find_highlight", "highlight_point", "ring_penalty"]
+__all__ = ["RINGS", "WORK_SIDE", "RingBins", "dering", "find_highlight", "highlight_point", "ring_penalty"]
 
 #: Rings of equal width from the point under the flash to the farthest pixel.
 RINGS = 16
@@ -35,6 +35,11 @@ RING_MAPS = ("diffuse", "roughness", "specular")
 #: Side of the box blur of :func:`highlight_point`, as a fraction of the photo's width: wide
 #: enough that the highlight wins over bright texture.
 _BLUR = 1 / 8
+#: :func:`find_highlight` blurs at most this many pixels along the photo's longer side: a
+#: larger photo's luminance is area-averaged down to it first, so that the search costs the
+#: same at every size (a blur an eighth of a 2048 px photo wide at full size took 150 s); a
+#: photo at this size or under is searched at its own, as it always was.
+WORK_SIDE = 256
 #: A photo shows a clear highlight when its blurred maximum is at least this many times its
 #: blurred median (on unseen-dev and des18-dev, a visible highlight gives 2-60; a rough or
 #: strongly textured material with none gives 1.4-1.6, with its maximum anywhere).
@@ -52,18 +57,24 @@ def find_highlight(photo: Tensor, ignore: Tensor | None = None) -> tuple[Tensor,
     """``(B, 2)``: the patch coordinates (``x, y`` in ``[-1, 1]``, as
     :func:`~svbrdf_render.geometry.surface_positions`) of the brightest point of each photo
     ``(B, 3, H, W)`` after a box blur an eighth of its width wide: where the flash's highlight
-    is in a capture parallel to the surface. A photo without a clear highlight (its blurred
-    maximum under :data:`MIN_PEAK` times its blurred median: the brightest point is then
-    texture, anywhere) gets the centre, ``(0, 0)``, where a capture held over it has it.
+    is in a capture parallel to the surface. A photo longer than :data:`WORK_SIDE` is searched
+    at that size (area-averaged), the point read at its working pixel's centre. A photo
+    without a clear highlight (its blurred maximum under :data:`MIN_PEAK` times its blurred
+    median: the brightest point is then texture, anywhere) gets the centre, ``(0, 0)``, where
+    a capture held over it has it.
 
     ``ignore``: ``(B or 1, 1, H, W)``, true where the pixels are not the material (a grey card
     or a printed strip, brighter than the material, must not pass for the flash's highlight):
     they count as black. Returns the points and ``(B,)`` whether each photo shows a clear
     highlight."""
-    b, _, h, w = photo.shape
     y = photo.float().mean(1, keepdim=True)
     if ignore is not None:
         y = y.masked_fill(ignore.to(torch.bool).to(y.device), 0.0)
+    long = max(y.shape[-2:])
+    if long > WORK_SIDE:  # each working pixel the mean of the photo's pixels it covers
+        size = tuple(max(1, round(n * WORK_SIDE / long)) for n in y.shape[-2:])
+        y = F.adaptive_avg_pool2d(y, size)
+    h, w = y.shape[-2:]
     k = max(3, round(w * _BLUR)) | 1
     blurred = F.avg_pool2d(y, k, stride=1, padding=k // 2, count_include_pad=False).flatten(1)
     top, i = blurred.max(1)

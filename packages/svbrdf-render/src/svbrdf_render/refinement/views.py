@@ -290,7 +290,7 @@ def refine_views(
     log_gain = torch.zeros(views.count, device=start.device, requires_grad=True)
     loss_fn = _ViewsLoss(photos, masks, dielectric_prior(prior, settings.dielectric), views, settings,
                          backend, log_gain, free)  # fmt: skip
-    params = _Parameters(start, settings.coarse)
+    params = _Parameters(start, settings.coarse, settings.hold)
     losses: list[float] = []
     if steps and seconds != 0:
         stepped = _WithGains(params, log_gain, free)

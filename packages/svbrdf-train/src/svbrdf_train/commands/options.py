@@ -54,7 +54,7 @@ def explicit(ctx: click.Context, name: str) -> bool:
 def threads_option():
     """``--threads N``: torch threads on the CPU, set as soon as the option is read (default:
     one per free core, :func:`svbrdf_render.machine.choose_threads`); the command never sees it."""
-    from svbrdf_render.machine import THREADS_HELP
+    from svbrdf_render.machine import MAX_THREADS, THREADS_HELP
 
     def apply(ctx, param, value):
         from svbrdf_render.machine import choose_threads
@@ -63,7 +63,7 @@ def threads_option():
 
     return click.option(
         "--threads",
-        type=click.IntRange(min=1),
+        type=click.IntRange(1, MAX_THREADS),
         default=None,
         expose_value=False,
         callback=apply,

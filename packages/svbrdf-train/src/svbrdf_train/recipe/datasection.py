@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 from svbrdf_models import param
 
-from .values import _int_at_least, _seed, suggest
+from .values import MAX_SAMPLES, _int_at_least, _samples, _seed, suggest
 
 if TYPE_CHECKING:  # annotations only
     from torch.utils.data import Dataset
@@ -45,7 +45,7 @@ class DataSection:
     count: int = param(
         200_000,
         "procedural samples per epoch (the paper trains on ~200k); for mix, samples per epoch "
-        "drawn from all sources",
+        "drawn from all sources; at most 10**8 (recipe.values.MAX_SAMPLES), as is validation",
     )
     seed: int = param(0, "procedural data seed; validation uses seed + 1, so the two never overlap")
     validation: int = param(64, "held-out samples for periodic validation")
@@ -105,9 +105,9 @@ class DataSection:
     )
 
     def __post_init__(self):
-        _int_at_least(self.count, "count", 1)
+        _samples(self.count, "count", 1)
         self._check_material_draws()
-        _int_at_least(self.validation, "validation", 0)
+        _samples(self.validation, "validation", 0)
         _int_at_least(self.workers, "workers", 0)
         _seed(self.seed, "seed")
         paths = (self.path,) if isinstance(self.path, str) else self.path or ()
@@ -173,6 +173,8 @@ def _check_mix_entry(i: int, entry: Mapping[str, Any]) -> None:
         value = entry.get(key)
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
             raise ValueError(f"{where}.{key} must be a non-negative integer, got {value!r}")
+        if value is not None and value > MAX_SAMPLES:
+            raise ValueError(f"{where}.{key} must be at most {MAX_SAMPLES:_} samples, got {value!r}")
     path = entry.get("path")
     paths = [path] if isinstance(path, str) else path
     named = (

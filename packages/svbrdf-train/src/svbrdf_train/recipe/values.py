@@ -8,7 +8,7 @@ import math
 from collections.abc import Iterable
 from typing import Any
 
-__all__ = ["SIZES", "MAX_SEED", "MIN_RESOLUTION", "MAX_RESOLUTION", "suggest"]
+__all__ = ["SIZES", "MAX_SEED", "MIN_RESOLUTION", "MAX_RESOLUTION", "MAX_SAMPLES", "suggest"]
 
 #: Sizes every built-in recipe has: the paper's, one for a CPU in minutes, one for tests.
 SIZES = ("paper", "cpu", "smoke")
@@ -16,6 +16,10 @@ SIZES = ("paper", "cpu", "smoke")
 MAX_SEED = 2**32 - 1
 #: Training sizes in pixels: below, no network has a layer left; above, no GPU holds a batch.
 MIN_RESOLUTION, MAX_RESOLUTION = 8, 8192
+#: Samples per epoch and held out for validation (``data.count``, ``data.validation``, a mix
+#: entry's): 10**8, 500 times the paper's 200k. Each epoch's shuffle holds one 8-byte index per
+#: sample (800 MB at this bound); 10**12 asked torch for 8 TB and failed deep in the fit.
+MAX_SAMPLES = 10**8
 
 
 def _number(value: Any) -> bool:
@@ -38,6 +42,12 @@ def _int_at_least(value: Any, field: str, low: int, *, none: str | None = None) 
         return
     expected = f"at least {low}" + (f" (or null: {none})" if none else "")
     _check(value is not None and value >= low, field, value, expected)
+
+
+def _samples(value: Any, field: str, low: int) -> None:
+    """A sample count in ``[low, MAX_SAMPLES]``."""
+    _int_at_least(value, field, low)
+    _check(value <= MAX_SAMPLES, field, value, f"at most {MAX_SAMPLES:_} samples")
 
 
 def _seed(value: int, field: str) -> None:
