@@ -198,7 +198,19 @@ def test_a_long_refinement_is_announced_before_it_starts(tmp_path, monkeypatch, 
     photo = _photo_file(tmp_path / "shot.png")
     assert main(["predict", str(photo), "-o", str(tmp_path / "out"), "--refine", "1", "--relit", "none"]) == 0
     err = capsys.readouterr().err
-    assert "shot.png: refining 64 px maps for 1 steps: about 4096 s" in err
+    assert "shot.png: refining 64 px maps for 1 steps: about 4096 s on 2 cores (4096 s of steps" in err
+
+
+def test_the_announced_time_counts_the_files_and_stops_at_the_time_budget(tmp_path, monkeypatch, capsys):
+    from svbrdf_models.capture import refining
+
+    monkeypatch.setattr(refining, "REFINE_SECONDS_PER_PIXEL_STEP", 1.0)
+    monkeypatch.setattr(refining, "AFTER_REFINE_SECONDS_PER_PIXEL", 0.01)  # 41 s for 64 px
+    photo = _photo_file(tmp_path / "shot.png")
+    args = ["predict", str(photo), "-o", str(tmp_path / "out"), "--refine", "1", "--relit", "none"]
+    assert main([*args, "--refine-seconds", "20"]) == 0
+    err = capsys.readouterr().err
+    assert "shot.png: refining 64 px maps for 1 steps: about 61 s on 2 cores (20 s of steps, 41 s" in err
 
 
 def test_the_viewer_lights_the_material_with_the_flash_material_json_records(tmp_path):

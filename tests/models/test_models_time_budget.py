@@ -96,3 +96,28 @@ def test_a_photos_refine_seconds_cover_its_other_stages(handed, tmp_path):
     assert handed[-1] == 0 and entry["refine"]["steps"] == 0  # the network took it all: no step
     record = json.loads((tmp_path / "b" / "material.json").read_text())["refine"]
     assert record["seconds_budget"] == SLOW / 2 and record["steps"] == 0
+
+
+def test_shots_and_calibrated_captures_count_their_seconds_from_their_start(monkeypatch):
+    from types import SimpleNamespace
+
+    from svbrdf_models.capture import multiview
+
+    views, real = [], multiview.refine_views
+
+    def spy(*args, **kwargs):
+        views.append(kwargs["seconds"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(multiview, "refine_views", spy)
+    options = SimpleNamespace(refine=2, refine_seconds=10.0, backend="eager", metal="auto")
+    photos, network = _photo(32), example_material("tiles", 32)
+    multiview.refine_network(network, photos, [Scene.flash(intensity=12.0)], options, None, "cpu")
+    assert views[-1] == 10.0  # no start given: the steps' own budget, as before
+    began = time.monotonic() - SLOW  # the capture began a second ago (its network, its exposures)
+    multiview.refine_network(network, photos, [Scene.flash(intensity=12.0)], options, None, "cpu", began=began)
+    assert 0 < views[-1] <= 10.0 - SLOW - 32 * 32 * refining.AFTER_REFINE_SECONDS_PER_PIXEL
+    late = time.monotonic() - 20.0  # the budget already spent: no step
+    result = multiview.refine_network(network, photos, [Scene.flash(intensity=12.0)], options, None, "cpu",
+                                      began=late)  # fmt: skip
+    assert views[-1] == 0 and result.steps == 0

@@ -343,19 +343,24 @@ def _failed(name: str, path: Path, error: str, model: str) -> dict:
 
 def _announce_cost(path: Path, options, prog: str) -> None:
     """Before a long refinement: about how long and how much memory it takes (from the file's
-    header; said when over 10 s or 1 GB)."""
+    header; said when over 10 s or 1 GB): the steps (at most ``--refine-seconds``) and the maps
+    and files written after them."""
     from .photos import square_side
-    from .refining import refine_cost, refine_map_size
+    from .refining import AFTER_REFINE_SECONDS_PER_PIXEL, refine_cost, refine_map_size
 
     side = square_side(path, options.crop) if options.refine and not options.tiles else None
     if side is None:
         return
     size = refine_map_size(side, options.map_size)
     seconds, memory = refine_cost(size, options.refine)
-    if seconds >= 10 or memory >= 2**30:
+    if options.refine_seconds is not None:
+        seconds = min(seconds, options.refine_seconds)
+    after = size * size * AFTER_REFINE_SECONDS_PER_PIXEL
+    if seconds + after >= 10 or memory >= 2**30:
         print(
             f"{prog}: {path.name}: refining {size} px maps for {options.refine} steps: about "
-            f"{seconds:.0f} s on 2 cores and {memory / 2**30:.1f} GB",
+            f"{seconds + after:.0f} s on 2 cores ({seconds:.0f} s of steps, {after:.0f} s for the maps "
+            f"and files) and {memory / 2**30:.1f} GB",
             file=sys.stderr,
             flush=True,
         )

@@ -54,6 +54,7 @@ from __future__ import annotations
 import hashlib
 import math
 import re
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -315,6 +316,7 @@ def capture_calibrated(predictor, folder, out_dir, options, *, use: list[int] | 
     budget); ``use`` the views refined against (default all); ``holdout`` judges the others."""
     from .material import MaterialContent, check_material_folder, write_material
 
+    began = time.monotonic()  # --refine-seconds covers the whole capture from here
     check_options(options)
     cal, photos = folder if isinstance(folder, tuple) else read_calibrated(folder, linear=options.linear)
     used = check_views(use, len(cal.files), holdout)
@@ -333,7 +335,8 @@ def capture_calibrated(predictor, folder, out_dir, options, *, use: list[int] | 
     network = as_dielectric(network) if options.metal == "none" else network  # no metal: F0 0.04
     small = torch.stack([square_photo(p, size) for p in photos])
     device = getattr(predictor, "device", torch.device("cpu"))
-    result = refine_network(network, small[used], [cal.scene(i) for i in used], options, progress, device)
+    result = refine_network(network, small[used], [cal.scene(i) for i in used], options, progress, device,
+                            began=began)
     refined = result.svbrdf.to("cpu")
     judged = judge(small, [cal.scene(i) for i in range(len(cal.files))], network, refined)
     record = _record(predictor, cal, sha, options, size, used, frontal, judged, result)

@@ -17,7 +17,14 @@ from torch import Tensor
 from svbrdf_render import SVBRDF, RefineSettings, Scene, linear_to_srgb, refine_start, refine_views
 
 from .figures import HEAT_MAX, error_heatmap, image_grid
-from .refining import as_dielectric, pick_backend, rerender, rerender_rmse, without_checkerboard
+from .refining import (
+    as_dielectric,
+    pick_backend,
+    rerender,
+    rerender_rmse,
+    steps_seconds,
+    without_checkerboard,
+)
 
 __all__ = ["Judged", "finite", "judge", "refine_network", "relit_preview", "views_figure"]
 
@@ -70,12 +77,17 @@ def relit_preview(network: SVBRDF, refined: SVBRDF, options) -> Tensor | None:
 
 def refine_network(network: SVBRDF, photos: Tensor, scenes: list[Scene], options, progress, device, *,
                    masks: Tensor | None = None, gains: str = "fixed",
-                   anchor: list[int] | None = None):  # fmt: skip
+                   anchor: list[int] | None = None, began: float | None = None):  # fmt: skip
     """The network's maps (without their 2-pixel pattern, at the photos' size) refined against
     ``photos`` ``(K, 3, S, S)``, each under its own scene, on ``device``
     (:func:`svbrdf_render.refine_views`; ``options.refine`` steps, 0: none). ``options.metal``
-    ``"none"``: the specular held at a dielectric's 0.04 (:func:`.refining.as_dielectric`)."""
+    ``"none"``: the specular held at a dielectric's 0.04 (:func:`.refining.as_dielectric`).
+    ``began`` (``time.monotonic()`` when the capture began): ``options.refine_seconds`` counts
+    from there and keeps back the files' time (:func:`.refining.steps_seconds`)."""
     size = tuple(photos.shape[-2:])
+    seconds = options.refine_seconds
+    if began is not None:
+        seconds = steps_seconds(seconds, began, size[0] * size[1], True)
     dielectric = getattr(options, "metal", "auto") == "none"
     with torch.inference_mode(False), torch.enable_grad():
         maps = SVBRDF(**{k: t.detach().clone() for k, t in network.maps().items()}, validate=False)
@@ -88,7 +100,7 @@ def refine_network(network: SVBRDF, photos: Tensor, scenes: list[Scene], options
             gains=gains,
             anchor=anchor,
             steps=options.refine,
-            seconds=options.refine_seconds,
+            seconds=seconds,
             backend=pick_backend(options.backend, *size),
             callback=progress,
             settings=RefineSettings(hold=("specular",)) if dielectric else None,

@@ -54,7 +54,7 @@ __all__ = [
     "refine_cost",
     "refine_map_size",
     "MAX_UNTIMED_REFINE", "check_refine", "check_scene", "refine_prediction", "rerender", "rerender_rmse",
-    "AFTER_REFINE_SECONDS_PER_PIXEL", "seconds_left",
+    "AFTER_REFINE_SECONDS_PER_PIXEL", "seconds_left", "steps_seconds",
     "METALS", "as_dielectric", "check_metal"]
 
 #: The renderer backend the photo tools refine with. ``"auto"``: ``compiled`` for photos of at
@@ -96,7 +96,7 @@ def seconds_left(seconds: float | None, since: float) -> float | None:
     return None if seconds is None else max(0.0, seconds - (time.monotonic() - since))
 
 
-def _refine_seconds(seconds: float | None, since: float, pixels: int, photo: bool) -> float | None:
+def steps_seconds(seconds: float | None, since: float, pixels: int, photo: bool) -> float | None:
     """The steps' own budget (:func:`svbrdf_render.refine_maps`'s ``seconds``): what is left of
     ``seconds`` since ``since``, less :data:`AFTER_REFINE_SECONDS_PER_PIXEL` when the budget is a
     captured ``photo``'s; 0, no step, when that cannot hold the first step (about two steps'
@@ -255,7 +255,7 @@ def refine_prediction(
             (:func:`without_checkerboard`) and their ring around the photo's highlight
             (:func:`svbrdf_render.refinement.rings.dering`), the start and the prior of the refinement.
         steps, seconds, began: at most ``steps`` steps, all of this call in about ``seconds`` (from
-            ``began``, a photo's start, when given): the steps get what is left (:func:`_refine_seconds`).
+            ``began``, a photo's start, when given): the steps get what is left (:func:`steps_seconds`).
         scene: the capture (default: :func:`svbrdf_render.refinement.fit.axis_flash` over the photo's
             highlight, or over its centre when it shows none).
         callback: ``callback(step, total, loss)`` after each step.
@@ -285,7 +285,7 @@ def refine_prediction(
             scene = axis_flash(start, photo, over=point, position=camera)
         result = refine_maps(
             photo, start, scene=scene.to(device), steps=steps, callback=callback, held=held,
-            seconds=_refine_seconds(seconds, since, photo.numel() // 3, began is not None),
+            seconds=steps_seconds(seconds, since, photo.numel() // 3, began is not None),
             backend=pick_backend(backend, h, w), highlight=None if camera is None else point,  # None: light's
             settings=RefineSettings(hold=("specular",)) if dielectric else None,
         )  # fmt: skip

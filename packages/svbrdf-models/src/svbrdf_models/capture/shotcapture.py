@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import statistics
+import time
 
 import torch
 from torch import Tensor
@@ -30,6 +31,7 @@ def capture_shots(predictor, shots: ShotSet, options, *, progress=None) -> dict:
     from .material import MaterialContent, write_material
     from .refining import as_dielectric, without_checkerboard
 
+    began = time.monotonic()  # --refine-seconds covers the network, the refinement and the files
     f = shots.frontal
     windows = torch.stack([s.window for s in shots.shots])
     masks = torch.stack([s.mask for s in shots.shots])
@@ -40,7 +42,7 @@ def capture_shots(predictor, shots: ShotSet, options, *, progress=None) -> dict:
     scenes = [shot_scene(s, exposure.intensity[i], exposure.color[i]) for i, s in enumerate(shots.shots)]
     device = getattr(predictor, "device", torch.device("cpu"))
     result = refine_network(network, windows, scenes, options, progress, device, masks=masks,
-                            gains=exposure.gains, anchor=exposure.anchor)  # fmt: skip
+                            gains=exposure.gains, anchor=exposure.anchor, began=began)  # fmt: skip
     gained = [shot_scene(s, exposure.intensity[i] * float(result.gains[i]), exposure.color[i])
               for i, s in enumerate(shots.shots)]  # fmt: skip
     refined = result.svbrdf.to("cpu")
