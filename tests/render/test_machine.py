@@ -36,7 +36,7 @@ def test_what_the_user_asks_is_taken(monkeypatch):
     choice = machine.choose_threads()
     assert (choice.threads, choice.source) == (2, "OMP_NUM_THREADS")
     assert machine.choose_threads(1, apply=False).threads == 1 and torch.get_num_threads() == 2
-    with pytest.raises(ValueError, match="at least 1"):
+    with pytest.raises(ValueError, match="from 1 to 4096"):
         machine.choose_threads(0)
 
 
@@ -77,3 +77,13 @@ def test_available_memory_is_the_kernels_lowered_to_the_cgroups_room(monkeypatch
     (cgroup / "memory.max").write_text("1000\n")
     (cgroup / "memory.current").write_text("5000\n")  # over its limit: nothing left, not negative
     assert machine.available_memory() == 0
+
+
+def test_an_omp_num_threads_torch_cannot_take_is_ignored(monkeypatch):
+    monkeypatch.setattr(machine, "_load", lambda: 0.0)
+    monkeypatch.setattr(machine, "usable_cores", lambda: 2)
+    monkeypatch.setenv("OMP_NUM_THREADS", str(2**40))  # torch.set_num_threads: "Overflow when unpacking long"
+    choice = machine.choose_threads(apply=False)
+    assert (choice.threads, choice.source) == (2, "free cores")
+    monkeypatch.setenv("OMP_NUM_THREADS", str(machine.MAX_THREADS))
+    assert machine.choose_threads(apply=False).threads == machine.MAX_THREADS

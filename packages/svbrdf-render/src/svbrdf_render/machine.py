@@ -13,8 +13,9 @@ load average of the last minute), at least 1. The load average alone lags: a min
 benchmark ends it still reads 1.6 on an idle machine, and a command started then took 1
 thread where 2 were free. A number given by the user (``--threads N``, or ``OMP_NUM_THREADS``
 in the environment) is taken as it is, up to :data:`MAX_THREADS` (4096: more than the cores of
-any machine torch runs on; above it, ``--threads`` is refused, as torch's own setter would fail
-with an overflow past 2**31 and start that many threads below it).
+any machine torch runs on; above it, ``--threads`` is refused and ``OMP_NUM_THREADS`` ignored,
+as torch's own setter would fail with an overflow past 2**31 and start that many threads below
+it).
 
     from svbrdf_render.machine import choose_threads
     choice = choose_threads(None)        # sets torch's threads; choice.describe() for people
@@ -87,6 +88,13 @@ def _load() -> float | None:
         return None
 
 
+def _omp_threads() -> int | None:
+    """``OMP_NUM_THREADS`` when it is a whole number from 1 to :data:`MAX_THREADS`; None otherwise
+    (unset, or a value torch could not take: the free cores are counted instead)."""
+    text = os.environ.get("OMP_NUM_THREADS", "").strip()
+    return int(text) if text.isdigit() and 1 <= int(text) <= MAX_THREADS else None
+
+
 @dataclass(frozen=True)
 class ThreadChoice:
     """The threads chosen, and why."""
@@ -124,8 +132,8 @@ def choose_threads(requested: int | None = None, *, apply: bool = True) -> Threa
         if isinstance(requested, bool) or not 1 <= int(requested) <= MAX_THREADS:
             raise ValueError(f"threads must be from 1 to {MAX_THREADS}, got {requested!r}")
         choice = ThreadChoice(int(requested), cores, None, "--threads")
-    elif os.environ.get("OMP_NUM_THREADS", "").strip().isdigit() and int(os.environ["OMP_NUM_THREADS"]) >= 1:
-        choice = ThreadChoice(int(os.environ["OMP_NUM_THREADS"]), cores, None, "OMP_NUM_THREADS")
+    elif _omp_threads() is not None:
+        choice = ThreadChoice(_omp_threads(), cores, None, "OMP_NUM_THREADS")
     else:
         load = _load()
         free = cores - load if load is not None else cores
