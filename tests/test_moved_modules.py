@@ -38,3 +38,14 @@ def test_the_new_names_import_without_warnings(recwarn):
     for new in MOVED.values():
         importlib.import_module(new)
     assert not [w for w in recwarn if issubclass(w.category, DeprecationWarning) and "moved to" in str(w.message)]
+
+
+@pytest.mark.parametrize(
+    "gone", ["svbrdf_render.rings", "svbrdf_models.serve", "svbrdf_models.reference", "svbrdf_train.capture"]
+)
+def test_aliases_of_paths_that_never_shipped_are_gone(gone):
+    """Issue 48: these old names were never in a release (they moved in the same round they were
+    made), and svbrdf_train.capture was asked to go: none imports."""
+    sys.modules.pop(gone, None)
+    with pytest.raises(ModuleNotFoundError):
+        importlib.import_module(gone)

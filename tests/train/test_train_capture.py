@@ -545,13 +545,12 @@ def test_command_refines_with_a_checkpoint(tmp_path, checkpoint):
 
 
 def test_the_photo_tool_has_one_home():
-    """svbrdf_train.capture (deprecated: it warns, and still names the same objects for one
-    release), its photo and figure helpers and DataError are svbrdf-models' own objects, not
+    """The photo tool is svbrdf-models' (svbrdf_train.capture, its alias, is gone: issue 48):
+    svbrdf-train's photo and figure helpers and DataError are svbrdf-models' own objects, not
     copies."""
     import importlib
     import sys
 
-    import svbrdf_models.capture.batch
     import svbrdf_models.capture.figures
     import svbrdf_models.capture.one
     import svbrdf_models.capture.photos
@@ -560,12 +559,8 @@ def test_the_photo_tool_has_one_home():
     from svbrdf_train.data import photos, sheet
 
     sys.modules.pop("svbrdf_train.capture", None)
-    with pytest.warns(DeprecationWarning, match="svbrdf_train.capture moved to svbrdf_models.capture"):
-        old = importlib.import_module("svbrdf_train.capture")
-    assert old is sys.modules["svbrdf_models.capture"]
-    homes = (svbrdf_models.capture.one, svbrdf_models.capture.batch)  # the package's public names
-    for name in old.__all__:
-        assert any(getattr(home, name, None) is getattr(old, name) for home in homes), name
+    with pytest.raises(ModuleNotFoundError):
+        importlib.import_module("svbrdf_train.capture")
     assert svbrdf_train.flash_consistency is svbrdf_models.capture.one.flash_consistency
     assert photos.orient is svbrdf_models.capture.photos.orient
     assert photos.exif_orientation is svbrdf_models.capture.photos.exif_orientation

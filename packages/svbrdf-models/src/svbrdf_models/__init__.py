@@ -121,7 +121,6 @@ _MOVED = {
     "svbrdf_models.modelcheck": "svbrdf_models.modelfile.modelcheck",
     "svbrdf_models.download": "svbrdf_models.modelfile.download",
     "svbrdf_models.pyfunc": "svbrdf_models.modelfile.pyfunc",
-    "svbrdf_models.serve": "svbrdf_models.modelfile.serve",
     "svbrdf_models.batch": "svbrdf_models.capture.batch",
     "svbrdf_models.photos": "svbrdf_models.capture.photos",
     "svbrdf_models.tiles": "svbrdf_models.capture.tiles",
@@ -129,7 +128,6 @@ _MOVED = {
     "svbrdf_models.relight": "svbrdf_models.capture.relight",
     "svbrdf_models.figures": "svbrdf_models.capture.figures",
     "svbrdf_models.material": "svbrdf_models.capture.material",
-    "svbrdf_models.reference": "svbrdf_models.capture.reference",
 }
 
 from svbrdf_render.moved import install as _install_moved

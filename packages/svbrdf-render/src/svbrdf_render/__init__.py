@@ -122,7 +122,6 @@ __all__ = [
 # DeprecationWarning for one release (svbrdf_render.moved; CHANGELOG.md).
 _MOVED = {
     "svbrdf_render.refine": "svbrdf_render.refinement.refine",
-    "svbrdf_render.rings": "svbrdf_render.refinement.rings",
     "svbrdf_render.fit": "svbrdf_render.refinement.fit",
     "svbrdf_render.files": "svbrdf_render.formats.files",
     "svbrdf_render.mapfiles": "svbrdf_render.formats.mapfiles",
