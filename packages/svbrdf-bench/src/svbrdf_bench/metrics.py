@@ -28,7 +28,7 @@ import torch
 from torch import Tensor
 
 from svbrdf_render import MAP_NAMES, SVBRDF, evaluation_scene, stored_value
-from svbrdf_train import display_rendering, map_rmse, per_sample_rmse
+from svbrdf_render.compare import display_rendering, map_rmse, per_sample_rmse
 
 from .errors import BenchError
 

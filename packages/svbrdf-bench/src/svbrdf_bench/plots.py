@@ -342,7 +342,7 @@ def comparison_grid(
     as an 8-bit PNG at ``path``.
     """
     from svbrdf_render import write_image
-    from svbrdf_train import image_grid
+    from svbrdf_models.capture.figures import image_grid
 
     if not rows:
         raise BenchError("comparison grid: no rows to draw")

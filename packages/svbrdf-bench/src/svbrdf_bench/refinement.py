@@ -183,7 +183,7 @@ def _sync(device: torch.device) -> None:
 def _input_rerender(maps, scene, photo: Tensor) -> np.ndarray:
     """``(B,)`` RMSE of ``maps`` rendered under ``scene`` against ``photo`` (display encoding)."""
     from svbrdf_render import linear_to_srgb, render
-    from svbrdf_train import per_sample_rmse
+    from svbrdf_render.compare import per_sample_rmse
 
     with torch.no_grad():
         r = render(maps, scene)
@@ -268,7 +268,8 @@ def refine_real(
     ``shown``: up to ``shown`` ``(photo, maps, fitted re-rendering)`` on the CPU, for the sheet.
     """
     from svbrdf_render import refine_maps
-    from svbrdf_train import flash_consistency, square_photo
+    from svbrdf_models import square_photo
+    from svbrdf_models.capture import flash_consistency
 
     device = torch.device(device)
     scene = plan.scene(device)

@@ -61,7 +61,8 @@ def _self_consistency(generator, photos, resolution: int, device: torch.device) 
     :func:`~svbrdf_models.capture.one.flash_consistency` finds the flash that re-renders those maps
     closest to the photo; its RMSE (clipped re-rendering against the photo) is the figure.
     """
-    from svbrdf_train import flash_consistency, square_photo
+    from svbrdf_models import square_photo
+    from svbrdf_models.capture import flash_consistency
 
     out = []
     for i in range(len(photos)):
@@ -211,7 +212,8 @@ def test_means(per_sample: dict[str, np.ndarray]) -> dict[str, float]:
 def comparison_grid(shown: dict[str, list], path: Path) -> Path:
     """Per test sample: the input and true maps, then each model's maps; flash re-renderings."""
     from svbrdf_render import linear_to_srgb
-    from svbrdf_train import display_rendering, map_tiles, preview_flash
+    from svbrdf_render.compare import display_rendering
+    from svbrdf_train import map_tiles, preview_flash
 
     from .plots import comparison_grid as sheet
 

@@ -100,7 +100,8 @@ def test_set(path: str | Path | None, resolution: int, count: int, group_by: str
             )
         data = ProceduralMaterials(count, resolution, seed=TEST_SEED)
         return TestSet(data, resolution, f"{count} procedural materials (seed {TEST_SEED})")
-    from svbrdf_train import DataError, open_materials
+    from svbrdf_models import DataError
+    from svbrdf_train import open_materials
 
     try:
         data, what = open_materials(path, "--test-data")
