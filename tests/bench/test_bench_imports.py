@@ -82,3 +82,17 @@ def test_importing_the_package_imports_neither_torch_nor_mlflow():
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
+
+
+def test_names_of_other_packages_come_from_their_owners():
+    """Issue 48: a name svbrdf_train only passes on (defined in svbrdf_render or svbrdf_models) is
+    imported from the package that defines it, so that it has one address in svbrdf-bench."""
+    borrowed = []
+    for path in sorted(BENCH.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module == "svbrdf_train":
+                for alias in node.names:
+                    owner = getattr(getattr(svbrdf_train, alias.name), "__module__", None) or "svbrdf_train"
+                    if not owner.startswith("svbrdf_train"):
+                        borrowed.append(f"{path.name}:{node.lineno}: {alias.name} (from {owner})")
+    assert not borrowed, borrowed
