@@ -69,7 +69,7 @@ _LAZY = {
     "save_model": "modelfile",
     "model_dict": "modelfile",
     "pretrained_path": "modelfile",
-    "square_photo": "modelfile",
+    "square_photo": "capture.photos",
     "PRETRAINED": "modelfile",
     "MultiGANDiscriminator": "networks.discriminators",
     "load_photo": "capture.photos",

@@ -64,7 +64,7 @@ from torch import Tensor
 from svbrdf_render import MIN_REFINE_SIDE, Camera, PointLight, Scene, read_image
 
 from ..errors import DataError
-from ..modelfile.trained import square_photo
+from .photos import square_photo
 from .multiview import Judged, finite, judge, refine_network, relit_preview, views_figure
 from .refining import as_dielectric, check_refine_memory, pick_backend
 

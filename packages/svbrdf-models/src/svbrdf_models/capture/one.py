@@ -36,7 +36,7 @@ from torch import Tensor
 from svbrdf_render import MAP_NAMES, MIN_REFINE_SIDE, SVBRDF, Refinement, Scene, linear_to_srgb
 
 from ..errors import DataError
-from ..modelfile.trained import square_photo
+from .photos import square_photo
 from .figures import HEAT_MAX, error_heatmap, image_grid
 from .flashpoint import place_flash, record_flash
 from .geometry import CaptureGeometry, capture_geometry

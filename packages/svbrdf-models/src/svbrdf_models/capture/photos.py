@@ -26,12 +26,12 @@ import warnings
 from pathlib import Path
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from svbrdf_render import MapFileError, read_image, read_png_encoding, srgb_to_linear
 
 from ..errors import DataError
-from ..modelfile.trained import square_photo
 
 __all__ = [
     "EXIF_ORIENTATION",
@@ -46,6 +46,7 @@ __all__ = [
     "read_oriented",
     "square",
     "square_box",
+    "square_photo",
     "square_side",
     "tagged_linear",
 ]
@@ -75,6 +76,23 @@ class PhotoError(DataError):
         self.problem = problem
         self.hint = hint
         super().__init__(f"{self.path}: {problem}" + (f"; {hint}" if hint else ""))
+
+
+def square_photo(photo: Tensor, size: int | None) -> Tensor:
+    """Centre-crop ``(C, H, W)`` to its shorter side, then resample to ``size`` if given.
+
+    Resampling is bilinear with antialiasing (a triangle filter: no overshoot, so values stay
+    in range) and happens on linear values, where averaging is physically meaningful.
+    """
+    _, h, w = photo.shape
+    s = min(h, w)
+    top, left = (h - s) // 2, (w - s) // 2
+    photo = photo[:, top : top + s, left : left + s]
+    if size is not None and s != size:
+        photo = F.interpolate(
+            photo[None], size=(size, size), mode="bilinear", align_corners=False, antialias=True
+        )[0]
+    return photo.contiguous()
 
 
 def exif_orientation(image) -> tuple[int, str | None]:

@@ -90,7 +90,8 @@ from .modelcheck import (
     unreadable_reason,
     weights_mismatch,
 )
-from .trained import TrainedModel, square_photo
+from ..capture.photos import square_photo
+from .trained import TrainedModel
 
 __all__ = [
     "FORMAT",

@@ -8,7 +8,7 @@ returns (and svbrdf-train's ``Predictor`` is, for training checkpoints too).
     maps = model.predict_batch(squares)         # (N, 3, S, S) at a size the generator takes
 
 Photos are linear float tensors; the network sees the largest centred square of each
-(:func:`square_photo`), resized to the resolution the generator was trained at.
+(:func:`~svbrdf_models.capture.photos.square_photo`), resized to the resolution the generator was trained at.
 """
 
 from __future__ import annotations
@@ -23,7 +23,9 @@ from torch import Tensor, nn
 
 from svbrdf_render import SVBRDF
 
-__all__ = ["TrainedModel", "square_photo"]
+from ..capture.photos import square_photo
+
+__all__ = ["TrainedModel"]
 
 
 #: Largest value a photo may hold (linear values are in [0, 1]; a little over 1 is rounding or
@@ -256,23 +258,6 @@ class TrainedModel:
             f"generator {self.name} ({self.resolution}x{self.resolution}, {self.steps} steps, "
             f"{hours:.1f} h of training, {self.precision}) from {self.source}"
         )
-
-
-def square_photo(photo: Tensor, size: int | None) -> Tensor:
-    """Centre-crop ``(C, H, W)`` to its shorter side, then resample to ``size`` if given.
-
-    Resampling is bilinear with antialiasing (a triangle filter: no overshoot, so values stay
-    in range) and happens on linear values, where averaging is physically meaningful.
-    """
-    _, h, w = photo.shape
-    s = min(h, w)
-    top, left = (h - s) // 2, (w - s) // 2
-    photo = photo[:, top : top + s, left : left + s]
-    if size is not None and s != size:
-        photo = F.interpolate(
-            photo[None], size=(size, size), mode="bilinear", align_corners=False, antialias=True
-        )[0]
-    return photo.contiguous()
 
 
 def _check_tensor_kind(photo: Tensor, where: str) -> None:

@@ -14,7 +14,7 @@ from pathlib import Path
 from torch.utils.data import Dataset
 
 from svbrdf_models.capture.photos import exif_orientation, file_orientation, orient
-from svbrdf_models.modelfile.files import square_photo
+from svbrdf_models.capture.photos import square_photo
 from svbrdf_render import read_image
 from svbrdf_render.formats.mapfiles import srgb_to_linear
 
