@@ -198,7 +198,7 @@ def test_default_store_is_mlflow_db_in_the_working_folder_with_artifacts_beside_
 def test_a_non_finite_gradient_behind_a_finite_loss_stops_before_the_step(tmp_path, monkeypatch):
     """sqrt at 0 has an infinite derivative: the loss stays finite, every gradient becomes NaN.
     The step checks the gradient norm, stops without stepping, and names the gradient."""
-    import svbrdf_train.training.losses as losses  # the step's loss (recipe.loss.setup()) calls generator_loss
+    import svbrdf_train.training.losses as losses  # the step's loss (loss_of(recipe.loss)) calls generator_loss
 
     real_loss = losses.generator_loss
 

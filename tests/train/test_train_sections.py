@@ -1,4 +1,5 @@
-"""Recipe sections build what they describe: ``optim.setup``, ``loss.setup``, ``data.setup``."""
+"""What recipe sections describe is built from them: ``optimiser_of(optim, ...)``, ``loss_of(loss)``
+(in training, which imports the recipe), ``data.setup``."""
 
 from __future__ import annotations
 
@@ -7,15 +8,16 @@ import torch
 
 from conftest import random_svbrdf
 from svbrdf_train.recipe import LossSection, OptimSection, load_recipe
-from svbrdf_train.training.losses import GanLoss, LossWeights, discriminator_loss, generator_loss
+from svbrdf_train.training.losses import GanLoss, LossWeights, discriminator_loss, generator_loss, loss_of
+from svbrdf_train.training.schedule import LrSchedule, optimiser_of
 
 
 def test_optim_setup_makes_adam_at_the_sections_rates_and_betas_along_the_schedule():
     optim = OptimSection(lr=1e-3, d_lr=4e-4, betas=(0.3, 0.9), warmup_samples=8, decay_every_samples=16)
-    schedule = optim.schedule(per_step=2, samples_per_epoch=100)
+    schedule = LrSchedule(optim, 2, 100)
     g = torch.nn.Linear(2, 2)
-    opt, rate = optim.setup(g.parameters(), schedule)
-    d_opt, d_rate = optim.setup(torch.nn.Linear(2, 1).parameters(), schedule, discriminator=True)
+    opt, rate = optimiser_of(optim, g.parameters(), schedule)
+    d_opt, d_rate = optimiser_of(optim, torch.nn.Linear(2, 1).parameters(), schedule, discriminator=True)
     assert isinstance(opt, torch.optim.Adam) and opt.param_groups[0]["betas"] == (0.3, 0.9)
     assert rate.base == 1e-3 and d_rate.base == 4e-4
     # warm-up over 8 samples at 2 a step: steps 0..3 at 1/4..4/4; halved from sample 16 (step 8)
@@ -34,7 +36,7 @@ def test_optim_setup_makes_adam_at_the_sections_rates_and_betas_along_the_schedu
 
 def test_loss_setup_gives_the_losses_of_the_sections_weights_and_kind():
     section = LossSection(adv=0.2, render=0.0, svbrdf=0.7, gan="lsgan", maps={"normal": 2.0, "diffuse": 0.0})
-    loss = section.setup()
+    loss = loss_of(section)
     assert isinstance(loss, GanLoss)
     pred, target = random_svbrdf(2, 16, seed=1), random_svbrdf(2, 16, seed=2)
     fake = [torch.randn(2, 1, 4, 4)]

@@ -76,7 +76,7 @@ _MOVED = {
     "svbrdf_train.trainer": "svbrdf_train.training.trainer",
     "svbrdf_train.step": "svbrdf_train.training.step",
     "svbrdf_train.losses": "svbrdf_train.training.losses",
-    "svbrdf_train.paper_weights": "svbrdf_train.training.paper_weights",
+    "svbrdf_train.paper_weights": "svbrdf_train.recipe.paper_weights",
     "svbrdf_train.schedule": "svbrdf_train.training.schedule",
     "svbrdf_train.clock": "svbrdf_train.training.clock",
     "svbrdf_train.checkpoint": "svbrdf_train.training.checkpoint",

@@ -6,15 +6,10 @@ A :class:`Recipe` is six sections (``generator``, ``discriminator``, ``loss``, `
 line naming the field. Settings that are each in range but cannot work together are refused
 by :func:`svbrdf_train.recipe.checks.check_recipe`.
 
-Sections build what they describe:
-
-- ``optim.setup(params, schedule)`` -> ``(Adam, ScheduledRate)``: the optimiser at the
-  section's rate and betas, and the rate it follows along :class:`~svbrdf_train.training.schedule.LrSchedule`
-  (``optim.schedule(per_step, samples_per_epoch)``);
-- ``loss.setup()`` -> :class:`~svbrdf_train.training.losses.GanLoss`: the generator's and the
-  discriminator's objectives with the section's weights;
-- ``data.setup(resolution)`` -> ``(train, validation)`` data sets
-  (:func:`svbrdf_train.data.fitdata.section_datasets`).
+What they describe is built by the rooms that use them, which import the recipe (never the
+other way): :func:`svbrdf_train.training.schedule.optimiser_of` and ``LrSchedule(optim, ...)``
+for ``optim``, :func:`svbrdf_train.training.losses.loss_of` for ``loss``, ``data.setup(resolution)``
+-> ``(train, validation)`` data sets (:func:`svbrdf_train.data.fitdata.section_datasets`).
 """
 
 from __future__ import annotations
@@ -23,20 +18,14 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from svbrdf_models import param
 from svbrdf_render.renderer import BACKENDS
 
-from ..training.paper_weights import MAP_WEIGHTS
+from .paper_weights import MAP_WEIGHTS
 from .datasection import DataSection
 from .values import MAX_RESOLUTION, MIN_RESOLUTION, _check, _finite, _int_at_least, _number, _seed
-
-if TYPE_CHECKING:  # annotations only: these modules read no recipe, so nothing imports back
-    import torch
-
-    from ..training.losses import GanLoss
-    from ..training.schedule import LrSchedule, ScheduledRate
 
 __all__ = [
     "BATCH_RULES",
@@ -93,14 +82,6 @@ class LossSection:
                 "is always 0; give a map a weight, or set svbrdf to 0"
             )
 
-    def setup(self) -> GanLoss:
-        """The objectives this section describes: the generator's ``L_G`` with these weights and
-        the discriminator's, both of the ``gan`` kind (:class:`svbrdf_train.training.losses.GanLoss`)."""
-        from ..training.losses import GanLoss, LossWeights
-
-        weights = LossWeights(adv=self.adv, render=self.render, svbrdf=self.svbrdf)
-        return GanLoss(weights=weights, map_weights=self.maps, gan=self.gan, eps=self.eps)
-
 
 #: How the rates follow the batch (``optim.batch_rule``).
 BATCH_RULES = ("none", "sqrt", "linear")
@@ -156,29 +137,6 @@ class OptimSection:
         """The factor ``batch_rule`` puts on both rates for ``per_step`` samples a step."""
         ratio = per_step / self.batch_reference
         return {"none": 1.0, "sqrt": math.sqrt(ratio), "linear": ratio}[self.batch_rule]
-
-    def schedule(self, per_step: int, samples_per_epoch: int) -> LrSchedule:
-        """The rate factor along the fit (:class:`svbrdf_train.training.schedule.LrSchedule`):
-        ``per_step`` samples a step (all processes), ``samples_per_epoch`` for an epoch period."""
-        from ..training.schedule import LrSchedule
-
-        return LrSchedule(self, per_step, samples_per_epoch)
-
-    def setup(
-        self, params: Iterable[torch.nn.Parameter], schedule: LrSchedule, *, discriminator: bool = False
-    ) -> tuple[torch.optim.Adam, ScheduledRate]:
-        """Adam over ``params`` with ``betas``, and the rate it follows: ``lr`` (``d_lr`` for the
-        ``discriminator``) times :meth:`batch_factor` times ``schedule``'s factor, set for each
-        step by the returned
-        :class:`~svbrdf_train.training.schedule.ScheduledRate` (``rate.at(step)``)."""
-        import torch
-
-        from ..training.schedule import ScheduledRate
-
-        base = (self.d_lr if discriminator else self.lr) * self.batch_factor(schedule.per_step)
-        optimiser = torch.optim.Adam(params, lr=base, betas=tuple(self.betas))
-        return optimiser, ScheduledRate(optimiser, base, schedule)
-
 
 
 #: What ``train.keep_best`` may choose on (lower is better); never the watched real set, val_real.

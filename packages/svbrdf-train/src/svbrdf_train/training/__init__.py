@@ -1,8 +1,8 @@
 """A fit: the GAN trainer and everything one training step and one fit need.
 
 - :mod:`~svbrdf_train.training.trainer` (the fit), :mod:`~svbrdf_train.training.step` (one step),
-  :mod:`~svbrdf_train.training.losses` and :mod:`~svbrdf_train.training.paper_weights` (the
-  paper's losses), :mod:`~svbrdf_train.training.schedule` (learning rates);
+  :mod:`~svbrdf_train.training.losses` (the paper's losses, with the weights of
+  :mod:`~svbrdf_train.recipe.paper_weights`), :mod:`~svbrdf_train.training.schedule` (learning rates);
 - :mod:`~svbrdf_train.training.clock`, :mod:`~svbrdf_train.training.checkpoint`,
   :mod:`~svbrdf_train.training.resume`, :mod:`~svbrdf_train.training.order` (budgets, saving and
   resuming bit for bit), :mod:`~svbrdf_train.training.init` (fine-tuning);

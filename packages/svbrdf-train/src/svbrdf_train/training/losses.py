@@ -15,7 +15,7 @@ function                              what
 :func:`generator_adversarial_loss`    ``L_adv``: the generator's GAN objective on fake logits
 :func:`generator_loss`                ``L_G``, every term returned separately for logging
 :class:`GanLoss`                      both objectives of a fit, built once from the recipe's
-                                      ``loss`` section (``loss.setup()``)
+                                      ``loss`` section (``loss_of(recipe.loss)``)
 ====================================  ================================================================
 
 GAN objectives (``kind``), both computed from logits:
@@ -45,7 +45,7 @@ from torch import Tensor
 
 from svbrdf_render import MAP_NAMES, SVBRDF, Scene, log_radiance, render
 
-from .paper_weights import MAP_WEIGHTS
+from ..recipe.paper_weights import MAP_WEIGHTS
 
 __all__ = [
     "MAP_WEIGHTS",
@@ -57,6 +57,7 @@ __all__ = [
     "generator_adversarial_loss",
     "generator_loss",
     "GanLoss",
+    "loss_of",
 ]
 
 #: The GAN objectives :func:`discriminator_loss` and :func:`generator_adversarial_loss` know.
@@ -404,7 +405,7 @@ def _weighted_total(terms: Mapping[str, Tensor], weights: LossWeights) -> Tensor
 class GanLoss:
     """The generator's and the discriminator's objectives of one fit, with their settings.
 
-    The recipe's ``loss`` section builds it (``recipe.loss.setup()``). Calling it gives
+    The recipe's ``loss`` section describes it (``loss_of(recipe.loss)`` builds it). Calling it gives
     :func:`generator_loss` with these weights; :meth:`discriminator` gives
     :func:`discriminator_loss`; :meth:`looks` is what the discriminator sees of renderings,
     ``log(R + eps)``, as the rendering loss compares them.
@@ -446,3 +447,10 @@ class GanLoss:
     def looks(self, renderings: Tensor) -> Tensor:
         """What the discriminator sees of ``renderings``: ``log(R + eps)``."""
         return log_radiance(renderings, self.eps)
+
+
+def loss_of(section) -> GanLoss:
+    """The objectives the recipe's ``loss`` section describes: the generator's ``L_G`` with its
+    weights and the discriminator's, both of its ``gan`` kind."""
+    weights = LossWeights(adv=section.adv, render=section.render, svbrdf=section.svbrdf)
+    return GanLoss(weights=weights, map_weights=section.maps, gan=section.gan, eps=section.eps)

@@ -24,7 +24,7 @@ from typing import Protocol
 
 import torch
 
-__all__ = ["DecaySettings", "LrSchedule", "ScheduledRate", "WARN_BELOW", "WARN_WITHIN"]
+__all__ = ["DecaySettings", "LrSchedule", "ScheduledRate", "WARN_BELOW", "WARN_WITHIN", "optimiser_of"]
 
 #: The fit warns when its rate would fall below this fraction of its start ...
 WARN_BELOW = 0.01
@@ -34,7 +34,7 @@ WARN_WITHIN = 0.1
 
 class DecaySettings(Protocol):
     """What a schedule reads of the recipe's ``optim`` section
-    (:class:`svbrdf_train.recipe.OptimSection`, which makes its schedule: ``optim.schedule``)."""
+    (:class:`svbrdf_train.recipe.OptimSection`: ``LrSchedule(optim, per_step, samples_per_epoch)``)."""
 
     decay: float
     decay_every_samples: int | None
@@ -125,7 +125,7 @@ class LrSchedule:
 class ScheduledRate:
     """One optimiser's learning rate along a schedule: ``base x schedule.factor(step)``.
 
-    ``optim.setup`` returns it with its optimiser. :meth:`at` sets the rate of a generator
+    :func:`optimiser_of` returns it with its optimiser. :meth:`at` sets the rate of a generator
     step before the step runs, so the optimiser holds, after the step, the rate the step used
     (what the fit logs as ``train/lr``); a resumed fit sets it from its step alone.
     """
@@ -140,3 +140,13 @@ class ScheduledRate:
         for group in self.optimiser.param_groups:
             group["lr"] = rate
         return rate
+
+
+def optimiser_of(optim, params, schedule: LrSchedule, *, discriminator: bool = False):
+    """``(Adam, ScheduledRate)``: Adam over ``params`` with the recipe's ``optim`` section's
+    ``betas``, and the rate it follows: ``lr`` (``d_lr`` for the ``discriminator``) times the
+    section's ``batch_factor`` times ``schedule``'s factor (``LrSchedule(optim, per_step,
+    samples_per_epoch)``), set for each step by the returned rate (``rate.at(step)``)."""
+    base = (optim.d_lr if discriminator else optim.lr) * optim.batch_factor(schedule.per_step)
+    optimiser = torch.optim.Adam(params, lr=base, betas=tuple(optim.betas))
+    return optimiser, ScheduledRate(optimiser, base, schedule)

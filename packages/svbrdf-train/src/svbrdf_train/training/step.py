@@ -38,6 +38,8 @@ from svbrdf_render import SVBRDF, Scene, render, training_scene
 from ..recipe import Recipe
 from . import distributed
 from .checkpoint import load_weights, rng_state, set_rng_state
+from .losses import loss_of
+from .schedule import LrSchedule, optimiser_of
 
 __all__ = ["GanStep", "scene_rows", "unwrap"]
 
@@ -92,8 +94,9 @@ def _grad_norm(module: nn.Module) -> Tensor:
 class GanStep:
     """G, D, their optimisers and schedule, and one step of training them (module doc).
 
-    The recipe's sections build the pieces: ``optim.setup`` each optimiser and the rate it
-    follows, ``loss.setup`` the objectives (:class:`~svbrdf_train.training.losses.GanLoss`).
+    The recipe's sections say what the pieces are: :func:`~.schedule.optimiser_of` makes each
+    optimiser and the rate it follows, :func:`~.losses.loss_of` the objectives
+    (:class:`~svbrdf_train.training.losses.GanLoss`).
 
     Args:
         recipe: what to train (networks, losses, optimiser, ``train`` settings).
@@ -112,14 +115,15 @@ class GanStep:
         if recipe.discriminator is not None:
             d = recipe.discriminator
             self.discriminator = create_discriminator(d.name, d.config).to(self.device)
-        self.schedule = o.schedule(t.batch * dist.world, epoch_samples)
-        self.g_opt, g_rate = o.setup(self.generator.parameters(), self.schedule)
+        self.schedule = LrSchedule(o, t.batch * dist.world, epoch_samples)
+        self.g_opt, g_rate = optimiser_of(o, self.generator.parameters(), self.schedule)
         self.d_opt, self._rates = None, [g_rate]
         if self.discriminator is not None:
-            self.d_opt, d_rate = o.setup(self.discriminator.parameters(), self.schedule, discriminator=True)
+            d_params = self.discriminator.parameters()
+            self.d_opt, d_rate = optimiser_of(o, d_params, self.schedule, discriminator=True)
             self._rates.append(d_rate)
         self.scene_gen = torch.Generator().manual_seed(t.seed + 7919)
-        self.loss = recipe.loss.setup()
+        self.loss = loss_of(recipe.loss)
         self.step = 0
         # What a step calls: the networks, wrapped by prepare() for several processes or compiling.
         self.G: nn.Module = self.generator
