@@ -332,6 +332,47 @@ def test_no_private_module_is_imported_from_another_package(graph):
     assert not found, "private modules imported across packages:\n" + "\n".join(found)
 
 
+def _room(module: str) -> str | None:
+    """The room of a module: its package's subpackage or top-level module (``svbrdf_train.recipe``
+    for ``svbrdf_train.recipe.schema``); None for a package's own ``__init__``."""
+    parts = module.split(".")
+    return ".".join(parts[:2]) if len(parts) > 1 else None
+
+
+def _room_edges(graph: dict[str, list[Edge]]) -> dict[tuple[str, str], Edge]:
+    """One import (the first seen) for each ordered pair of different rooms of one package."""
+    out: dict[tuple[str, str], Edge] = {}
+    for edges in graph.values():
+        for e in edges:
+            a, b = _room(e.source), _room(e.target)
+            if a and b and a != b and a.split(".")[0] == b.split(".")[0]:
+                out.setdefault((a, b), e)
+    return out
+
+
+def test_no_two_rooms_import_each_other(graph):
+    """Issue 48: the rooms of a package (its subpackages and top-level modules) stand on floors:
+    when one imports another, even lazily, the other never imports it back."""
+    pairs = _room_edges(graph)
+    mutual = [
+        f"{a} <-> {b} ({pairs[(a, b)].source} line {pairs[(a, b)].line}; {pairs[(b, a)].source} line "
+        f"{pairs[(b, a)].line})"
+        for a, b in sorted(pairs)
+        if a < b and (b, a) in pairs
+    ]
+    assert not mutual, "rooms that import each other:\n" + "\n".join(mutual)
+
+
+def test_the_room_check_sees_a_mutual_import():
+    edges = {
+        "pkg.a.x": [Edge("pkg.a.x", "pkg.b.y", 3)],
+        "pkg.b.y": [Edge("pkg.b.y", "pkg.a", 9)],
+        "pkg.c": [Edge("pkg.c", "pkg.a.x", 1)],
+    }
+    pairs = _room_edges(edges)
+    assert ("pkg.a", "pkg.b") in pairs and ("pkg.b", "pkg.a") in pairs and ("pkg.a", "pkg.c") not in pairs
+
+
 def test_docs_architecture_names_every_subpackage():
     """docs/architecture.md draws the house: each subpackage of the four packages has a row in its
     table (``svbrdf_x.sub``), and no row names a subpackage that is gone."""

@@ -90,6 +90,7 @@ _MOVED = {
     "svbrdf_train.order": "svbrdf_train.training.order",
     "svbrdf_train.progress": "svbrdf_train.training.progress",
     "svbrdf_train.fitdata": "svbrdf_train.data.fitdata",
+    "svbrdf_train.export": "svbrdf_train.training.export",
 }
 
 

@@ -86,7 +86,7 @@ def export(checkpoint, run_id, out, half, hash_name, register_as, metrics, force
     if (checkpoint is None) == (run_id is None):
         raise CheckpointError("give the weights as CHECKPOINT (a file or a fit's folder) or --run RUN_ID")
     check_output_folder(out.parent, "-o")
-    from ..export import check_export_target, export_contents, register
+    from ..training.export import check_export_target, export_contents, register
 
     check_export_target(out, force)  # a fit's last.pt under -o would be lost: refused
     state, source, run = _read(checkpoint, run_id)

@@ -149,7 +149,7 @@ def _fit(recipe: Recipe | None, options: FitOptions, dist: distributed.Dist) -> 
         run.tracker.set_tags({"svbrdf.stop": message, "svbrdf.steps": run.gan.step})
         run.tracker.log_metrics(summary_metrics(run), run.gan.step)
         if status == "FINISHED":  # the generator as an MLflow model of the run (pyfunc)
-            from ..export import log_fit_model
+            from .export import log_fit_model
 
             log_fit_model(run, validation.metrics)
     run.tracker.finish(status)

@@ -24,7 +24,7 @@ from svbrdf_models import create_generator
 from svbrdf_models.modelfile.files import model_dict
 from svbrdf_render import MAP_NAMES
 
-from .errors import CheckpointError
+from ..errors import CheckpointError
 
 __all__ = [
     "export_contents", "provenance", "describe_data", "half_effect", "register", "log_fit_model",
@@ -103,7 +103,7 @@ def provenance(state: dict[str, Any], source: str, run: dict[str, Any] | None = 
 def half_effect(name: str, config: dict[str, Any], weights: dict[str, torch.Tensor], resolution: int) -> dict:
     """How much rounding the weights to float16 moves the maps: RMSE and largest difference per
     map, on 8 procedural photos at the model's resolution (seed 123, not a training seed)."""
-    from .data.procedural import ProceduralMaterials
+    from ..data.procedural import ProceduralMaterials
 
     photos = ProceduralMaterials(8, resolution, seed=123).batch(range(8))["input"]
     full = create_generator(name, config).eval()
@@ -131,7 +131,7 @@ def check_export_target(out: Path, force: bool = False) -> None:
         raise SVBRDFError(f"-o {out}: is a folder; give the path of the model file to write")
     if force or not out.exists() or is_model_file(out):
         return
-    from .training.checkpoint import FORMAT
+    from .checkpoint import FORMAT
 
     try:
         head = torch.load(out, map_location="cpu", weights_only=True, mmap=True)
@@ -248,7 +248,7 @@ def _export_run(contents: dict[str, Any], run_id: str | None):
     import mlflow
     from mlflow.exceptions import MlflowException
 
-    from .tracking import experiment_id, open_client
+    from ..tracking import experiment_id, open_client
 
     uri = mlflow.get_tracking_uri()
     client = open_client(uri)
