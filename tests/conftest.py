@@ -277,3 +277,22 @@ def serving(command: list[str], ready_url: str, log_path: Path, *, env=None, cwd
         yield proc
     finally:
         stop_process_group(proc)
+
+
+@pytest.fixture
+def refine_calls(monkeypatch) -> list:
+    """Each refinement the photo tool's one-photo capture runs, recorded as ``(photo, start,
+    steps, keywords, result)`` (the photo cloned), the call itself made as usual: a test can
+    make the same call again and compare the maps bit for bit."""
+    from svbrdf_models.capture import one
+    from svbrdf_models.capture.refining import refine_prediction
+
+    calls = []
+
+    def spy(photo, start, steps, **kw):
+        result = refine_prediction(photo, start, steps, **kw)
+        calls.append((photo.clone(), start, steps, kw, result))
+        return result
+
+    monkeypatch.setattr(one, "refine_prediction", spy)
+    return calls

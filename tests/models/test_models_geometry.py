@@ -18,7 +18,6 @@ import pytest
 import torch
 from PIL import Image
 
-from svbrdf_models.capture import one as capture
 from svbrdf_models.capture.geometry import DIAGONAL_35MM, capture_geometry, check_distance, check_fov
 from svbrdf_models.capture.one import CaptureOptions, capture_one
 from svbrdf_models.capture.refining import refine_prediction
@@ -234,22 +233,14 @@ def test_network_maps_only_record_the_geometry_unused(tmp_path):
     assert geometry["used"] is False  # --refine 0: the flash is fitted to the network's maps
 
 
-def test_a_photo_without_exif_or_flags_keeps_todays_maps(tmp_path, monkeypatch):
+def test_a_photo_without_exif_or_flags_keeps_todays_maps(tmp_path, refine_calls):
     """No EXIF, no --fov or --distance: the refinement is today's call (no camera: the flash at
     2.2 over the highlight), and its maps are identical to that call's; material.json says
     "default"."""
     path = tmp_path / "plain.png"
     _pixels(96, 96).save(path)
-    calls = []
-
-    def spy(photo, start, steps, **kw):
-        result = refine_prediction(photo, start, steps, **kw)
-        calls.append((photo.clone(), start, steps, kw, result))
-        return result
-
-    monkeypatch.setattr(capture, "refine_prediction", spy)
     entry = capture_one(_Known(), path, tmp_path / "out", CaptureOptions(refine=3, relit="none"))
-    (photo, start, steps, kw, got), = calls
+    (photo, start, steps, kw, got), = refine_calls
     assert kw.get("camera") is None
     old = refine_prediction(photo, start, steps, seconds=None, scene=None, backend=kw["backend"])
     for name, want in old.svbrdf.maps().items():

@@ -12,7 +12,6 @@ import pytest
 import torch
 
 import svbrdf_models as sm
-from svbrdf_models.capture import one as capture
 from svbrdf_models.capture.one import CaptureOptions, capture_one
 from svbrdf_models.capture.refining import refine_prediction
 from svbrdf_models.cli import main
@@ -71,19 +70,11 @@ def test_the_refinement_under_metal_none_holds_the_specular_and_lowers_its_loss(
     assert not torch.allclose(result.svbrdf.roughness, start.roughness.expand_as(result.svbrdf.roughness))
 
 
-def test_metal_auto_is_the_capture_as_it_was(tmp_path, monkeypatch):
+def test_metal_auto_is_the_capture_as_it_was(tmp_path, refine_calls):
     """The capture's refinement with ``auto`` gives the maps of the call made before --metal
     existed (no metal, the highlight found inside), bit for bit."""
-    calls = []
-
-    def spy(photo, start, steps, **kw):
-        result = refine_prediction(photo, start, steps, **kw)
-        calls.append((photo.clone(), start, steps, kw, result))
-        return result
-
-    monkeypatch.setattr(capture, "refine_prediction", spy)
     capture_one(_Chrome(), _photo(tmp_path), tmp_path / "out", CaptureOptions(refine=4, relit="none"))
-    (photo, start, steps, kw, got), = calls
+    (photo, start, steps, kw, got), = refine_calls
     assert kw["metal"] == "auto"
     before = {k: v for k, v in kw.items() if k not in ("metal", "highlight")}
     old = refine_prediction(photo, start, steps, **before)
