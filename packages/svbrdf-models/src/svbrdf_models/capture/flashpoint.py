@@ -10,7 +10,7 @@ flash assumed over the square's centre, or where the lens and the crop place the
 :data:`EDGE` half-widths or more from the centre gets a note with what
 docs/capture-guide.md measured such a capture to cost (:func:`edge_note`)::
 
-    found = find_point(square, None, exact=True)      # (points (1, 2), clear (1,))
+    found = find_point(square, None)                  # (points (1, 2), clear (1,))
     flash = {**flash, **flash_record(found, geometry, options)}
     flash_line(flash), edge_note(flash)
 """
@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import math
 
-import torch.nn.functional as F
 from torch import Tensor
 
 __all__ = [
@@ -45,24 +44,13 @@ PLACES = {
     "fitted": "fitted to the network's maps (--refine 0)",
 }
 
-#: Without refinement the highlight is only recorded: it is looked for on a copy of the square
-#: at most this side (the blur of a large square costs seconds; its point moves by a pixel).
-_LOOK_SIDE = 256
-
-
-def find_point(photo: Tensor, ignore: Tensor | None, *, exact: bool) -> tuple[Tensor, Tensor]:
+def find_point(photo: Tensor, ignore: Tensor | None) -> tuple[Tensor, Tensor]:
     """:func:`~svbrdf_render.refinement.rings.find_highlight` of the square ``photo`` ``(3, S, S)``
     (``ignore``: ``(1, 1, S, S)``, a reference card's pixels): ``(points (1, 2), clear (1,))``.
-    ``exact``: at the square's own size (the point a refinement stands over), else on a copy
-    of at most :data:`_LOOK_SIDE` px."""
+    The search itself works at a bounded size, so it costs the same at every photo size."""
     from svbrdf_render.refinement.rings import find_highlight
 
-    batch = photo[None].float()
-    if not exact and batch.shape[-1] > _LOOK_SIDE:
-        size = (_LOOK_SIDE, _LOOK_SIDE)
-        batch = F.interpolate(batch, size=size, mode="area")
-        ignore = None if ignore is None else F.interpolate(ignore.float(), size=size, mode="nearest") > 0.5
-    return find_highlight(batch, ignore)
+    return find_highlight(photo[None].float(), ignore)
 
 
 def flash_record(found: tuple[Tensor, Tensor], geometry, options) -> dict:
@@ -88,11 +76,11 @@ def flash_record(found: tuple[Tensor, Tensor], geometry, options) -> dict:
 
 
 def place_flash(photo: Tensor, card: Tensor | None, geometry, options):
-    """``(geometry, found)``: the capture's square ``photo``'s highlight (:func:`find_point`, at
-    its own size when ``options`` refine; ``card``: a reference card's pixels, ignored), and
+    """``(geometry, found)``: the capture's square ``photo``'s highlight (:func:`find_point`;
+    ``card``: a reference card's pixels, ignored), and
     ``geometry`` placed over it when clear
     (:meth:`~svbrdf_models.capture.geometry.CaptureGeometry.over_highlight`)."""
-    found = find_point(photo, card, exact=bool(options.refine))  # a refinement's own point
+    found = find_point(photo, card)  # a refinement's own point
     return geometry.over_highlight(photo, card, found), found
 
 
