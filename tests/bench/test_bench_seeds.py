@@ -19,6 +19,7 @@ from svbrdf_bench.cli import cli
 from svbrdf_bench.errors import BenchError
 from svbrdf_bench.report import ModelEntry, Report, build_report, table_lines
 from svbrdf_bench.report import seeds as section
+from svbrdf_bench.report import seedstats as stats
 
 TINY = ("--size", "smoke", "--test-count", "4", "--experiment", "tests-seeds", "--no-baselines")
 LABELS = [f"{m} seed {s} @ {b}" for m in ("ours", "radn") for s in (0, 1) for b in ("1 step", "2 steps")]
@@ -180,10 +181,10 @@ def _seeds(n_seeds=3, n_units=30, offsets=None, shift=0.0, seed=0) -> dict[int, 
 
 def test_a_constant_difference_beats_across_seeds():
     a, b = _seeds(seed=1), _seeds(seed=1, shift=0.01)
-    d = section.paired_seeds(a, b)
+    d = stats.paired_seeds(a, b)
     assert d.high < 0 and not d.within_noise and d.mean == pytest.approx(-0.01, abs=1e-3)
     assert d.p_value < 0.05
-    back = section.paired_seeds(b, a)
+    back = stats.paired_seeds(b, a)
     assert back.low > 0 and back.mean == pytest.approx(-d.mean)
 
 
@@ -191,33 +192,33 @@ def test_a_large_between_seed_spread_does_not_beat():
     """B is 0.01 worse on average, but its seeds scatter by +-0.05: the seeds cannot tell."""
     a = _seeds(seed=2)
     b = _seeds(seed=2, shift=0.01, offsets=[0.06, -0.05, 0.02])
-    d = section.paired_seeds(a, b)
+    d = stats.paired_seeds(a, b)
     assert d.within_noise and d.low < 0 < d.high
     # the materials alone (one seed) would have called it
-    assert not section.paired_seeds({0: a[0]}, {0: b[0]}).within_noise
+    assert not stats.paired_seeds({0: a[0]}, {0: b[0]}).within_noise
 
 
 def test_more_seeds_do_not_shrink_what_the_materials_leave_uncertain():
     """Seeds and materials are crossed: copies of one seed on the same materials add no evidence
     about other materials, so the interval stays as wide as one seed's."""
     one = _seeds(n_seeds=1, seed=3)[0]
-    width = np.subtract(*section.hierarchical_bootstrap(one[None])[2:0:-1])
+    width = np.subtract(*stats.hierarchical_bootstrap(one[None])[2:0:-1])
     copies = np.stack([one] * 5)
-    assert np.subtract(*section.hierarchical_bootstrap(copies)[2:0:-1]) == pytest.approx(width, rel=0.15)
+    assert np.subtract(*stats.hierarchical_bootstrap(copies)[2:0:-1]) == pytest.approx(width, rel=0.15)
     spread = copies + np.array([0.03, -0.02, 0.01, -0.03, 0.02])[:, None]  # seeds that disagree: wider
-    assert np.subtract(*section.hierarchical_bootstrap(spread)[2:0:-1]) > 1.5 * width
+    assert np.subtract(*stats.hierarchical_bootstrap(spread)[2:0:-1]) > 1.5 * width
 
 
 def test_the_hierarchical_bootstrap_s_edges():
     x = np.array([[0.1, 0.2, 0.3], [0.2, 0.3, 0.4]])
-    mean, low, high = section.hierarchical_bootstrap(x)
+    mean, low, high = stats.hierarchical_bootstrap(x)
     assert mean == pytest.approx(0.25) and 0.1 < low < mean < high < 0.4
-    assert section.hierarchical_bootstrap(x) == section.hierarchical_bootstrap(x)  # seeded
-    assert section.hierarchical_bootstrap([[0.5]]) == (0.5, 0.5, 0.5)
-    assert section.paired_seeds({0: x[0]}, {1: x[1]}) is None  # no seed in common
+    assert stats.hierarchical_bootstrap(x) == stats.hierarchical_bootstrap(x)  # seeded
+    assert stats.hierarchical_bootstrap([[0.5]]) == (0.5, 0.5, 0.5)
+    assert stats.paired_seeds({0: x[0]}, {1: x[1]}) is None  # no seed in common
     for bad in (np.zeros(3), np.array([[np.nan, 1.0]])):
         with pytest.raises(BenchError, match="hierarchical_bootstrap"):
-            section.hierarchical_bootstrap(bad)
+            stats.hierarchical_bootstrap(bad)
 
 
 def _report(rows: list[tuple[str, int, float, dict]]) -> Report:
@@ -237,7 +238,7 @@ def test_the_section_s_verdicts_in_words():
     late = {s: v - 0.005 for s, v in good.items()}  # more steps help A, not B
     report = _report([("a", s, 10, good) for s in range(3)] + [("a", s, 40, late) for s in range(3)]
                      + [("b", s, 10, bad) for s in range(3)] + [("b", s, 40, bad) for s in range(3)])  # fmt: skip
-    assert section.shown(report)
+    assert stats.shown(report)
     words = "\n".join(section.section_lines(report))
     assert "At 10 steps: a beats b on render RMSE by -0.0200" in words and "(3 seeds)" in words
     assert "a from 10 steps to 40 steps: -0.0050" in words and "gains" in words
@@ -247,12 +248,33 @@ def test_the_section_s_verdicts_in_words():
     assert [(m, b) for m, b, _ in series["a"]] == [(1.0, "10 steps"), (4.0, "40 steps")]
 
 
+def _noisy_rival(good: dict[int, np.ndarray], shift: float) -> dict[int, np.ndarray]:
+    return {s: v + shift + 0.004 * np.random.default_rng(100 + s).standard_normal(v.size) for s, v in good.items()}
+
+
+def test_verdicts_across_seeds_join_the_holm_family_and_say_when_it_overturns_them():
+    from svbrdf_bench.report.verdicts import family
+
+    good = _seeds(seed=4)
+    said = {}
+    for shift in (0.001, 0.0019):  # a verdict with p about 0.02, and one far beyond noise
+        report = _report([("a", s, 10, good) for s in range(3)] + [("b", s, 10, _noisy_rival(good, shift))
+                                                                   for s in range(3)])  # fmt: skip
+        fam = family(report)
+        v = fam.get("a @ 10 steps", "b @ 10 steps", "render")
+        assert v is not None and v.kind == "across seeds" and v.verdict == "beats" and v.p_value < 0.05
+        assert fam.count > len(stats.stated(report))  # the rows' own verdicts are in the family too
+        words = "\n".join(section.section_lines(report))
+        said[shift] = (v.survives, f"but not after Holm over {fam.count} comparisons" in words)
+    assert said == {0.001: (False, True), 0.0019: (True, False)}
+
+
 def test_one_seed_and_one_budget_per_model_has_no_section():
     report = _report([("a", 0, 10, _seeds(seed=5)), ("b", 0, 10, _seeds(seed=6))])
-    assert not section.shown(report) and section.seeds_table(report) is None
+    assert not stats.shown(report) and section.seeds_table(report) is None
     assert section.section_json(report) is None and section.training_time_series(report) == {}
     one_seed = _report([("a", 0, 10, _seeds(seed=5)), ("a", 0, 40, _seeds(seed=5))])
-    assert section.shown(one_seed)
+    assert stats.shown(one_seed)
     assert any("One seed per model: these verdicts compare checkpoints" in line
                for line in section.section_lines(one_seed))  # fmt: skip
 

@@ -183,7 +183,7 @@ def test_markdown_export_bolds_the_best_of_each_column_and_keeps_the_baselines()
 
 
 def test_with_seeds_a_model_is_one_row_over_its_seeds():
-    from svbrdf_bench.report.seeds import hierarchical_bootstrap
+    from svbrdf_bench.report.seedstats import hierarchical_bootstrap
 
     report = _paper_report()
     ours, rival, mean, photo = report.models

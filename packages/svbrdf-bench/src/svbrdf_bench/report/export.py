@@ -49,8 +49,8 @@ Figures = dict[str, list[tuple[float, float, float] | None]]
 
 
 def _over_seeds(report: Report, cell, column: str) -> tuple[float, float, float] | None:
-    """A model's RMSE at one budget over its seeds (:func:`.seeds.hierarchical_bootstrap`)."""
-    from .seeds import hierarchical_bootstrap
+    """A model's RMSE at one budget over its seeds (:func:`.seedstats.hierarchical_bootstrap`)."""
+    from .seedstats import hierarchical_bootstrap
 
     if any(report.values(e, f"rmse/{column}") is None for e in cell.rows.values()):
         return None
@@ -60,9 +60,9 @@ def _over_seeds(report: Report, cell, column: str) -> tuple[float, float, float]
 def _figures(report: Report) -> tuple[Figures, int]:
     """Row name -> its RMSE ``(mean, low, high)`` per column (None where the row lacks it), and how
     many rows stand before the baselines. With several seeds or budgets per model
-    (:func:`~svbrdf_bench.report.seeds.shown`) each model and budget is one row over its seeds;
+    (:func:`~svbrdf_bench.report.seedstats.shown`) each model and budget is one row over its seeds;
     reference and refined rows, then the baselines, follow as they are."""
-    from .seeds import cells, shown
+    from .seedstats import cells, shown
 
     out: Figures = {}
     alone: list[ModelEntry] = [e for e in report.models if not e.baseline]
@@ -80,7 +80,7 @@ def _figures(report: Report) -> tuple[Figures, int]:
 
 def seed_count(report: Report) -> int | None:
     """The most seeds of any model (``--seeds N``); None with one seed each."""
-    from .seeds import cells
+    from .seedstats import cells
 
     most = max((len(c.rows) for c in cells(report)), default=1)
     return most if most > 1 else None

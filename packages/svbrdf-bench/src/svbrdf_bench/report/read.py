@@ -49,7 +49,7 @@ from ..layout import (
 )
 from .figures import Report
 from .rows import INHERITED, ModelEntry
-from .seeds import one_curve_per_fit, tag_entry
+from .seedstats import one_curve_per_fit, tag_entry
 
 __all__ = ["build_report", "link_refined"]
 

@@ -4,7 +4,9 @@ for that number, and, on a test set of few materials, what its intervals are wor
 A verdict is a paired comparison with a 95% bootstrap interval: each trained row against
 ``mean`` (a refined row against the pure-optimisation baseline), map by map and on renderings
 (:meth:`Report.against_reference`), and each pair of "what accuracy costs" on renderings
-(:meth:`Report.costs`). They form the report's family (:func:`family`). At 95%, one verdict in
+(:meth:`Report.costs`), and with several seeds or budgets the verdicts of "Across seeds and
+budgets" (:func:`svbrdf_bench.report.seedstats.stated`). They form the report's family
+(:func:`family`). At 95%, one verdict in
 20 is "beyond noise" by chance where there is no difference, so over N verdicts some are
 expected by chance alone. Each comparison's p-value is its own bootstrap's, two-sided: twice
 the share of the resampled differences on the far side of zero
@@ -29,6 +31,7 @@ from dataclasses import dataclass, field
 
 from ..metrics import Difference
 from .figures import Report
+from .seedstats import stated
 
 __all__ = ["ALPHA", "SMALL_SAMPLE", "Verdict", "Family", "family", "unit_count", "small_sample_note",
            "holm_note", "holm_clause"]  # fmt: skip
@@ -48,7 +51,8 @@ class Verdict:
     (or per image), with its 95% interval, p-value, Holm-adjusted p, and per-strip interval."""
 
     #: ``against baseline`` (a row against ``mean`` or the pure-optimisation baseline) or
-    #: ``between models`` (a pair of "what accuracy costs").
+    #: ``between models`` (a pair of "what accuracy costs"), ``across seeds`` (two models at one
+    #: budget over their seeds) or ``budget gain`` (a model from one budget to the next).
     kind: str
     model: str
     versus: str
@@ -129,7 +133,8 @@ def _per_strip(report: Report, model: str, versus: str, column: str) -> Differen
 
 
 def family(report: Report) -> Family:
-    """The report's verdicts (against the baselines, then between models), Holm-corrected together."""
+    """The report's verdicts (against the baselines, between models, then across seeds and
+    budgets: :func:`svbrdf_bench.report.seedstats.stated`), Holm-corrected together."""
     from ..metrics import holm_adjusted
 
     raw = [("against baseline", r["model"], r["versus"], r["column"], r["rmse_difference"], r["low"],
@@ -137,9 +142,13 @@ def family(report: Report) -> Family:
     raw += [("between models", c["model"], c["versus"], "render", c["render_rmse_difference"], c["low"],
              c["high"], "within noise" if c["within_noise"] else BETTER, c["p_value"])
             for c in (report.costs() if len(report.costed) > 1 else [])]  # fmt: skip
+    rows = len(raw)  # the rows' own verdicts; those across seeds and budgets have no per-strip twin
+    raw += [(r["kind"], r["model"], r["versus"], "render", r["rmse_difference"], r["low"], r["high"],
+             r["verdict"], r["p_value"]) for r in stated(report)]  # fmt: skip
     adjusted = holm_adjusted([r[-1] for r in raw])
     verdicts = [
-        Verdict(*r, holm_p=q, strips=_per_strip(report, *r[1:4])) for r, q in zip(raw, adjusted, strict=True)
+        Verdict(*r, holm_p=q, strips=_per_strip(report, *r[1:4]) if i < rows else None)
+        for i, (r, q) in enumerate(zip(raw, adjusted, strict=True))
     ]
     return Family(verdicts, names={e.label: e.short for e in report.models})
 
