@@ -12,9 +12,20 @@
 #   MLFLOW_TRACKING_URI=sqlite:///fits/ablation-45/mlflow.db svbrdf-bench run \
 #     --from-runs ours,no-attn,no-attn-wide --seeds 3 --minutes 2,8,32 --test-data DATA/unseen-dev
 # Run from the repository root: fits/ablation-45/run.sh [--foreground]
+# All nine fits run the code of one commit (CODE_REV), checked out beside the repository
+# (CODE_TREE) and put first on PYTHONPATH, so that work on the packages meanwhile (and issue
+# 48's sample change) reaches none of them; the state (checkpoints, MLflow store) stays here.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 DIR=fits/ablation-45
+CODE_REV=e3590a5
+CODE_TREE="${CODE_TREE:-$(pwd)/../frozen-45}"
+if [ ! -d "$CODE_TREE" ]; then
+    git worktree add -q "$CODE_TREE" "$CODE_REV"
+fi
+[ "$(git -C "$CODE_TREE" rev-parse --short=7 HEAD)" = "$CODE_REV" ] || { echo "$CODE_TREE is not at $CODE_REV"; exit 2; }
+src="$CODE_TREE/packages"
+export PYTHONPATH="$src/svbrdf-render/src:$src/svbrdf-models/src:$src/svbrdf-train/src:$src/svbrdf-bench/src"
 export MLFLOW_TRACKING_URI="sqlite:///$DIR/mlflow.db" OMP_NUM_THREADS=1
 if [ "${1:-}" != --foreground ]; then
     setsid nohup nice "$0" --foreground >> "$DIR/fit.log" 2>&1 < /dev/null &
