@@ -40,7 +40,7 @@ from svbrdf_bench.metrics import evaluate
 from svbrdf_bench.testset import test_set
 from svbrdf_models.networks.baselines import flash_falloff
 from svbrdf_render import DES18_DISTANCE, SVBRDF
-from svbrdf_train.metrics import render_rmse
+from svbrdf_render.compare import render_rmse
 
 REPO = Path(__file__).resolve().parents[1]
 COLUMNS = ("normal", "diffuse", "roughness", "specular", "render")

@@ -350,7 +350,7 @@ class Project:
 
 
 def project_frames(folder: Path, gltf: dict) -> Project:
-    from svbrdf_models.capture.one import RELIT_FRAMES, RELIT_SIZE, relight_frames
+    from svbrdf_models.capture.relight import RELIT_FRAMES, RELIT_SIZE, relight_frames
     from svbrdf_render import read_map_folder, render
 
     maps = read_map_folder(folder)

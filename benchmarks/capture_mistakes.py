@@ -74,7 +74,7 @@ CAPTURES = {
 
 
 def _score(pred, truth) -> dict[str, float]:
-    from svbrdf_train.metrics import map_rmse, render_rmse
+    from svbrdf_render.compare import map_rmse, render_rmse
 
     out = {k: float(v[0]) for k, v in map_rmse(pred, truth).items()}
     out["render"] = float(render_rmse(pred, truth)[0])

@@ -38,7 +38,8 @@ def _photo(path: Path, width: int, height: int) -> Path:
     import torch.nn.functional as F
 
     from svbrdf_render import linear_to_srgb
-    from svbrdf_train.data.procedural import PhotoSettings, ProceduralMaterials
+    from svbrdf_train.data.procedural import ProceduralMaterials
+    from svbrdf_train.data.simulated_photo import PhotoSettings
 
     sample = ProceduralMaterials(1, 256, seed=3, photo=PhotoSettings.preset("phone"))[0]["input"]
     big = F.interpolate(sample[None], size=(height, width), mode="bicubic", align_corners=False)[0]

@@ -42,7 +42,7 @@ def spike(t: torch.Tensor, period: int) -> float:
 
 def main() -> None:
     import svbrdf_models as sm
-    from svbrdf_models.capture.one import load_photo
+    from svbrdf_models.capture.photos import load_photo
     from svbrdf_render import DEFAULT_REFINE_STEPS
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

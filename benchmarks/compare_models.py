@@ -72,7 +72,7 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     import svbrdf_models as sm
     from svbrdf_bench.testset import test_set
-    from svbrdf_train.data.materials import per_material
+    from svbrdf_train.data.real.materials import per_material
 
     torch.set_num_threads(1)
     labels = [s.strip() for s in args.models.split(",") if s.strip()]

@@ -33,7 +33,7 @@ def main(argv=None) -> None:
     from svbrdf_bench.metrics import bootstrap_ci
     from svbrdf_models.capture.refining import refine_prediction
     from svbrdf_render import read_des18
-    from svbrdf_train.data.materials import material_groups, per_material
+    from svbrdf_train.data.real.materials import material_groups, per_material
 
     torch.set_num_threads(1)
     for source in args.models.split(","):

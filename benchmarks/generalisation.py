@@ -19,7 +19,7 @@ one change to the one before it:
 =========================  ==================================================================
 
 Folds (``--folds``, specs separated by ``;``) hold materials of the Des18 folder out
-(:func:`svbrdf_train.data.materials.fold_from_spec`): ``hold-out:A+B`` judges the strips that
+(:func:`svbrdf_train.data.real.materials.fold_from_spec`): ``hold-out:A+B`` judges the strips that
 show only A and B and trains on the strips that show neither, as ``svbrdf-train data folds``
 splits them (link folders in ``OUT/folds/<fold>/train`` and ``judge``).
 
@@ -29,7 +29,7 @@ and of renderings under the 6 evaluation views, with the ``mean`` baseline (cons
 same photos. Test folders: UNSEEN (every model; one material per file), DES18 (only the variants
 that trained on no real strip) and each fold's judge strips (the procedural-only variants and that
 fold's ``real`` variant). Scores are averaged per material
-(:func:`svbrdf_train.data.materials.per_material`: a Des18 strip counts for both of its
+(:func:`svbrdf_train.data.real.materials.per_material`: a Des18 strip counts for both of its
 materials) and compared over materials with 95% bootstrap intervals: each variant against the one
 before it, each against ``mean``, and each ``real`` variant against ``resize+norm+phone``.
 
@@ -151,8 +151,8 @@ def parse_variants(text: str) -> list[str]:
 def parse_folds(text: str, des18: Path):
     """The folds of ``--folds``: ``hold-out:A+B`` specs (or ``A,B`` as ``data folds --hold-out``
     takes them) separated by ``;``."""
-    from svbrdf_train.data.materials import FOLD_PREFIX, fold_from_spec, strip_files
-    from svbrdf_train.errors import DataError
+    from svbrdf_models.errors import DataError
+    from svbrdf_train.data.real.materials import FOLD_PREFIX, fold_from_spec, strip_files
 
     files = strip_files(des18)
     folds = []
@@ -255,7 +255,7 @@ def score_tests(tests: list[TestSet], models: dict) -> None:
     import torch
 
     from svbrdf_render import read_des18, refine_start
-    from svbrdf_train.data.materials import per_material
+    from svbrdf_train.data.real.materials import per_material
 
     score = _sibling("refine_curve").score
     cache: dict[Path, list] = {}
@@ -407,8 +407,8 @@ def main(argv: list[str] | None = None) -> int:
                 raise UsageError(f"{folder}: no such folder; give the {name} folder of strips")
         if not args.minutes > 0 or args.jobs < 1 or args.threads < 1:
             raise UsageError("--minutes must be > 0, --jobs and --threads at least 1")
-        from svbrdf_train.data.materials import group_samples, strip_files
-        from svbrdf_train.errors import DataError
+        from svbrdf_models.errors import DataError
+        from svbrdf_train.data.real.materials import group_samples, strip_files
 
         variants = parse_variants(args.variants)
         folds = parse_folds(args.folds, args.des18)

@@ -21,7 +21,7 @@ sent there and back; the table gives, per material:
   pixels whose specular luminance is below glTF's dielectric floor by more than the 8-bit
   rounding of the files (0.04 itself is stored as 10/255 = 0.039); they come back at 0.04.
 
-Scores are averaged per material (:mod:`svbrdf_train.data.materials`): a Des18 strip blends two
+Scores are averaged per material (:mod:`svbrdf_train.data.real.materials`): a Des18 strip blends two
 source materials, named in its file name, and counts for both; a file of ``unseen-dev`` is a
 material of its own. Means over materials come with 95% bootstrap intervals.
 
@@ -54,9 +54,9 @@ FLOOR = 0.04 - 0.5 / 255
 def score_strip(path: Path, size: int, mean) -> dict[str, float]:
     """The round trip's figures and the ``mean`` baseline's render RMSE for one strip."""
     from svbrdf_render import MetalRough, from_metal_rough, read_des18, roundtrip_error, to_metal_rough
+    from svbrdf_render.compare import render_rmse
     from svbrdf_render.metalrough import LUMINANCE
     from svbrdf_train.data.fov import resize_maps, resize_photo
-    from svbrdf_train.metrics import render_rmse
 
     sample = read_des18(path)
     photo, truth = resize_photo(sample.input, size), resize_maps(sample.svbrdf, size)
@@ -81,7 +81,7 @@ def score_strip(path: Path, size: int, mean) -> dict[str, float]:
 
 
 def run_folder(folder: Path, size: int, mean):
-    from svbrdf_train.data.materials import material_groups, per_material, strip_files
+    from svbrdf_train.data.real.materials import material_groups, per_material, strip_files
 
     rows = []
     files = strip_files(folder)
@@ -123,7 +123,7 @@ def table(name: str, result, size: int) -> str:
 
 def check_folder(folder: Path, size: int) -> str | None:
     """One line saying what is wrong with ``folder``, or None."""
-    from svbrdf_train.data.materials import strip_files
+    from svbrdf_train.data.real.materials import strip_files
 
     if not folder.is_dir():
         return f"{folder}: no such folder; give folders of Des18-layout strips (des18-dev, unseen-dev)"
@@ -168,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_grad_enabled(False)
     mean = sm.create_generator("mean", {}).eval()
     from svbrdf_render import SVBRDFError
-    from svbrdf_render.formats.files import write_text
+    from svbrdf_render.plumbing import write_text
 
     try:
         text = "## des18 -> glTF metal/rough -> des18, per material\n\n" + "\n".join(

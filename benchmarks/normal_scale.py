@@ -50,14 +50,14 @@ def _rmse(a: torch.Tensor, b: torch.Tensor) -> float:
 def _materials(folder: Path, fold: str | None, resolution: int):
     """``[(material, photo (3, R, R), true normals (1, 3, R, R))]`` of the folder (its fold)."""
     from svbrdf_train.data.fitdata import Resized, open_materials
-    from svbrdf_train.data.materials import material_groups
-    from svbrdf_train.data.strips import MaterialStrips
+    from svbrdf_train.data.real.materials import material_groups
+    from svbrdf_train.data.real.strips import MaterialStrips
 
     data, _ = open_materials(folder, "normal_scale")
     if fold is not None:
         if not isinstance(data, MaterialStrips):
             raise SystemExit(f"--fold needs map-only strips; {folder} holds materials with photos")
-        from svbrdf_train.data.strips import fold_split
+        from svbrdf_train.data.real.strips import fold_split
 
         _, held = fold_split(data.bank.names, fold, str(folder))
         bank = data.bank.select(held)

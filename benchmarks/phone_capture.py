@@ -198,7 +198,7 @@ def verdict(delta: float, support: float) -> str:
 
 def captures() -> dict[str, dict]:
     """The captures compared: name -> PhotoSettings fields."""
-    from svbrdf_train.data.capture import CAPTURE_PRESETS
+    from svbrdf_train.data.simulated_photo import CAPTURE_PRESETS
 
     out = {name: dict(CAPTURE_PRESETS[name]) for name in ("des18", "phone", BASE)}
     for effect, (fields, _) in EFFECTS.items():
@@ -208,8 +208,8 @@ def captures() -> dict[str, dict]:
 
 def simulated(bank, fields: dict, count: int, size: int, seed: int) -> np.ndarray:
     """Statistics of ``count`` photos of ``bank``'s materials under the capture ``fields``."""
-    from svbrdf_train.data.capture import PhotoSettings
-    from svbrdf_train.data.strips import MaterialStrips
+    from svbrdf_train.data.real.strips import MaterialStrips
+    from svbrdf_train.data.simulated_photo import PhotoSettings
 
     data = MaterialStrips(bank, count, size, seed=seed, photo=PhotoSettings(**fields))
     rows = []
@@ -278,7 +278,7 @@ def plot(real: np.ndarray, sims: dict[str, np.ndarray], out: Path) -> None:
     real-dev on top with its range shaded across the panel."""
     from matplotlib.figure import Figure
 
-    from svbrdf_render.formats.files import atomic_output
+    from svbrdf_render.plumbing import atomic_output
 
     named = {"real-dev": real, **sims}
     fig = Figure(figsize=(15, 6.5), layout="constrained")
@@ -319,8 +319,8 @@ def main(argv=None) -> None:
     ap.add_argument("-o", "--out", type=Path, help="also draw the distributions into this PNG")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
-    from svbrdf_train.data.strip_bank import MaterialBank
-    from svbrdf_train.errors import DataError
+    from svbrdf_models.errors import DataError
+    from svbrdf_train.data.real.strip_bank import MaterialBank
 
     try:
         if args.count < 2 or args.size < 32:

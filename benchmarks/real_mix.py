@@ -28,7 +28,7 @@ with 95% bootstrap intervals and the paired difference against ``mean`` (``OUT/p
 These folds split *strips*, not materials: every Des18 strip blends two of the same four
 source materials, so the judging strips show materials each fit trained on, and the figures
 flatter the fits with real strips. ``benchmarks/generalisation.py`` judges by material folds
-(``svbrdf_train.data.materials``) and on materials no strip shows.
+(``svbrdf_train.data.real.materials``) and on materials no strip shows.
 
 Usage::
 

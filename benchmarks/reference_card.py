@@ -67,7 +67,7 @@ def main(argv=None) -> None:
     from svbrdf_models.capture.refining import refine_prediction
     from svbrdf_render import SVBRDF, Scene, read_des18, render
     from svbrdf_render.refinement.fit import card_maps
-    from svbrdf_train.data.materials import material_groups, per_material
+    from svbrdf_train.data.real.materials import material_groups, per_material
 
     torch.set_num_threads(1)
     model = sm.load_model(args.model)

@@ -8,7 +8,7 @@ one; ``des18-dev``), the shipped model's maps (refined as the photo tools refine
 :func:`svbrdf_render.refine_maps`) are refined at each budget, and each result is judged against
 the ground truth: RMSE of each map (stored encodings) and of renderings under the 6 evaluation
 views (never the photo's own view, which baking the photo into the diffuse map matches
-exactly). Scores are averaged *per material* (:mod:`svbrdf_train.data.materials`): a Des18
+exactly). Scores are averaged *per material* (:mod:`svbrdf_train.data.real.materials`): a Des18
 strip blends two source materials (named in its file name) and counts for both; an unseen-dev
 file is a material of its own. Means come
 with 95% bootstrap intervals over materials, and each refined row is compared, paired, with the
@@ -41,7 +41,7 @@ MAPS = ("normal", "diffuse", "roughness", "specular", "render")
 
 
 def score(pred, truth) -> dict[str, float]:
-    from svbrdf_train.metrics import map_rmse, render_rmse
+    from svbrdf_render.compare import map_rmse, render_rmse
 
     out = {k: float(v[0]) for k, v in map_rmse(pred, truth).items()}
     out["render"] = float(render_rmse(pred, truth)[0])
@@ -64,7 +64,7 @@ def run_folder(folder: Path, budgets: list[int], flash: str, backend: str, model
     import svbrdf_models as sm
     from svbrdf_models.capture.refining import refine_prediction
     from svbrdf_render import read_des18, refine_maps
-    from svbrdf_train.data.materials import material_groups, per_material
+    from svbrdf_train.data.real.materials import material_groups, per_material
 
     mean = sm.create_generator("mean", {})
     files = sorted(folder.glob("*.png"))

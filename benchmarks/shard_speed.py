@@ -55,7 +55,7 @@ VARIANTS = {
 
 def _samples(args) -> list[dict]:
     if args.source == "des18":
-        from svbrdf_train.data.des18 import Des18Folder
+        from svbrdf_train.data.real.des18 import Des18Folder
 
         folder = Des18Folder(args.folder, split="test", crop=args.resolution)
         base = [folder[i] for i in range(len(folder))]

@@ -15,7 +15,7 @@ baselines on the same strips (``OUT/report-K``). Then:
 2. all models pooled (each strip judged once, by the model that never saw it: with
    complementary folds, a cross-validated figure for the recipe), the same way.
 
-Every figure is a mean *per source material* (:mod:`svbrdf_train.data.materials`): a Des18
+Every figure is a mean *per source material* (:mod:`svbrdf_train.data.real.materials`): a Des18
 strip counts for both materials its name gives, an unseen-dev file is one material; intervals
 and the paired differences resample materials. Note that folds split by strip (even/odd) judge
 on materials the model trained on; ``svbrdf-train data folds`` makes folds that do not.
@@ -91,7 +91,7 @@ def scores_of(parent: str, judge: Path) -> Scores:
 
 def per_material_values(scores: Scores) -> tuple[dict[str, dict[str, list[float]]], int]:
     """Per role and column, the per-material means (materials sorted); and the number of materials."""
-    from svbrdf_train.data.materials import per_material
+    from svbrdf_train.data.real.materials import per_material
 
     names, by_role = scores
     out: dict[str, dict[str, list[float]]] = {}

@@ -443,7 +443,7 @@ def main(argv=None) -> None:
     ap.add_argument("--big", action="store_true", help="only the timing target: 3 shots of 12 MP")
     args = ap.parse_args(argv)
     args.shots = [int(k) for k in args.shots.split(",") if k.strip()]
-    from svbrdf_train.data.materials import material_groups, per_material
+    from svbrdf_train.data.real.materials import material_groups, per_material
 
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "1")))
     args.out.mkdir(parents=True, exist_ok=True)

@@ -31,7 +31,8 @@ SIZE = 64
 
 
 def _levels_procedural(count: int) -> np.ndarray:
-    from svbrdf_train.data.procedural import PhotoSettings, ProceduralMaterials
+    from svbrdf_train.data.procedural import ProceduralMaterials
+    from svbrdf_train.data.simulated_photo import PhotoSettings
 
     data = ProceduralMaterials(count, SIZE, seed=0, photo=PhotoSettings.preset("phone"))
     parts = [data.batch(range(i, min(i + 16, count)))["maps"][:, 7:10] for i in range(0, count, 16)]
@@ -39,7 +40,7 @@ def _levels_procedural(count: int) -> np.ndarray:
 
 
 def _levels_strips(folder: Path) -> np.ndarray:
-    from svbrdf_train.data.strip_bank import MaterialBank, resize_bank, strip_tensor
+    from svbrdf_train.data.real.strip_bank import MaterialBank, resize_bank, strip_tensor
 
     bank = resize_bank(MaterialBank.open(folder), SIZE)
     return np.concatenate([strip_tensor(m)[7:10].mean(dim=0).flatten().numpy() for m in bank.maps])

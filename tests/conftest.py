@@ -68,12 +68,12 @@ def des18_strips(folder: Path, count: int = 3, size: int = 64) -> Path:
 @pytest.fixture(autouse=True, scope="module")
 def _threads_for_the_free_cores():
     """Each module computes with one thread per free core, as the commands do
-    (:func:`svbrdf_render.machine.choose_threads`; ``OMP_NUM_THREADS`` when set), in torch and
+    (:func:`svbrdf_render.plumbing.choose_threads`; ``OMP_NUM_THREADS`` when set), in torch and
     in numpy's BLAS: their threads spin while they wait for each other, and on a 2-core machine
     that another program keeps busy the suite's own threads waited for cores that never came
     free (test_physics's albedo quadrature took 73 s of CPU with 2 threads there, 4 s with 1).
     An idle machine keeps every core; a test that sets its own threads puts them back itself."""
-    from svbrdf_render.machine import choose_threads
+    from svbrdf_render.plumbing import choose_threads
 
     threads = choose_threads().threads
     with contextlib.suppress(ImportError):  # threadpoolctl comes with scikit-learn

@@ -85,15 +85,15 @@ def test_the_refinement_budget_is_checked_in_one_place():
 
 
 def test_a_positive_number_is_read_from_text_in_one_place():
-    """``svbrdf_render.cli.positive_number`` reads "a finite number > 0" from text; the download
+    """``svbrdf_render.plumbing.positive_number`` reads "a finite number > 0" from text; the download
     timeout (svbrdf-models) and the benchmark's flash intensity (svbrdf-bench) use it."""
-    assert _defined("positive_number") == ["packages/svbrdf-render/src/svbrdf_render/cli.py"]
+    assert _defined("positive_number") == ["packages/svbrdf-render/src/svbrdf_render/plumbing/arguments.py"]
     users = {
         path
         for path, tree in SOURCES
         for node in ast.walk(tree)
         if isinstance(node, ast.ImportFrom)
-        and node.module == "svbrdf_render.cli"
+        and node.module == "svbrdf_render.plumbing"
         and any(alias.name == "positive_number" for alias in node.names)
     }
     assert users >= {

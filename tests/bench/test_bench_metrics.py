@@ -22,7 +22,7 @@ from svbrdf_bench.metrics import (
     ssim_win_size,
 )
 from svbrdf_render import MAP_NAMES, SVBRDF, evaluation_scene
-from svbrdf_train.metrics import display_rendering
+from svbrdf_render.compare import display_rendering
 
 KEYS = {f"{kind}/{name}" for kind in ("rmse", "ssim") for name in (*MAP_NAMES, "render")}
 

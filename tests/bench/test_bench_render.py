@@ -12,15 +12,8 @@ from click.testing import CliRunner
 
 from svbrdf_bench.cli import cli
 from svbrdf_bench.errors import BenchError
-from svbrdf_bench.render_table import (
-    Row,
-    bench_materials,
-    effect_variants,
-    format_table,
-    measure,
-    metric_key,
-    to_records,
-)
+from svbrdf_bench.render_rows import Row, format_table, metric_key, to_records
+from svbrdf_bench.render_table import bench_materials, effect_variants, measure
 from svbrdf_render import DES18_EFFECTS
 
 TOGGLES = [

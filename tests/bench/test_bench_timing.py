@@ -20,7 +20,8 @@ import torch
 
 from svbrdf_bench.errors import BenchError
 from svbrdf_bench.plots import dominated_by, pareto, pareto_front
-from svbrdf_bench.render_table import measure, timing_warning, to_records
+from svbrdf_bench.render_rows import timing_warning, to_records
+from svbrdf_bench.render_table import measure
 from svbrdf_bench.report import ModelEntry, Report, markdown, table_lines, terminal
 from svbrdf_bench.report import words as report_words
 from svbrdf_bench.report.tables import time_table

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 
-import svbrdf_render.machine as machine
+import svbrdf_render.plumbing.machine as machine
 from svbrdf_models.cli import main
 from svbrdf_render import Scene, render, write_image
 from svbrdf_render.examples import example_material

@@ -16,25 +16,24 @@ import pytest
 import torch
 
 import svbrdf_models as sm
-from svbrdf_models.capture import one as capture
-from svbrdf_models.capture.batch import ProgressBar
+from svbrdf_models import capture
+from svbrdf_models.capture.photos import square_photo
 from svbrdf_models.capture.refining import rerender, rerender_rmse
 from svbrdf_models.cli import main
 from svbrdf_models.errors import DataError
-from svbrdf_models.modelfile.files import square_photo
 from svbrdf_render import (
     DEFAULT_REFINE_STEPS,
     MIN_REFINE_SIDE,
     Camera,
     PointLight,
     Scene,
-    machine,
     read_image,
     render,
     write_image,
 )
 from svbrdf_render.examples import example_material
 from svbrdf_render.formats.mapfiles import linear_to_srgb
+from svbrdf_render.plumbing import ProgressBar, machine
 
 MAPS = ("normal", "diffuse", "roughness", "specular")
 #: The material folder's files besides the four maps and the figures (svbrdf_models.capture.material).
@@ -282,14 +281,14 @@ def test_command_interrupted_during_refinement_writes_nothing_of_that_photo(
 def test_a_signal_whose_interrupt_python_dropped_still_stops_the_batch(tmp_path, photo_file, monkeypatch, capsys):
     """SIGTERM whose KeyboardInterrupt was dropped (it landed in a weakref callback): the batch
     takes the stop at the next refinement step all the same, as it would Ctrl-C."""
-    from svbrdf_render.formats import files
+    from svbrdf_render.plumbing import processes
 
     second = write_image(tmp_path / "second.png", linear_to_srgb(_photo(64, "leather")))
     real_call = ProgressBar.__call__
 
     def dropped(self, step, total, loss):
         if self.name == "second.png" and step == 1:
-            files._STOP["signal"] = "SIGTERM"  # what the handler records before its raise is lost
+            processes._STOP["signal"] = "SIGTERM"  # what the handler records before its raise is lost
         return real_call(self, step, total, loss)
 
     monkeypatch.setattr(ProgressBar, "__call__", dropped)
@@ -298,7 +297,7 @@ def test_a_signal_whose_interrupt_python_dropped_still_stops_the_batch(tmp_path,
     assert code == 130, got.err
     assert f"svbrdf-models: interrupted: {second} not written" in got.err
     assert sorted(p.name for p in out.iterdir()) == ["summary.json", "tiles"]
-    assert files._STOP["signal"] is None  # nothing left pending after the command
+    assert processes._STOP["signal"] is None  # nothing left pending after the command
 
 
 def test_progress_bar_draws_on_a_terminal_only():
@@ -323,7 +322,7 @@ def test_the_status_line_redraws_in_place_with_messages_above_it():
     on a terminal, redraws in place at most every ``tty_every_s`` (unless forced), blanks the end
     of a longer line, clears itself for a message and redraws at once after it; into a pipe,
     whole lines or nothing, never a ``\\r``."""
-    from svbrdf_models.progress import StatusLine
+    from svbrdf_render.plumbing import StatusLine
 
     class Tty(io.StringIO):
         def isatty(self):

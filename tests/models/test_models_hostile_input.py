@@ -72,7 +72,7 @@ def test_svbrdf_render_threads_are_bounded_too(capsys):
 
 
 def test_choose_threads_refuses_a_count_past_the_cap():
-    from svbrdf_render.machine import MAX_THREADS, choose_threads
+    from svbrdf_render.plumbing import MAX_THREADS, choose_threads
 
     assert choose_threads(MAX_THREADS, apply=False).threads == MAX_THREADS
     with pytest.raises(ValueError, match="from 1 to 4096"):

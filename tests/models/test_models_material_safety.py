@@ -16,8 +16,8 @@ from svbrdf_models.capture.batch import write_summary
 from svbrdf_models.cli import main
 from svbrdf_render import render, write_image
 from svbrdf_render.examples import example_material
-from svbrdf_render.formats.files import locked
 from svbrdf_render.formats.mapfiles import linear_to_srgb
+from svbrdf_render.plumbing import locked
 
 FAST = ["--refine", "0", "--relit", "none"]
 
@@ -71,7 +71,7 @@ def test_two_captures_of_same_named_photos_into_one_folder_lose_nothing(tmp_path
         record = json.loads((out / "tiles" / "material.json").read_text())
         winner = a if codes[0] == 0 else b
         assert record["photo"]["file"] == winner.name
-        from svbrdf_models.capture.material import photo_sha256
+        from svbrdf_models.capture.record import photo_sha256
 
         assert record["photo"]["sha256"] == photo_sha256(winner)
 
@@ -148,7 +148,7 @@ def test_the_lock_is_exclusive_across_processes(tmp_path):
 def test_photo_names_outside_ascii_make_a_material(tmp_path, stem):
     """A photo named in any script is captured (the MaterialX name is made ASCII), where it used
     to fail after the computing was done ("not a MaterialX name")."""
-    from svbrdf_render.formats.materialfiles import _MTLX_NAME
+    from svbrdf_render.formats.materialx import _MTLX_NAME
 
     photo = _photo_file(tmp_path / f"{stem}.png")
     assert main(["predict", str(photo), "-o", str(tmp_path / "out"), *FAST]) == 0
@@ -181,7 +181,7 @@ def test_refined_maps_are_bounded_by_default_and_full_on_request(tmp_path, monke
 
 
 def test_a_refinement_the_memory_cannot_hold_is_refused_before_it_starts(tmp_path, monkeypatch, capsys):
-    from svbrdf_render import machine
+    from svbrdf_render.plumbing import machine
 
     monkeypatch.setattr(machine, "available_memory", lambda: 2**20)
     photo = _photo_file(tmp_path / "shot.png")

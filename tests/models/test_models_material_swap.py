@@ -10,12 +10,12 @@ from pathlib import Path
 
 import pytest
 
-import svbrdf_render.formats.files as files
+import svbrdf_render.plumbing.atomic as files
 from svbrdf_models.cli import main
 from svbrdf_render import Scene, render, write_image
 from svbrdf_render.examples import example_material
-from svbrdf_render.formats.files import replace_folder
 from svbrdf_render.formats.mapfiles import linear_to_srgb
+from svbrdf_render.plumbing import replace_folder
 
 FAST = ["--refine", "0", "--relit", "none", "--threads", "1"]
 

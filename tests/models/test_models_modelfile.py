@@ -17,7 +17,7 @@ import pytest
 import torch
 
 import svbrdf_models as sm
-from svbrdf_models.modelfile.files import (
+from svbrdf_models.modelfile import (
     FORMAT_VERSION,
     file_sha256,
     hash_name,

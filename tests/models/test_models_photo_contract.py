@@ -47,7 +47,7 @@ def test_load_photo_is_public_and_gives_what_predict_takes(model, tmp_path):
 def test_the_api_takes_a_numpy_integer_budget_and_refuses_what_memory_cannot_hold(model, monkeypatch):
     import numpy as np
 
-    from svbrdf_render import machine
+    from svbrdf_render.plumbing import machine
 
     photo = torch.rand(3, 32, 32) * 0.5
     maps = model.predict(photo, refine=np.int64(1), backend="eager")

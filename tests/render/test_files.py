@@ -1,4 +1,5 @@
-"""svbrdf_render.formats.files: atomic writes, one-line write failures, leftovers of killed writers."""
+"""svbrdf_render.plumbing: atomic writes, one-line write failures, leftovers of killed writers, SIGTERM
+as Ctrl-C and the lock."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import sys
 import pytest
 
 from svbrdf_render.errors import OutputError, SVBRDFError, exit_status
-from svbrdf_render.formats.files import (
+from svbrdf_render.plumbing import (
     LockHeld,
     atomic_output,
     check_output_folder,
@@ -189,7 +190,7 @@ class _DropsItsException:
 
 
 def test_an_interrupt_python_drops_is_raised_again_at_the_next_check(capsys):
-    from svbrdf_render.formats.files import raise_if_interrupted, sigterm_as_interrupt
+    from svbrdf_render.plumbing import raise_if_interrupted, sigterm_as_interrupt
 
     went_on = []
     before = signal.getsignal(signal.SIGTERM)
@@ -209,7 +210,7 @@ def test_an_interrupt_python_drops_is_raised_again_at_the_next_check(capsys):
 
 
 def test_ctrl_c_is_remembered_only_where_pythons_own_handler_is_in_place():
-    from svbrdf_render.formats.files import raise_if_interrupted, sigterm_as_interrupt
+    from svbrdf_render.plumbing import raise_if_interrupted, sigterm_as_interrupt
 
     before = signal.getsignal(signal.SIGINT)
     with sigterm_as_interrupt():

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from svbrdf_render import machine
+from svbrdf_render.plumbing import machine
 
 
 @pytest.fixture(autouse=True)

@@ -23,8 +23,8 @@ import torch
 
 from conftest import require_materialx, validate_gltf
 from svbrdf_render import SVBRDFError, write_image
-from svbrdf_render.formats.files import temporary_path
-from svbrdf_render.formats.materialfiles import write_gltf, write_materialx
+from svbrdf_render.formats import write_gltf, write_materialx
+from svbrdf_render.plumbing import temporary_path
 
 SIDE = 8  # pixels: a power of two, so the validator has no IMAGE_NPOT_DIMENSIONS note to make
 # glTF codes (the specification's numbers), spelled out here rather than imported
@@ -212,7 +212,7 @@ def test_gltf_overwrites_in_place_and_leaves_no_temporary(tmp_path):
 
 
 def test_materialx_validates_against_the_standard_libraries(tmp_path, materialx):
-    from svbrdf_render.formats.materialfiles import validate_materialx
+    from svbrdf_render.formats import validate_materialx
 
     path = write_materialx(_maps(tmp_path) / "material.mtlx")
     assert validate_materialx(path) == []
@@ -290,7 +290,7 @@ def _tampered(path: Path, old: str, new: str) -> Path:
     ],
 )
 def test_validate_materialx_finds_what_is_wrong(tmp_path, materialx, old, new, expected):
-    from svbrdf_render.formats.materialfiles import validate_materialx
+    from svbrdf_render.formats import validate_materialx
 
     path = write_materialx(_maps(tmp_path) / "material.mtlx")
     if "normalmop" in new:
@@ -300,7 +300,7 @@ def test_validate_materialx_finds_what_is_wrong(tmp_path, materialx, old, new, e
 
 
 def test_validate_materialx_reports_a_file_that_is_not_materialx(tmp_path, materialx):
-    from svbrdf_render.formats.materialfiles import validate_materialx
+    from svbrdf_render.formats import validate_materialx
 
     (tmp_path / "x.mtlx").write_text("not xml at all")
     (problem,) = validate_materialx(tmp_path / "x.mtlx")
@@ -310,7 +310,7 @@ def test_validate_materialx_reports_a_file_that_is_not_materialx(tmp_path, mater
 
 
 def test_validate_materialx_says_how_to_install_the_package(tmp_path, monkeypatch):
-    from svbrdf_render.formats.materialfiles import validate_materialx
+    from svbrdf_render.formats import validate_materialx
 
     path = write_materialx(tmp_path / "m.mtlx")
     monkeypatch.setitem(sys.modules, "MaterialX", None)  # import MaterialX now raises ImportError

@@ -9,7 +9,8 @@ import torch
 from conftest import random_svbrdf
 from svbrdf_render import SVBRDF, Scene, refine_maps, render
 from svbrdf_render.errors import MapError, SceneError
-from svbrdf_render.refinement.refine import RefineLoss, RefineSettings, _Parameters, axis_flash
+from svbrdf_render.refinement.fit import axis_flash
+from svbrdf_render.refinement.refine import RefineLoss, RefineSettings, _Parameters
 
 SCENE = Scene.flash(intensity=15.0)
 

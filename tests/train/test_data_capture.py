@@ -11,18 +11,19 @@ import math
 import pytest
 import torch
 
+from svbrdf_models.errors import DataError
 from svbrdf_render import SVBRDF, render
-from svbrdf_train.data.capture import _photos
 from svbrdf_train.data.fitdata import build_datasets
 from svbrdf_train.data.jpeg import CHROMINANCE_TABLE, LUMINANCE_TABLE, jpeg_roundtrip, quantisation_table
-from svbrdf_train.data.procedural import (
+from svbrdf_train.data.procedural import ProceduralMaterials
+from svbrdf_train.data.simulated_photo import (
     CAPTURE_PRESETS,
     PhotoSettings,
-    ProceduralMaterials,
+    _photos,
     photo_jpeg_quality,
     photo_scene,
 )
-from svbrdf_train.errors import DataError, RecipeError
+from svbrdf_train.errors import RecipeError
 from svbrdf_train.recipe import CAPTURES, load_recipe
 
 PHONE = PhotoSettings.preset("phone")
@@ -175,7 +176,7 @@ def test_a_batch_with_vignetting_renders_as_one_by_one():
     """_photos runs the registry's image stages per photo but vignetting, which reads the camera
     and runs in the batched render: the very bytes of render(), whatever the fields of view."""
     from svbrdf_render import EFFECTS
-    from svbrdf_train.data.capture import _IMAGE_STAGES
+    from svbrdf_train.data.simulated_photo import _IMAGE_STAGES
 
     data = ProceduralMaterials(3, 24, seed=2)
     batch = data.batch(range(3))

@@ -19,8 +19,9 @@ from conftest import random_svbrdf
 from svbrdf_render import write_des18
 from svbrdf_train.cli import cli
 from svbrdf_train.data import procedural
-from svbrdf_train.data.des18 import Des18Folder
+from svbrdf_train.data.real.des18 import Des18Folder
 from svbrdf_train.data.shards import ShardDataset, inspect_shard
+from svbrdf_train.data.simulated_photo import PhotoSettings
 
 
 def _run(*args):
@@ -54,7 +55,7 @@ def test_make_writes_the_procedural_samples(tmp_path):
     assert info.attrs["source"] == "procedural" and info.attrs["seed"] == 2
     assert info.attrs["generator_version"] == procedural.GENERATOR_VERSION
     assert info.attrs["families"] == list(procedural.FAMILIES) and info.attrs["mix"] == 0.3
-    assert json.loads(info.attrs["photo"]) == json.loads(json.dumps(dataclasses.asdict(procedural.PhotoSettings())))
+    assert json.loads(info.attrs["photo"]) == json.loads(json.dumps(dataclasses.asdict(PhotoSettings())))
     data = ShardDataset(out)
     expected = procedural.ProceduralMaterials(5, 32, 2).batch([0, 1, 2, 3, 4])
     assert [data[i]["name"] for i in range(5)] == [f"procedural:2:{i}" for i in range(5)]
@@ -139,7 +140,7 @@ def test_make_stopped_by_a_signal_exits_130_and_leaves_nothing(tmp_path, sig):
 def test_make_takes_a_stop_whose_interrupt_python_dropped(tmp_path, monkeypatch):
     """SIGTERM landing in a weakref callback loses its KeyboardInterrupt (seen: `data make` went on
     past the signal); the loop takes the stop after the batch in progress, as it would Ctrl-C."""
-    from svbrdf_render.formats import files
+    from svbrdf_render.plumbing import processes
 
     real_batch = procedural.ProceduralMaterials.batch
     made = []
@@ -147,7 +148,7 @@ def test_make_takes_a_stop_whose_interrupt_python_dropped(tmp_path, monkeypatch)
     def batch(self, indices):
         made.append(len(indices))
         if len(made) == 2:
-            files._STOP["signal"] = "SIGTERM"  # what the handler records before its raise is lost
+            processes._STOP["signal"] = "SIGTERM"  # what the handler records before its raise is lost
         return real_batch(self, indices)
 
     monkeypatch.setattr(procedural.ProceduralMaterials, "batch", batch)
@@ -155,7 +156,7 @@ def test_make_takes_a_stop_whose_interrupt_python_dropped(tmp_path, monkeypatch)
     result = _run("make", "--count", 40, "--resolution", 16, "--batch", 4, "--out", out)
     assert result.exit_code == 130, result.output
     assert made == [4, 4] and f"interrupted: {out} not written" in result.stderr
-    assert list(tmp_path.iterdir()) == [] and files._STOP["signal"] is None
+    assert list(tmp_path.iterdir()) == [] and processes._STOP["signal"] is None
 
 
 # -- import ----------------------------------------------------------------------------------

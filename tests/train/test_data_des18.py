@@ -6,9 +6,9 @@ import pytest
 import torch
 
 from conftest import random_svbrdf
+from svbrdf_models.errors import DataError
 from svbrdf_render import SVBRDF, MapFileError, Scene, read_des18, render, write_des18
-from svbrdf_train.data.des18 import Des18Folder, dihedral, dihedral_image
-from svbrdf_train.errors import DataError
+from svbrdf_train.data.real.des18 import Des18Folder, dihedral, dihedral_image
 
 STEP8 = 1 / 255
 

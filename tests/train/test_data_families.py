@@ -16,9 +16,14 @@ from pathlib import Path
 import pytest
 
 import svbrdf_train
-from svbrdf_train.data import families
-from svbrdf_train.data.procedural import FAMILIES, FAMILY_WEIGHTS, GENERATOR_VERSION, generator_version
-from svbrdf_train.errors import DataError
+from svbrdf_models.errors import DataError
+from svbrdf_train.data.procedural import (
+    FAMILIES,
+    FAMILY_WEIGHTS,
+    GENERATOR_VERSION,
+    families,
+    generator_version,
+)
 
 #: What generator 3 draws its families by: their drawing order and weights.
 V3_WEIGHTS = {
@@ -37,7 +42,7 @@ V3_WEIGHTS = {
 
 def test_each_family_declares_its_order_and_weight_in_its_own_module():
     for name in FAMILIES:
-        module = importlib.import_module(f"svbrdf_train.data.families.{name}")
+        module = importlib.import_module(f"svbrdf_train.data.procedural.families.{name}")
         source = Path(module.__file__).read_text()
         family = families.FAMILY_TABLE[name]
         assert re.search(rf"\border={family.order}\b", source), name
@@ -55,7 +60,7 @@ def test_the_family_modules_share_no_paragraph_of_their_docstrings():
     # what that family draws.
     seen: dict[str, str] = {}
     for name in FAMILIES:
-        doc = importlib.import_module(f"svbrdf_train.data.families.{name}").__doc__
+        doc = importlib.import_module(f"svbrdf_train.data.procedural.families.{name}").__doc__
         for paragraph in (" ".join(p.split()) for p in doc.split("\n\n")):
             assert seen.setdefault(paragraph, name) == name, (name, seen[paragraph], paragraph)
     assert "register(Family(" in families.__doc__
@@ -126,10 +131,10 @@ print(json.dumps({"families": FAMILIES, "weights": FAMILY_WEIGHTS, "version": GE
 
 
 def test_a_family_module_dropped_into_the_package_is_drawn_with_no_other_edit(tmp_path):
-    # A copy of the package with one more module in data/families/, and nothing else changed.
+    # A copy of the package with one more module in data/procedural/families/, and nothing else changed.
     package = Path(svbrdf_train.__file__).parent
     shutil.copytree(package, tmp_path / "svbrdf_train", ignore=shutil.ignore_patterns("__pycache__"))
-    (tmp_path / "svbrdf_train" / "data" / "families" / "zinc.py").write_text(_NEW_FAMILY)
+    (tmp_path / "svbrdf_train" / "data" / "procedural" / "families" / "zinc.py").write_text(_NEW_FAMILY)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
     out = subprocess.run(
         [sys.executable, "-c", _PROBE], capture_output=True, text=True, check=True, env=env, cwd=tmp_path

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 import torch
 
+from svbrdf_models.errors import DataError
 from svbrdf_render import SVBRDF, render
-from svbrdf_train.data.capture import CAPTURE_PRESETS, PhotoSettings, photo_scene
-from svbrdf_train.data.kinds import kind_weights, material_kind
-from svbrdf_train.data.strip_bank import MaterialBank
-from svbrdf_train.data.strips import PRIOR_FACTOR, MaterialStrips
-from svbrdf_train.errors import DataError
+from svbrdf_train.data.real.kinds import kind_weights, material_kind
+from svbrdf_train.data.real.strip_bank import MaterialBank
+from svbrdf_train.data.real.strips import PRIOR_FACTOR, MaterialStrips
+from svbrdf_train.data.simulated_photo import CAPTURE_PRESETS, PhotoSettings, photo_scene
 from svbrdf_train.recipe import DataSection
 
 HANDHELD = PhotoSettings.preset("handheld")

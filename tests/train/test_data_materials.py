@@ -9,16 +9,16 @@ import torch
 from click.testing import CliRunner
 
 from conftest import random_svbrdf
+from svbrdf_models.errors import DataError
 from svbrdf_render import write_des18
 from svbrdf_train.cli import cli
-from svbrdf_train.data.materials import (
+from svbrdf_train.data.real.materials import (
     fold_from_spec,
     group_samples,
     material_folds,
     material_groups,
     per_material,
 )
-from svbrdf_train.errors import DataError
 
 MATERIALS = ("PolishedMarbleFloor_01", "brick_uneven_stones", "leather_tiles", "metal_bumpy_squares")
 
@@ -142,7 +142,7 @@ def test_data_folds_writes_links_and_a_table(strips, tmp_path):
     assert judge and train and all(p.is_symlink() and p.resolve().parent == strips.resolve() for p in judge + train)
     assert re.search(r"hold-out:brick_uneven_stones\+leather_tiles\s+%d\s" % len(train), result.stdout)
     # Read back as a Des18 folder, as fit --data and svbrdf-bench --test-data do.
-    from svbrdf_train.data.des18 import Des18Folder
+    from svbrdf_train.data.real.des18 import Des18Folder
 
     assert len(Des18Folder(fold / "judge", "test", crop=None)) == len(judge)
     again = _run("folds", strips, "--out", out, "--hold-out", "brick,leather")  # links replaced
@@ -168,7 +168,7 @@ def test_data_folds_refuses_names_that_are_not_des18(tmp_path):
 
 @pytest.mark.data
 def test_the_real_des18_folder_gives_six_folds_judging_each_strip_once(shared_data):
-    from svbrdf_train.data.materials import strip_files
+    from svbrdf_train.data.real.materials import strip_files
 
     files = strip_files(shared_data / "des18-dev")
     folds = material_folds(files)

@@ -7,10 +7,10 @@ import pytest
 import torch
 from PIL import Image, ImageOps
 
+from svbrdf_models.errors import DataError
 from svbrdf_render import MapFileError, write_image
 from svbrdf_render.formats.mapfiles import srgb_to_linear
 from svbrdf_train.data.photos import PhotoFolder
-from svbrdf_train.errors import DataError
 
 
 def _photo(seed: int, h: int = 24, w: int = 24) -> torch.Tensor:

@@ -15,20 +15,19 @@ import torch
 import torch.nn.functional as F
 from torch.utils.data import DataLoader
 
+from svbrdf_models.errors import DataError
 from svbrdf_render import SVBRDF, Camera, PointLight, Scene, render
-from svbrdf_train.data import families
-from svbrdf_train.data.families import family_fields
 from svbrdf_train.data.procedural import (
     FAMILIES,
     GENERATOR_VERSION,
-    PhotoSettings,
     ProceduralMaterials,
+    families,
     material,
     materials,
-    photo_scene,
 )
-from svbrdf_train.data.procedural_maps import _normals
-from svbrdf_train.errors import DataError
+from svbrdf_train.data.procedural.families import family_fields
+from svbrdf_train.data.procedural.maps import _normals
+from svbrdf_train.data.simulated_photo import PhotoSettings, photo_scene
 
 #: Families with metal in them: the metal family, and painted and rusted metal.
 METALLIC = ("metal", "rusted")
@@ -64,7 +63,7 @@ def test_each_family_module_registers_its_family_in_the_drawing_order():
     modules = {m.name for m in pkgutil.iter_modules(families.__path__)} - {"base", "drawing"}
     assert modules == set(FAMILIES) == set(families.FAMILY_TABLE)
     for name in FAMILIES:
-        module = importlib.import_module(f"svbrdf_train.data.families.{name}")
+        module = importlib.import_module(f"svbrdf_train.data.procedural.families.{name}")
         assert families.FAMILY_TABLE[name].draw is module.draw
         assert families.FAMILY_TABLE[name].fields is module.fields
     order = ("stone", "tiles", "cells", "wood", "metal", "fabric", "plaster", "rusted", "bark", "rock")
@@ -139,7 +138,7 @@ def test_batch_equals_items_bit_for_bit(resolution):
 
 
 def test_chunking_does_not_change_the_bytes(monkeypatch):
-    import svbrdf_train.data.procedural_maps as procedural_maps
+    import svbrdf_train.data.procedural.maps as procedural_maps
 
     data = ProceduralMaterials(6, 24, seed=7, mix=0.5)
     whole = data.batch(range(6))

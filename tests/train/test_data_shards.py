@@ -11,6 +11,7 @@ import torch
 from torch.utils.data import DataLoader, DistributedSampler
 
 from conftest import random_svbrdf
+from svbrdf_models.errors import DataError
 from svbrdf_render import SVBRDF
 from svbrdf_train.data.shards import (
     FORMAT_VERSION,
@@ -19,7 +20,7 @@ from svbrdf_train.data.shards import (
     inspect_shard,
     write_shard,
 )
-from svbrdf_train.errors import DataError, ShardError
+from svbrdf_train.errors import ShardError
 
 
 def _batch(count: int, size: int = 16, seed: int = 0, prefix: str = "s") -> dict:

@@ -7,11 +7,11 @@ import pytest
 import torch
 from PIL import Image
 
+from svbrdf_models.errors import DataError
 from svbrdf_render.formats.mapfiles import linear_to_srgb
 from svbrdf_train.cli import main
 from svbrdf_train.data.procedural import ProceduralMaterials
 from svbrdf_train.data.sheet import contact_sheet
-from svbrdf_train.errors import DataError
 
 
 def _run(capsys, *args):

@@ -10,15 +10,15 @@ import torch
 import torch.nn.functional as F
 from click.testing import CliRunner
 
+from svbrdf_models.errors import DataError
 from svbrdf_render import SVBRDF, encode_normal, safe_normalize
 from svbrdf_render.formats.mapfiles import write_image
 from svbrdf_train.cli import cli
-from svbrdf_train.data.capture import PhotoSettings
-from svbrdf_train.data.des18 import dihedral_image
 from svbrdf_train.data.fitdata import open_materials
-from svbrdf_train.data.strip_bank import MaterialBank, read_strip_shard, resize_bank, write_strip_shard
-from svbrdf_train.data.strips import ALBEDO_CEILING, CROP_SIDE, MaterialStrips, fold_split
-from svbrdf_train.errors import DataError
+from svbrdf_train.data.real.des18 import dihedral_image
+from svbrdf_train.data.real.strip_bank import MaterialBank, read_strip_shard, resize_bank, write_strip_shard
+from svbrdf_train.data.real.strips import ALBEDO_CEILING, CROP_SIDE, MaterialStrips, fold_split
+from svbrdf_train.data.simulated_photo import PhotoSettings
 
 
 def _height(size: int, seed: int) -> torch.Tensor:
@@ -330,7 +330,7 @@ def test_a_fit_on_strips_stopped_and_resumed_ends_bitwise_as_one_that_never_stop
 def test_the_batched_path_gives_the_cpu_paths_whole_tiles_under_every_turn(strips):
     """Windows of the resolution's size are read at pixel centres: the CPU path's values (to
     float16's rounding), under each of the 8 turns and mirrors, normals turned alike."""
-    from svbrdf_train.data.strip_batch import strip_batch
+    from svbrdf_train.data.real.strip_batch import strip_batch
 
     data = MaterialStrips(MaterialBank.open(strips), 40, 64, photo=PhotoSettings())
     indices = list(range(40))
@@ -344,7 +344,7 @@ def test_the_batched_path_gives_the_cpu_paths_whole_tiles_under_every_turn(strip
 def test_the_batched_path_resamples_windows_as_the_cpu_path_does_on_average(tmp_path):
     """Resized windows: bilinear reads of a mip level, averaged 2x2, against the exact area
     filter: the same means, a small difference per pixel on smooth maps."""
-    from svbrdf_train.data.strip_batch import strip_batch
+    from svbrdf_train.data.real.strip_batch import strip_batch
 
     folder = tmp_path / "smooth"
     folder.mkdir()

@@ -12,10 +12,10 @@ from test_data_shards import _shard
 from torch.utils.data import ConcatDataset, DataLoader, Subset
 
 from conftest import des18_strips
-from svbrdf_train.data.capture import _photos
+from svbrdf_models.errors import DataError
 from svbrdf_train.data.fitdata import Mixture, build_datasets, device_batch
-from svbrdf_train.data.procedural import FAMILIES, PhotoSettings, ProceduralMaterials, materials
-from svbrdf_train.errors import DataError
+from svbrdf_train.data.procedural import FAMILIES, ProceduralMaterials, materials
+from svbrdf_train.data.simulated_photo import PhotoSettings, _photos
 from svbrdf_train.recipe import load_recipe
 
 CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")

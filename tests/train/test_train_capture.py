@@ -19,7 +19,7 @@ from click.testing import CliRunner
 from PIL import Image, ImageOps
 
 from conftest import random_svbrdf, run_cli
-from svbrdf_models.capture.one import (
+from svbrdf_models.capture import (
     MAX_PIXELS,
     MIN_SIDE,
     CaptureOptions,
@@ -33,11 +33,11 @@ from svbrdf_models.capture.one import (
     tile_predict,
     to_directx,
 )
+from svbrdf_models.errors import DataError
 from svbrdf_render import SVBRDF, Scene, read_image, render, write_image
 from svbrdf_render.examples import example_material
 from svbrdf_render.formats.mapfiles import linear_to_srgb, srgb_to_linear
 from svbrdf_train.cli import cli
-from svbrdf_train.errors import DataError
 
 OUTPUTS = ("normal", "diffuse", "roughness", "specular", "input", "rerender", "basecolor", "metallic",
            "metallic_roughness")  # fmt: skip
@@ -545,27 +545,24 @@ def test_command_refines_with_a_checkpoint(tmp_path, checkpoint):
 
 
 def test_the_photo_tool_has_one_home():
-    """The photo tool is svbrdf-models' (svbrdf_train.capture, its alias, is gone: issue 48):
-    svbrdf-train's photo and figure helpers and DataError are svbrdf-models' own objects, not
-    copies."""
+    """The photo tool is svbrdf-models' (svbrdf_train.capture, its alias, is gone: issue 48), and
+    its names have one address: svbrdf-train passes none of them on (no ``__all__`` of its package
+    or of its photo, sheet and error modules names them), and its data errors are svbrdf-models'
+    DataError."""
     import importlib
     import sys
 
-    import svbrdf_models.capture.figures
-    import svbrdf_models.capture.one
-    import svbrdf_models.capture.photos
-    import svbrdf_models.errors
     import svbrdf_train
+    from svbrdf_train import errors
     from svbrdf_train.data import photos, sheet
 
     sys.modules.pop("svbrdf_train.capture", None)
     with pytest.raises(ModuleNotFoundError):
         importlib.import_module("svbrdf_train.capture")
-    assert svbrdf_train.flash_consistency is svbrdf_models.capture.one.flash_consistency
-    assert photos.orient is svbrdf_models.capture.photos.orient
-    assert photos.exif_orientation is svbrdf_models.capture.photos.exif_orientation
-    assert sheet.image_grid is svbrdf_models.capture.figures.image_grid
-    assert DataError is svbrdf_models.errors.DataError
+    borrowed = {"flash_consistency", "orient", "exif_orientation", "square_photo", "image_grid", "DataError"}
+    for module in (svbrdf_train, photos, sheet, errors):
+        assert not borrowed & set(module.__all__), module.__name__
+    assert issubclass(errors.ShardError, DataError)
 
 
 def test_help_states_the_limits_and_exit_codes():

@@ -21,8 +21,8 @@ from svbrdf_train.recipe import load_recipe
 from svbrdf_train.training import step
 from svbrdf_train.training.clock import Stopwatch, TrainClock
 from svbrdf_train.training.distributed import Dist
-from svbrdf_train.training.hooks import Cadence, HookRunner, StepEnd
-from svbrdf_train.training.run import Run, RunChange
+from svbrdf_train.training.hooks import Cadence, HookRunner
+from svbrdf_train.training.run import Run, RunChange, StepEnd
 from svbrdf_train.training.trainer import FitOptions, fit
 
 

@@ -21,10 +21,10 @@ from svbrdf_render import (
     render,
     training_scene,
 )
+from svbrdf_train.recipe.paper_weights import MAP_WEIGHTS
 from svbrdf_train.training import losses
 from svbrdf_train.training.losses import (
     GAN_KINDS,
-    MAP_WEIGHTS,
     LossWeights,
     discriminator_loss,
     generator_adversarial_loss,

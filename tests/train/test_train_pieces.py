@@ -124,7 +124,7 @@ def test_progress_off_a_terminal_prints_whole_lines_and_quiet_prints_none():
 
 def test_a_fit_draws_its_progress_with_the_photo_tools_status_line():
     """One progress display: the fit's line is a StatusLine's, like the refinement bar's."""
-    from svbrdf_models.progress import StatusLine
+    from svbrdf_render.plumbing import StatusLine
 
     class Tty(io.StringIO):
         def isatty(self):

@@ -14,11 +14,11 @@ import torch.nn.functional as F
 from click.testing import CliRunner
 
 from conftest import run_cli
+from svbrdf_models.capture.photos import square_photo
 from svbrdf_render import read_image, write_image
 from svbrdf_render.formats.mapfiles import linear_to_srgb, srgb_to_linear
 from svbrdf_train.cli import cli
 from svbrdf_train.data import ProceduralMaterials
-from svbrdf_train.data.photos import square_photo
 from svbrdf_train.predict import Predictor
 
 MAPS = ("normal", "diffuse", "roughness", "specular")

@@ -53,8 +53,8 @@ def test_val_real_is_the_generator_scored_on_the_resized_folder(tmp_path):
     from torch.utils.data import DataLoader
 
     from svbrdf_render import SVBRDF
+    from svbrdf_render.compare import map_rmse
     from svbrdf_train.inference import load_generator
-    from svbrdf_train.metrics import map_rmse
 
     real = _strips(tmp_path / "real", count=2)
     recipe = load_recipe("ours", "smoke", {"data.real_validation": str(real)})

@@ -125,8 +125,8 @@ def test_wrong_types_and_values_name_the_field(tmp_path):
     with pytest.raises(RecipeError, match=r"generator: .*unknown preset 'huge'"):
         load_recipe("ours", overrides={"generator.config.preset": "huge"})
     # A real source without a path loads (ours-real gets it from --data) and is refused at fit time.
+    from svbrdf_models.errors import DataError
     from svbrdf_train.data.fitdata import build_datasets
-    from svbrdf_train.errors import DataError
 
     with pytest.raises(DataError, match="needs a path: give --data"):
         build_datasets(load_recipe("ours", overrides={"data.source": "shards"}))

@@ -10,7 +10,7 @@ import sys
 
 import click
 
-from svbrdf_render.formats.files import EXIT_STATUS
+from svbrdf_render.plumbing import EXIT_STATUS
 from svbrdf_train import OneLineErrors, add_commands, run_main
 
 from . import __version__

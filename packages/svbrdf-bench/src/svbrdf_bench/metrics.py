@@ -1,6 +1,6 @@
 """Per-sample accuracy figures of predicted maps, and bootstrap intervals over test images.
 
-:func:`evaluate` gives, per sample, the RMSE (the figures of :mod:`svbrdf_train.metrics`: maps on
+:func:`evaluate` gives, per sample, the RMSE (the figures of :mod:`svbrdf_render.compare`: maps on
 their stored encodings in [0, 1], renderings as a display shows them under the 6 evaluation
 light/view pairs), the SSIM on the same images as the literature computes it (Wang et al. 2004:
 an 11-tap Gaussian window of sigma 1.5, population rather than sample covariances, data range

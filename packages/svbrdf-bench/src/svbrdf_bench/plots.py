@@ -35,7 +35,7 @@ def _figure(size=(7.0, 4.5)):
 
 
 def _save(fig, path) -> Path:
-    from svbrdf_render.formats.files import atomic_output
+    from svbrdf_render.plumbing import atomic_output
 
     path = Path(path)
     with atomic_output(path) as tmp:

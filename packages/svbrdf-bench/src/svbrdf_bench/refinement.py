@@ -31,7 +31,7 @@ import torch
 from torch import Tensor
 
 from svbrdf_render import BACKENDS
-from svbrdf_render.cli import positive_number
+from svbrdf_render.plumbing import positive_number
 from svbrdf_render.refinement.fit import FLASH_MODES
 
 from .errors import BenchError

@@ -33,11 +33,11 @@ Timing: the rows take turns, ``repeats`` rounds (each round times every row's fo
 every row's forward+backward), so that a burst of other work slows every row alike. Each call
 is read on the clock of ``torch.utils.benchmark`` (:func:`svbrdf_bench.timing.time_once`), and
 the machine's load over the rounds is read once and kept on every row (``Row.load``);
-:func:`timing_warning` says in words when it makes the times unreliable.
+:func:`~svbrdf_bench.render_rows.timing_warning` says in words when it makes the times unreliable.
 
 :func:`measure` reads as its steps: the rows (``_cases``), their warm-up, the timed rounds, then
 the accuracy against the reference. The rows, and how they are shown (Markdown, records, metric
-names), are :mod:`svbrdf_bench.render_rows`'s; their names are importable from here too.
+names), are :mod:`svbrdf_bench.render_rows`'s.
 """
 
 from __future__ import annotations
@@ -60,20 +60,10 @@ from svbrdf_render import (
 from svbrdf_render.examples import EXAMPLES, example_material
 
 from .errors import BenchError
-from .render_rows import Row, format_table, metric_key, timing_warning, to_records
+from .render_rows import Row
 from .timing import LoadProbe, summarize, time_once
 
-__all__ = [
-    "DTYPES",
-    "Row",
-    "bench_materials",
-    "effect_variants",
-    "format_table",
-    "measure",
-    "metric_key",
-    "timing_warning",
-    "to_records",
-]
+__all__ = ["DTYPES", "bench_materials", "effect_variants", "measure"]
 
 DTYPES: dict[str, torch.dtype] = {
     "float64": torch.float64,

@@ -7,7 +7,7 @@
 - HDF5 shards (``.h5`` files or a folder of them): samples larger than the models resized.
 
 :attr:`TestSet.groups` gives each real test sample its source materials
-(:func:`svbrdf_train.data.materials.group_samples`: ``--group-by auto|des18|file``): the report
+(:func:`svbrdf_train.data.real.materials.group_samples`: ``--group-by auto|des18|file``): the report
 averages per material, not per strip, so a material shown by 3 strips weighs as much as one shown
 by 1, and resamples materials in its bootstrap intervals. The procedural test set has none (each
 image is its own material).

@@ -111,7 +111,7 @@ __all__ = [
 ]
 
 # Modules that moved into subpackages (issue 38): the old names import the new modules with a
-# DeprecationWarning for one release (svbrdf_render.moved; CHANGELOG.md).
+# DeprecationWarning for one release (svbrdf_render.plumbing.moved; CHANGELOG.md).
 _MOVED = {
     "svbrdf_models.generators": "svbrdf_models.networks.generators",
     "svbrdf_models.attention": "svbrdf_models.networks.attention",
@@ -128,8 +128,9 @@ _MOVED = {
     "svbrdf_models.relight": "svbrdf_models.capture.relight",
     "svbrdf_models.figures": "svbrdf_models.capture.figures",
     "svbrdf_models.material": "svbrdf_models.capture.material",
+    "svbrdf_models.progress": "svbrdf_render.plumbing.progress",
 }
 
-from svbrdf_render.moved import install as _install_moved
+from svbrdf_render.plumbing.moved import install as _install_moved
 
 _install_moved(_MOVED)

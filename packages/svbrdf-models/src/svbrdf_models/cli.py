@@ -10,8 +10,8 @@ from __future__ import annotations
 import sys
 
 from svbrdf_render import SVBRDFError
-from svbrdf_render.cli import OneLineParser
 from svbrdf_render.errors import exit_status
+from svbrdf_render.plumbing import OneLineParser
 
 from . import __version__
 from ._registry import Registry, default_registry

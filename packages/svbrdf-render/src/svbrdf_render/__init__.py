@@ -14,6 +14,7 @@ The core needs torch and numpy only; reading and writing image and YAML files ne
 from . import brdf
 from .effects import DES18_EFFECTS, EFFECTS, PHOTO_EFFECTS, resolve_effects
 from .errors import MapError, MapFileError, SceneError, SVBRDFError
+from .formats.gltf import write_gltf
 from .formats.mapfiles import (
     linear_to_srgb,
     read_des18,
@@ -26,7 +27,7 @@ from .formats.mapfiles import (
     write_image,
     write_map_folder,
 )
-from .formats.materialfiles import validate_materialx, write_gltf, write_materialx
+from .formats.materialx import validate_materialx, write_materialx
 from .geometry import safe_normalize, surface_positions
 from .maps import MAP_NAMES, SVBRDF, decode_normal, encode_normal, stored_value
 from .metalrough import MetalRough, from_metal_rough, roundtrip_error, to_metal_rough
@@ -41,9 +42,10 @@ from .refinement.refine import (
     refine_start,
 )
 from .refinement.views import ViewsRefinement, refine_views
-from .renderer import BACKENDS, apply_image_effects, build_plan, log_radiance, render
+from .renderer import BACKENDS, RenderPlan, apply_image_effects, build_plan, log_radiance, place_scene, render
 from .sampling import EVAL_CONFIGS, EVAL_SEED, evaluation_scene, training_scene
 from .scene import DES18_DISTANCE, Camera, Flash, PointLight, Scene
+from .stages import SceneGeometry
 from .tiling import MIN_TILEABLE_SIDE, make_tileable, make_tileable_map, seam_error
 from .viewer import VIEWER_INTENSITY, viewer_scene, write_viewer
 
@@ -85,6 +87,9 @@ __all__ = [
     "apply_image_effects",
     "brdf",
     "build_plan",
+    "place_scene",
+    "RenderPlan",
+    "SceneGeometry",
     "evaluation_scene",
     "fit_flash",
     "from_metal_rough",
@@ -118,17 +123,22 @@ __all__ = [
     "write_viewer",
 ]
 
-# Modules that moved into subpackages (issue 38): the old names import the new modules with a
-# DeprecationWarning for one release (svbrdf_render.moved; CHANGELOG.md).
+# Modules that moved into subpackages (issues 38 and 48): the old names import the new modules
+# with a DeprecationWarning for one release (svbrdf_render.plumbing.moved; CHANGELOG.md). A
+# module split in several (files, materialfiles) names the subpackage that states their names.
 _MOVED = {
     "svbrdf_render.refine": "svbrdf_render.refinement.refine",
     "svbrdf_render.fit": "svbrdf_render.refinement.fit",
-    "svbrdf_render.files": "svbrdf_render.formats.files",
+    "svbrdf_render.files": "svbrdf_render.plumbing",
+    "svbrdf_render.formats.files": "svbrdf_render.plumbing",
+    "svbrdf_render.machine": "svbrdf_render.plumbing.machine",
+    "svbrdf_render.moved": "svbrdf_render.plumbing.moved",
     "svbrdf_render.mapfiles": "svbrdf_render.formats.mapfiles",
-    "svbrdf_render.materialfiles": "svbrdf_render.formats.materialfiles",
+    "svbrdf_render.materialfiles": "svbrdf_render.formats",
+    "svbrdf_render.formats.materialfiles": "svbrdf_render.formats",
     "svbrdf_render.yamlio": "svbrdf_render.formats.yamlio",
 }
 
-from .moved import install as _install_moved
+from .plumbing.moved import install as _install_moved
 
 _install_moved(_MOVED)

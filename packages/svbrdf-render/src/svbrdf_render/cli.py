@@ -16,9 +16,17 @@ import torch
 from . import __version__
 from .effects import DES18_EFFECTS, EFFECTS
 from .errors import SVBRDFError, exit_status
-from .formats.files import EXIT_STATUS
-from .machine import MAX_THREADS, THREADS_HELP, choose_threads
 from .maps import SVBRDF
+from .plumbing import (
+    EXIT_STATUS,
+    INTERRUPTED,
+    MAX_THREADS,
+    THREADS_HELP,
+    OneLineParser,
+    choose_threads,
+    float_range,
+    int_range,
+)
 from .renderer import BACKENDS
 from .scene import DES18_DISTANCE, Camera, PointLight, Scene
 
@@ -55,91 +63,6 @@ MAX_EV = 64.0
 
 class CliError(SVBRDFError):
     """A user error: printed as one line, exit code 2."""
-
-
-class OneLineParser(argparse.ArgumentParser):
-    """An ArgumentParser whose errors are one line, ``PROG: error: ...`` with exit code 2 (no
-    usage block); svbrdf-models' command line uses it too."""
-
-    def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
-def int_range(low: int, high: int | None = None):
-    """An argparse ``type``: an integer in ``[low, high]``; the message names the bounds."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if value < low or (high is not None and value > high):
-            bounds = f"from {low} to {high}" if high is not None else f"at least {low}"
-            raise argparse.ArgumentTypeError(f"expected an integer {bounds}, got {value}")
-        return value
-
-    parse.__name__ = "integer"
-    return parse
-
-
-class Once(argparse.Action):
-    """An argparse ``action`` for an option that may be given once: a second one is a usage
-    error naming the option and both values (argparse would keep the last without a word)."""
-
-    def __call__(self, parser, namespace, values, option_string=None):
-        first = getattr(namespace, self.dest, self.default)
-        if first is not self.default:
-
-            def shown(value) -> str:
-                return value.describe() if hasattr(value, "describe") else str(value)
-
-            parser.error(
-                f"{option_string} given twice ({shown(first)} and {shown(values)}): give it once, the "
-                "second would silently replace the first"
-            )
-        setattr(namespace, self.dest, values)
-
-
-def float_range(low: float | None = None, high: float | None = None, *, above: bool = False):
-    """An argparse ``type``: a finite number ``>= low`` (``> low`` with ``above``) and ``<= high``."""
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-        bad = not math.isfinite(value)
-        if low is not None:
-            bad = bad or (value <= low if above else value < low)
-        if high is not None:
-            bad = bad or value > high
-        if bad:
-            parts = []
-            if low is not None:
-                parts.append(f"{'>' if above else '>='} {low:g}")
-            if high is not None:
-                parts.append(f"<= {high:g}")
-            bounds = " " + " and ".join(parts) if parts else ""
-            raise argparse.ArgumentTypeError(f"expected a finite number{bounds}, got {text}")
-        return value
-
-    parse.__name__ = "number"
-    return parse
-
-
-def positive_number(text: str | None) -> float | None:
-    """The finite number > 0 that ``text`` spells (``"15"``, ``" 2.5e1 "``), else None: for a
-    caller that says in its own words what it expected (an environment variable, an option).
-
-    Example:
-        >>> positive_number("15"), positive_number("0"), positive_number("nan"), positive_number(None)
-        (15.0, None, None, None)
-    """
-    try:
-        value = float(text)
-    except (TypeError, ValueError):
-        return None
-    return value if math.isfinite(value) and value > 0 else None
 
 
 def _examples():
@@ -357,7 +280,7 @@ def _cmd_scene(args) -> None:
 
     text = Scene(Camera(), (Flash(math.pi * 2.2 * 2.2),), DES18_EFFECTS).to_yaml()
     if args.output:
-        from .formats.files import write_text
+        from .plumbing import write_text
 
         write_text(args.output, text)
         print(f"wrote {args.output}")
@@ -390,7 +313,7 @@ def main(argv: list[str] | None = None) -> int:
         return exit_status(e)
     except KeyboardInterrupt:
         print("svbrdf-render: interrupted", file=sys.stderr)
-        return 130
+        return INTERRUPTED
     return 0
 
 

@@ -40,8 +40,10 @@ and returns the stage, whose form its phase fixes:
   are summed); ``prepare`` runs once per render, ``term`` once per light.
 - ``light``: ``factor(radiance, surface, light) -> radiance``, per light, after the BRDF
   times the light's radiance.
-- ``image``: ``stage(x, p, geo, generator) -> x`` on the summed radiance; ``p`` and ``geo``
-  (surface positions and camera) are read only by effects declared ``needs_camera``.
+- ``image``: ``stage(x, geometry, generator) -> x`` on the summed radiance; ``geometry`` (the
+  :class:`~svbrdf_render.stages.SceneGeometry`: surface positions and camera) is read only by
+  effects declared ``needs_camera``, and is None where :func:`~svbrdf_render.apply_image_effects`
+  runs the stages without a scene.
 
 An effect without a stage builder is a parameter of the effect it ``requires``: fresnel
 and masking choose the ``F`` and ``V`` factors of the specular lobe, which reads them.
@@ -252,11 +254,11 @@ _register("beam", "light", "flash beam cos^exponent", stage=_beam, check=_check_
 def _vignetting(params, declared):
     strength = params["strength"]
 
-    def vignetting(x, p, geo, gen):
+    def vignetting(x, geometry, gen):
         # cos of the angle between the camera axis (towards the patch centre) and the
         # ray to each pixel; 1 everywhere for a directional camera.
-        v, _ = unit_and_sq(toward(geo.cam, geo.cam_w, p))
-        axis, _ = unit_and_sq(geo.cam)
+        v, _ = unit_and_sq(toward(geometry.camera, geometry.camera_w, geometry.positions))
+        axis, _ = unit_and_sq(geometry.camera)
         c = dot(v, axis, -3).clamp(0, 1)
         c2 = c * c
         return x * (1 - strength * (1 - c2 * c2))
@@ -266,13 +268,13 @@ def _vignetting(params, declared):
 
 def _exposure(params, declared):
     gain = 2.0 ** params["ev"]
-    return lambda x, p, geo, gen: x * gain
+    return lambda x, geometry, gen: x * gain
 
 
 def _noise(params, declared):
     sigma, shot, seed = params["sigma"], params["shot"], params["seed"]
 
-    def noise(x, p, geo, gen):
+    def noise(x, geometry, gen):
         if gen is None:
             gen = torch.Generator(device=x.device).manual_seed(seed)
         z = torch.randn(x.shape, generator=gen, dtype=x.dtype, device=x.device)
@@ -285,19 +287,19 @@ def _noise(params, declared):
 
 def _clip(params, declared):
     top = params["max"]
-    return lambda x, p, geo, gen: x.clamp(0, top)
+    return lambda x, geometry, gen: x.clamp(0, top)
 
 
 def _gamma(params, declared):
     inv = 1.0 / params["gamma"]
     # Clamped before the power: pow(0, 1/2.2) has an infinite slope.
-    return lambda x, p, geo, gen: x.clamp_min(_GAMMA_FLOOR).pow(inv)
+    return lambda x, geometry, gen: x.clamp_min(_GAMMA_FLOOR).pow(inv)
 
 
 def _tone(params, declared):
     power, shoulder = params["power"], params["shoulder"]
 
-    def tone(x, p, geo, gen):
+    def tone(x, geometry, gen):
         # Clamped at a floor first: a power below 1 has an infinite slope at 0.
         y = x.clamp_min(_GAMMA_FLOOR)
         if power != 1.0:
@@ -344,7 +346,7 @@ _register("gamma", "image", "display encoding x**(1/gamma)", stage=_gamma, check
 #: spelling of this set; the renderer and its hand-derived backward import it.
 DES18_EFFECTS = ("diffuse", "specular", "fresnel", "masking", "cosine", "falloff")
 #: A simulated phone photo: Des18 shading plus exposure, noise and clipping. The one spelling
-#: of the photo the data generator makes (``svbrdf_train.data.capture.photo_scene`` declares
+#: of the photo the data generator makes (``svbrdf_train.data.simulated_photo.photo_scene`` declares
 #: these, with drawn parameters, and gamma for a share of the photos): no vignetting, which the
 #: training photos never had.
 PHOTO_EFFECTS = DES18_EFFECTS + ("exposure", "noise", "clip")

@@ -39,8 +39,8 @@ class SceneError(SVBRDFError):
 class OutputError(SVBRDFError):
     """A file could not be written: disk full, read-only, no permission, I/O error.
 
-    Raised by :mod:`svbrdf_render.formats.files` after removing its temporary file, so the target is
-    as it was. Command lines exit with status 3 on it.
+    Raised by :mod:`svbrdf_render.plumbing.atomic` after removing its temporary file, so the target
+    is as it was. Command lines exit with status 3 on it.
     """
 
     exit_code = 3

@@ -121,14 +121,16 @@ def _light_grads(s: _Surface, grad, light, p, min_d2: float):
     return gd, gs, ga, gn
 
 
-def des18_shading_grads(effects, grad, normal, diffuse, roughness, specular, p, geo):
-    """Gradients of ``sum(grad * shade(...))`` with respect to the four maps."""
+def des18_shading_grads(effects, grad, normal, diffuse, roughness, specular, geometry):
+    """Gradients of ``sum(grad * shade(...))`` with respect to the four maps, under ``geometry``
+    (the :class:`~svbrdf_render.stages.SceneGeometry` the shading stage took)."""
+    p = geometry.positions
     spec = effects["specular"]
     min_d2 = effects["falloff"]["min_distance"] ** 2
 
     # -- surface (as in the forward pass) ---------------------------------------------------
     n, valid, sq = safe_normalize_parts(normal, dim=-3)
-    v, _ = unit_and_sq(toward(geo.cam, geo.cam_w, p))
+    v, _ = unit_and_sq(toward(geometry.camera, geometry.camera_w, p))
     cos_v = dot(n, v, -3)
     cv = cos_v.clamp_min(0)
     alpha, dalpha_dr = _alpha(roughness, spec["alpha_min"], spec["alpha_floor"])
@@ -139,7 +141,7 @@ def des18_shading_grads(effects, grad, normal, diffuse, roughness, specular, p, 
         diffuse, specular, one_minus_s, diffuse * one_minus_s * (1.0 / math.pi),
     )
     g_d = g_s = g_alpha = g_n = None
-    for light in geo.lights:
+    for light in geometry.lights:
         gd, gs, ga, gn = _light_grads(s, grad, light, p, min_d2)
         g_d = gd if g_d is None else g_d + gd
         g_s = gs if g_s is None else g_s + gs

@@ -15,14 +15,19 @@ Precision: float16/bfloat16 maps are upcast and the work runs in float32 (float6
 float64); the result has that compute dtype. Autocast is disabled inside, since the
 GGX peak (~3.2e5 at the smallest alpha) overflows float16.
 
+The stages are public, and pass each other typed values (:mod:`svbrdf_render.stages`):
+:func:`place_scene` places the scene on the patch (a :class:`~svbrdf_render.stages.SceneGeometry`),
+the plan's ``shade`` turns the maps and that geometry into radiance, its ``finish`` runs the
+image effects on it. :func:`render` runs the three; :func:`apply_image_effects` runs the last
+alone.
+
 Backends: ``"eager"`` runs the stages as plain torch ops; ``"compiled"`` runs the shading
-stages through ``torch.compile`` (one fused kernel per shape; the first call compiles).
+stage through ``torch.compile`` (:mod:`svbrdf_render.compiled`: one fused kernel per shape; the
+first call compiles).
 """
 
 from __future__ import annotations
 
-import types
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -30,25 +35,25 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from . import fused
+from .compiled import shade_compiled
 from .effects import EFFECTS, LightPath, Surface, effects_of_phase, resolve_effects
 from .errors import MapError, SceneError
 from .geometry import dot, safe_normalize, surface_positions, toward, unit_and_sq
 from .maps import SVBRDF
 from .scene import Scene
+from .stages import FinishStage, SceneGeometry, ShadeStage
 
-__all__ = ["render", "apply_image_effects", "log_radiance", "RenderPlan", "build_plan", "BACKENDS"]
+__all__ = [
+    "render",
+    "apply_image_effects",
+    "log_radiance",
+    "place_scene",
+    "RenderPlan",
+    "build_plan",
+    "BACKENDS",
+]
 
 BACKENDS = ("eager", "compiled")
-
-
-@dataclass(frozen=True)
-class _Geometry:
-    """Per-configuration inputs placed for broadcasting against the maps."""
-
-    cam: Tensor  # (..., 3, 1, 1)
-    cam_w: Tensor | float  # 1 for a point camera, 0 for a directional one
-    lights: tuple[tuple[Tensor, Tensor | float, Tensor], ...]  # (position, w, radiance rgb)
 
 
 def _directional_weight(flag, shape: torch.Size, device, dtype) -> Tensor | float:
@@ -68,7 +73,12 @@ def _place(t: Tensor, shape: torch.Size, channels: int, device, dtype) -> Tensor
     return t.reshape(*shape, channels, 1, 1)
 
 
-def _geometry(scene: Scene, shape: torch.Size, device, dtype) -> _Geometry:
+def place_scene(scene: Scene, height: int, width: int, *, dtype: torch.dtype, device) -> SceneGeometry:
+    """The first stage: ``scene`` placed on a patch of ``height x width`` pixels, its camera and
+    lights shaped to broadcast against maps of its configuration shape, in ``dtype`` on ``device``
+    (the compute dtype and the maps' device of :func:`render`)."""
+    positions = surface_positions(height, width, dtype=dtype, device=device)
+    shape = scene.config_shape
     cam = scene.camera
     lights = []
     for light in scene.point_lights:
@@ -82,7 +92,8 @@ def _geometry(scene: Scene, shape: torch.Size, device, dtype) -> _Geometry:
                 rgb,
             )
         )
-    return _Geometry(
+    return SceneGeometry(
+        positions,
         _place(cam.position, shape, 3, device, dtype),
         _directional_weight(cam.directional, shape, device, dtype),
         tuple(lights),
@@ -93,14 +104,15 @@ def _geometry(scene: Scene, shape: torch.Size, device, dtype) -> _Geometry:
 class RenderPlan:
     """The stages a scene's effects declare, ready to run.
 
-    ``stages`` lists them by name in execution order; ``shade`` runs the ``shading`` and
-    ``light`` phases (what the compiled backend fuses), ``finish`` the ``image`` phase.
+    ``stages`` lists the effects by name in execution order; ``shade`` runs the ``shading`` and
+    ``light`` phases (what the compiled backend fuses), ``finish`` the ``image`` phase (see
+    :mod:`svbrdf_render.stages` for what each takes).
     """
 
     effects: dict[str, dict[str, Any]]
     stages: tuple[str, ...]
-    shade: Callable[..., Tensor]
-    finish: Callable[..., Tensor]
+    shade: ShadeStage
+    finish: FinishStage
 
 
 def _stages(fx: dict[str, dict[str, Any]], phase: str) -> list[Callable]:
@@ -114,20 +126,21 @@ def _stages(fx: dict[str, dict[str, Any]], phase: str) -> list[Callable]:
     return out
 
 
-def _build_shade(fx: dict[str, dict[str, Any]]) -> Callable[..., Tensor]:
+def _build_shade(fx: dict[str, dict[str, Any]]) -> ShadeStage:
     terms = _stages(fx, "shading")
     factors = _stages(fx, "light")
 
-    def shade(normal, diffuse, roughness, specular, p, geo: _Geometry) -> Tensor:
+    def shade(normal, diffuse, roughness, specular, geometry: SceneGeometry) -> Tensor:
+        p = geometry.positions
         # -- surface ------------------------------------------------------------------
         n = safe_normalize(normal, dim=-3)
-        v, _ = unit_and_sq(toward(geo.cam, geo.cam_w, p))
+        v, _ = unit_and_sq(toward(geometry.camera, geometry.camera_w, p))
         cos_v = dot(n, v, -3)
         front = cos_v > 0
         surface = Surface(n, v, cos_v.clamp_min(0), diffuse, roughness, specular)
         brdf_terms = [prepare(surface) for prepare in terms]
         total = None
-        for pos, w, rgb in geo.lights:
+        for pos, w, rgb in geometry.lights:
             # -- light geometry -----------------------------------------------------
             l, d2 = unit_and_sq(toward(pos, w, p))  # noqa: E741 - the math's name
             cos_l = dot(n, l, -3)
@@ -152,19 +165,18 @@ def _build_shade(fx: dict[str, dict[str, Any]]) -> Callable[..., Tensor]:
     return shade
 
 
-def _build_finish(fx: dict[str, dict[str, Any]]) -> Callable[..., Tensor]:
+def _build_finish(fx: dict[str, dict[str, Any]]) -> FinishStage:
     stages = _stages(fx, "image")
 
-    def finish(x: Tensor, p: Tensor, geo: _Geometry, generator) -> Tensor:
+    def finish(x: Tensor, geometry: SceneGeometry | None = None, generator=None) -> Tensor:
         for stage in stages:
-            x = stage(x, p, geo, generator)
+            x = stage(x, geometry, generator)
         return x
 
     return finish
 
 
 _PLANS: dict[str, RenderPlan] = {}
-_COMPILED: dict[str, Callable[..., Tensor]] = {}
 
 
 def build_plan(effects: dict[str, dict[str, Any]]) -> RenderPlan:
@@ -205,139 +217,7 @@ def apply_image_effects(x: Tensor, effects, *, generator: torch.Generator | None
                 f"apply_image_effects: effect {name!r} reads the camera; render the scene with "
                 "render() instead"
             )
-    return build_plan(image).finish(x, None, None, generator)
-
-
-def _is_compile_failure(exc: Exception) -> bool:
-    """True for a failure of the compiler itself (no C++ toolchain, Inductor), not the inputs."""
-    try:
-        from torch._dynamo.exc import BackendCompilerFailed
-    except ImportError:  # pragma: no cover - torch without dynamo
-        return False
-    return isinstance(exc, BackendCompilerFailed)
-
-
-def _reason(exc: Exception) -> str:
-    """One line naming why compiling failed (the backend's own exception where it has one)."""
-    inner = getattr(exc, "inner_exception", None)
-    exc = inner if isinstance(inner, Exception) else exc
-    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
-    name = type(exc).__name__
-    if not lines:
-        return name
-    return lines[0] if lines[0].startswith(name) else f"{name}: {lines[0]}"
-
-
-def _own_code(fn: Callable[..., Tensor]) -> Callable[..., Tensor]:
-    """``fn`` with a code object of its own (same bytecode, closure and globals).
-
-    Dynamo keeps compiled graphs, and counts them against ``recompile_limit`` (8), per
-    *code object*. Every plan's ``shade`` is the same nested function with other closure
-    values, so without this all plans would share one cache of 8 entries: from the ninth
-    plan/shape/dtype/grad-mode combination in a process on, Dynamo would stop compiling
-    and the "compiled" backend would silently run eager.
-    """
-    own = types.FunctionType(
-        fn.__code__.replace(), fn.__globals__, fn.__name__, fn.__defaults__, fn.__closure__
-    )
-    own.__kwdefaults__ = fn.__kwdefaults__
-    own.__qualname__ = fn.__qualname__
-    return own
-
-
-def _compile_with_fallback(key: str, fn: Callable[..., Any]) -> Callable[..., Any]:
-    """``fn`` through ``torch.compile``, cached under ``key``, falling back to ``fn``.
-
-    ``torch.compile`` compiles lazily, so a platform that cannot compile (no C++ compiler,
-    unsupported Python) fails at the first *call*; that call, and every later one under
-    ``key``, then runs ``fn`` eagerly, with one warning. Compilation is static in shape
-    (``dynamic=False``): new tensors of a seen shape reuse the compiled kernels; a new shape
-    (or dtype, grad mode, point/directional mix) compiles once more, up to Dynamo's
-    ``recompile_limit`` per function (see :func:`_own_code`).
-    """
-    cached = _COMPILED.get(key)
-    if cached is not None:
-        return cached
-    try:
-        compiled = torch.compile(_own_code(fn), dynamic=False)
-    except Exception as e:  # pragma: no cover - platform without torch.compile
-        warnings.warn(f"torch.compile unavailable ({e}); using the eager backend", stacklevel=3)
-        _COMPILED[key] = fn
-        return fn
-
-    def run(*args: Any) -> Any:
-        try:
-            return compiled(*args)
-        except Exception as e:
-            if not _is_compile_failure(e):
-                raise
-            warnings.warn(f"torch.compile failed ({_reason(e)}); using the eager backend", stacklevel=3)
-            _COMPILED[key] = fn
-            return fn(*args)
-
-    _COMPILED[key] = run
-    return run
-
-
-def _shade_key(plan: RenderPlan) -> str:
-    # What ``shade`` depends on: plans that differ only in image effects share it.
-    shading = effects_of_phase(plan.effects, "shading", "light")
-    return repr([(k, sorted(v.items())) for k, v in shading.items()])
-
-
-def _compiled_shade(plan: RenderPlan) -> Callable[..., Tensor]:
-    """``plan.shade`` through ``torch.compile``, cached per shading configuration."""
-    return _compile_with_fallback("shade" + _shade_key(plan), plan.shade)
-
-
-def _compiled_des18_backward(plan: RenderPlan) -> Callable[..., tuple[Tensor, ...]]:
-    """The hand-derived backward of :mod:`svbrdf_render.fused`, compiled for this plan."""
-    effects = plan.effects
-
-    def backward(grad, normal, diffuse, roughness, specular, p, geo):
-        return fused.des18_shading_grads(
-            effects, grad, normal, diffuse, roughness, specular, p, geo
-        )
-
-    return _compile_with_fallback("des18-backward" + _shade_key(plan), backward)
-
-
-class _FusedShade(torch.autograd.Function):
-    """Compiled shading whose backward recomputes instead of saving intermediates."""
-
-    @staticmethod
-    def forward(ctx, normal, diffuse, roughness, specular, p, geo, forward_fn, backward_fn):
-        ctx.save_for_backward(normal, diffuse, roughness, specular)
-        ctx.extra = (p, geo, backward_fn)
-        return forward_fn(normal, diffuse, roughness, specular, p, geo)
-
-    @staticmethod
-    def backward(ctx, grad):
-        normal, diffuse, roughness, specular = ctx.saved_tensors
-        p, geo, backward_fn = ctx.extra
-        grads = backward_fn(grad.contiguous(), normal, diffuse, roughness, specular, p, geo)
-        return (*grads, None, None, None, None)
-
-
-def _geometry_requires_grad(geo: _Geometry) -> bool:
-    tensors = [geo.cam, geo.cam_w]
-    for light in geo.lights:
-        tensors.extend(light)
-    return any(isinstance(t, Tensor) and t.requires_grad for t in tensors)
-
-
-def _shade_compiled(plan: RenderPlan, maps: list[Tensor], p: Tensor, geo: _Geometry) -> Tensor:
-    """The compiled backend: the hand-derived backward for the Des18 shading when only the
-    maps need gradients, autograd through the compiled stages otherwise."""
-    forward_fn = _compiled_shade(plan)
-    if (
-        fused.supports(plan.effects)
-        and torch.is_grad_enabled()
-        and any(m.requires_grad for m in maps)
-        and not _geometry_requires_grad(geo)
-    ):
-        return _FusedShade.apply(*maps, p, geo, forward_fn, _compiled_des18_backward(plan))
-    return forward_fn(*maps, p, geo)
+    return build_plan(image).finish(x, None, generator)
 
 
 def _compute_dtype(dtype: torch.dtype) -> torch.dtype:
@@ -389,15 +269,14 @@ def render(
         maps = [m.to(dtype) for m in (svbrdf.normal, svbrdf.diffuse, svbrdf.roughness, svbrdf.specular)]
         if len(shape) > 0:
             maps = [m.unsqueeze(1) for m in maps]
-        p = surface_positions(h, w, dtype=dtype, device=device)
-        geo = _geometry(scene, shape, device, dtype)
+        geometry = place_scene(scene, h, w, dtype=dtype, device=device)
         plan = build_plan(scene.effects)
         if backend == "compiled":
-            radiance = _shade_compiled(plan, maps, p, geo)
+            radiance = shade_compiled(plan.effects, plan.shade, maps, geometry)
         else:
-            radiance = plan.shade(*maps, p, geo)
+            radiance = plan.shade(*maps, geometry)
         radiance = radiance.expand(b, *radiance.shape[1:]) if radiance.shape[0] == 1 and b > 1 else radiance
-        return plan.finish(radiance, p, geo, generator)
+        return plan.finish(radiance, geometry, generator)
 
 
 

@@ -338,7 +338,7 @@ class Scene:
         return cls.from_dict(data, source=source)
 
     def save(self, path) -> None:
-        from .formats.files import write_text
+        from .plumbing import write_text
 
         write_text(path, self.to_yaml())
 

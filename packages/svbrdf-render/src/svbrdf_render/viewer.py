@@ -58,9 +58,9 @@ from torch import Tensor
 
 from .effects import DES18_EFFECTS, EFFECTS
 from .errors import MapError, SceneError, SVBRDFError
-from .formats.files import write_text
 from .formats.mapfiles import _encode_maps, _pil, linear_to_srgb
 from .maps import MAP_NAMES, SVBRDF
+from .plumbing import write_text
 from .scene import DES18_DISTANCE, Camera, PointLight, Scene
 
 __all__ = ["write_viewer", "viewer_scene", "VIEWER_INTENSITY", "VIEWER_SIZE", "SRGB_MAPS"]

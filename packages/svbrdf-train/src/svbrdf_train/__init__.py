@@ -40,13 +40,11 @@ _PUBLIC: dict[str, tuple[str, ...]] = {
     ".data": ("PhotoFolder", "ProceduralMaterials"),
     ".data.fitdata": ("open_materials",),
     ".data.fov": ("resize_sample",),
-    ".data.photos": ("square_photo",),
-    ".data.materials": ("GROUP_BY", "group_samples", "per_material"),
-    ".errors": ("DataError",),
-    # figures and image sheets
-    ".metrics": ("display_rendering", "map_rmse", "per_sample_rmse", "preview_flash"),
-    "svbrdf_models.capture.one": ("flash_consistency",),
-    ".data.sheet": ("image_grid", "map_tiles"),
+    ".data.real.materials": ("GROUP_BY", "group_samples", "per_material"),
+    # figures and image sheets (the figures' metrics are svbrdf_render.compare's, the error of
+    # bad data svbrdf_models.errors': import them from there)
+    ".metrics": ("preview_flash",),
+    ".data.sheet": ("map_tiles",),
     # the command line a sibling tool shares: one-line errors, the common options
     ".cli": ("OneLineErrors", "add_commands", "run_main"),
     ".commands.options": ("experiment_option",),
@@ -70,8 +68,8 @@ def __getattr__(name: str):
 def __dir__() -> list[str]:
     return sorted({*globals(), *_WHERE})
 
-# Modules that moved into subpackages (issue 38): the old names import the new modules with a
-# DeprecationWarning for one release (svbrdf_render.moved; CHANGELOG.md).
+# Modules that moved into subpackages (issues 38 and 48): the old names import the new modules with a
+# DeprecationWarning for one release (svbrdf_render.plumbing.moved; CHANGELOG.md).
 _MOVED = {
     "svbrdf_train.trainer": "svbrdf_train.training.trainer",
     "svbrdf_train.step": "svbrdf_train.training.step",
@@ -91,18 +89,30 @@ _MOVED = {
     "svbrdf_train.progress": "svbrdf_train.training.progress",
     "svbrdf_train.fitdata": "svbrdf_train.data.fitdata",
     "svbrdf_train.export": "svbrdf_train.training.export",
+    # issue 48: the training data's rooms, and the simulated photo named for what it makes
+    "svbrdf_train.data.capture": "svbrdf_train.data.simulated_photo",
+    "svbrdf_train.data.procedural_maps": "svbrdf_train.data.procedural.maps",
+    "svbrdf_train.data.procedural_noise": "svbrdf_train.data.procedural.noise",
+    "svbrdf_train.data.families": "svbrdf_train.data.procedural.families",
+    "svbrdf_train.data.des18": "svbrdf_train.data.real.des18",
+    "svbrdf_train.data.materials": "svbrdf_train.data.real.materials",
+    "svbrdf_train.data.kinds": "svbrdf_train.data.real.kinds",
+    "svbrdf_train.data.strips": "svbrdf_train.data.real.strips",
+    "svbrdf_train.data.strip_bank": "svbrdf_train.data.real.strip_bank",
+    "svbrdf_train.data.strip_batch": "svbrdf_train.data.real.strip_batch",
+    "svbrdf_train.data.shard_format": "svbrdf_train.data.shards.format",
 }
 
 
 class _MovedFinder:
-    """svbrdf_render.moved's finder for the names above, imported only when one is asked for:
+    """svbrdf_render.plumbing.moved's finder for the names above, imported only when one is asked for:
     importing svbrdf_train imports neither svbrdf_render nor torch."""
 
     @staticmethod
     def find_spec(fullname, path=None, target=None):
         if fullname not in _MOVED:
             return None
-        from svbrdf_render.moved import spec_for
+        from svbrdf_render.plumbing.moved import spec_for
 
         return spec_for(fullname, _MOVED)
 

@@ -12,7 +12,7 @@ import click
 
 from svbrdf_render import SVBRDFError
 from svbrdf_render.errors import exit_status
-from svbrdf_render.formats.files import EXIT_STATUS, INTERRUPTED, sigterm_as_interrupt
+from svbrdf_render.plumbing import EXIT_STATUS, INTERRUPTED, sigterm_as_interrupt
 
 from . import __version__
 

@@ -6,11 +6,12 @@ from __future__ import annotations
 from svbrdf_models.errors import DataError
 from svbrdf_render import SVBRDFError
 
-__all__ = ["DataError", "ShardError", "RecipeError", "CheckpointError", "TrainingError", "TrackingError"]
+__all__ = ["ShardError", "RecipeError", "CheckpointError", "TrainingError", "TrackingError"]
 
 
 # DataError (bad input data: a folder, file or argument that cannot be used) is svbrdf-models'
-# own class, so that the photo tool there and the data sets here raise one kind of error.
+# own class, so that the photo tool there and the data sets here raise one kind of error: import
+# it from svbrdf_models.errors.
 
 
 class ShardError(DataError):

@@ -1,10 +1,9 @@
-"""Per-sample accuracy figures of predicted maps: what validation logs and the benchmark reports.
-They are defined once, in :mod:`svbrdf_render.compare` (the renderer's package, so the photo
-tool and the metal/rough round trip use the same ones); this module names them for training,
-with the preview flash of its sample grids.
+"""The preview flash of training's sample grids, beside the accuracy figures they show.
 
-What each figure measures (stored encodings, display renderings under the 6 evaluation
-views) is said there.
+The per-sample accuracy figures of predicted maps (what validation logs and the benchmark
+reports: map and render RMSE, display renderings under the 6 evaluation views) are defined
+once, in :mod:`svbrdf_render.compare` (the renderer's package, so the photo tool and the
+metal/rough round trip use the same ones): import them from there.
 """
 
 from __future__ import annotations
@@ -12,9 +11,8 @@ from __future__ import annotations
 import math
 
 from svbrdf_render import DES18_DISTANCE, Scene
-from svbrdf_render.compare import METRIC_NAMES, display_rendering, map_rmse, per_sample_rmse, render_rmse
 
-__all__ = ["map_rmse", "render_rmse", "display_rendering", "per_sample_rmse", "preview_flash", "METRIC_NAMES"]
+__all__ = ["preview_flash"]
 
 
 def preview_flash(device=None) -> Scene:

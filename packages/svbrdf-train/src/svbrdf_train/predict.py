@@ -21,15 +21,16 @@ from pathlib import Path
 
 import torch
 
-from svbrdf_models.modelfile.files import is_model_file, load_model
+from svbrdf_models.modelfile.files import load_model
+from svbrdf_models.modelfile.modelcheck import is_model_file
 from svbrdf_models.modelfile.trained import TrainedModel
 
 from .errors import CheckpointError
 from .inference import load_generator
 from .training.checkpoint import load_checkpoint
-from .training.init import RUN_CHECKPOINT, download_run_checkpoint
+from .training.init import download_run_checkpoint
 
-__all__ = ["Predictor", "RUN_CHECKPOINT"]
+__all__ = ["Predictor"]
 
 
 @dataclass

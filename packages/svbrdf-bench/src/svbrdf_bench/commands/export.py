@@ -38,7 +38,7 @@ def export(parent_run_id, fmt, out):
       svbrdf-bench export 3f2a... --format latex -o table.tex
       svbrdf-bench export 3f2a... > table.md               # Markdown, printed
     """
-    from svbrdf_render.formats.files import write_text
+    from svbrdf_render.plumbing import write_text
 
     from ..report import build_report
     from ..report.export import check_format, export_table

@@ -97,7 +97,7 @@ class _Progress:
 
 
 def _write(out: Path, header: str, table: str, records: list[dict], meta: dict) -> list[Path]:
-    from svbrdf_render.formats.files import write_text
+    from svbrdf_render.plumbing import write_text
 
     from ..report import csv_text
 
@@ -153,7 +153,8 @@ def render(size, materials, repeats, backend, effects, quick, out, device, seed,
     Renders MATERIALS materials x 9 configurations (the training scene: 3 directional, 6 point
     lights) at SIZE x SIZE and prints a Markdown table, one row per way of rendering.
     """
-    from ..render_table import format_table, measure, to_records
+    from ..render_rows import format_table, to_records
+    from ..render_table import measure
 
     settings = _settings(size, materials, repeats, backend, quick)
     header, meta = _describe(settings, effects, seed, device)
@@ -250,7 +251,7 @@ def _tracker(settings: dict, effects: str, seed: int, experiment: str, meta: dic
 
 def _log(tracker, rows, files: list[Path], total: float) -> None:
     """Every measured figure as a metric (``fwd_ms/float32/eager/des18``...), and the files."""
-    from ..render_table import metric_key
+    from ..render_rows import metric_key
 
     metrics = {"total_s": total}
     for row in rows:

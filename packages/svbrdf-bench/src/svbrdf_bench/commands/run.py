@@ -288,13 +288,13 @@ def run(**flags):
 
 
 def _bench_options(flags: dict):
-    """The benchmark's :class:`~svbrdf_bench.runner.BenchOptions` from the command's flags;
+    """The benchmark's :class:`~svbrdf_bench.options.BenchOptions` from the command's flags;
     refuses a bad refinement budget, a reused run in the trash, and nothing to compare."""
     from ..errors import BenchError
     from ..inference import parse_latency_grid
+    from ..options import BASELINES, BenchOptions
     from ..presets import get_preset
     from ..refinement import RefinePlan, parse_budgets, parse_flash
-    from ..runner import BASELINES, BenchOptions
     from ..seeding import parse_seeds, train_budget
 
     refine = parse_budgets(flags["refine"])

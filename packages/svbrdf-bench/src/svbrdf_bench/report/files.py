@@ -1,7 +1,7 @@
 """The report folder: report.md (:func:`~svbrdf_bench.report.text.markdown`), results.json (every
 figure and word of the report, and the per-strip values), results.csv, costs.csv,
 against_mean.csv (:func:`csv_text`), the plots (:mod:`svbrdf_bench.plots`) and the comparison
-sheets. Every file is written whole or not at all (``svbrdf_render.formats.files``).
+sheets. Every file is written whole or not at all (``svbrdf_render.plumbing``).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import math
 import shutil
 from pathlib import Path
 
-from svbrdf_render.formats.files import atomic_output, write_text
+from svbrdf_render.plumbing import atomic_output, write_text
 
 from ..layout import SECONDS_PER_IMAGE
 from . import seeds, words

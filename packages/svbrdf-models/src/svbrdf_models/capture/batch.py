@@ -17,34 +17,24 @@ the photos done before it, marked ``"interrupted": true``).
 from __future__ import annotations
 
 import json
-import re
 import sys
 from pathlib import Path
 
-import torch
-
-from svbrdf_render.formats.files import locked, write_text
-
-from ..errors import DataError
-from ..progress import ProgressBar
+from svbrdf_render.plumbing import INTERRUPTED, ProgressBar, locked, write_text
 
 __all__ = [
     "HELP_SECTIONS",
-    "ProgressBar",
     "capture_batch",
     "check_material_folders",
     "set_threads",
     "rechoose_threads",
     "write_summary",
-    "write_summary",
     "folder_name",
     "help_text",
-    "load_scene",
-    "pick_device",
+    "folder_listing",
+    "folder_table",
+    "ALBEDO_NOTE",
 ]
-
-#: Exit status of an interrupted command (128 + SIGINT).
-INTERRUPTED = 130
 
 #: The ``--help`` paragraphs both photo commands share (``{refine}``: the command's --refine
 #: default; the limits are filled in by :func:`help_text`).
@@ -68,23 +58,8 @@ Squares or --map-size under {min_refine} px are refused. --backend auto (default
 photos from 512x512 up with the compiled renderer (it compiles first, seconds, and is then
 about 30% faster per step there) and smaller ones eagerly.""",
     """Each photo gets a material folder DIR/NAME/, every image tagged with its encoding
-(PNG cICP/sRGB/gAMA chunks) and listed in material.json:
-  basecolor.png   metal/rough base colour, sRGB      metallic.png   metalness, linear
-  roughness.png   linear; GGX alpha = roughness^2     metallic_roughness.png  glTF packing
-  normal.png      tangent space, (n+1)/2, OpenGL y up (--normal dx: DirectX, green flipped;
-                  then normal_opengl.png too, for the material files)
-  diffuse.png     the project's diffuse albedo, sRGB (--linear or --albedo-encoding linear:
-  specular.png    as Des18 stores them); specular albedo (F0), encoded like diffuse.png
-  *.exr           with --exr: the maps as linear half floats
-  material.json   maps, encodings, normal convention, units, BRDF, model, refinement, photo
-  material.gltf   glTF 2.0 textured plane (metal/rough), for Blender, game engines, the web
-  material.mtlx   MaterialX document of the same material
-  index.html      viewer: the material under a light that follows the mouse (no network)
-  input.png       the square the maps are of (sRGB)
-  rerender.png    photo | re-rendering under the fitted flash | |error| heat map; refined:
-                  photo | network's | refined re-rendering | both heat maps, one flash
-  relit.gif       a point light circling the material (--relit png: a grid, refined: a row
-                  per version; none: skipped)
+(PNG cICP/sRGB/gAMA chunks) and listed in material.json; a file marked [OPTION] only with it:
+{folder}
 --tileable makes opposite edges match (material.json: seam error before and after). A
 folder that holds another photo's material is refused before any work; the same photo's
 is replaced. DIR/summary.json holds, per photo, the status, notes, the re-rendering RMSE
@@ -110,38 +85,57 @@ def help_text(refine: int, *, click: bool = False) -> str:
     """:data:`HELP_SECTIONS` filled in; ``click``: each paragraph kept as written (``\\b``)."""
     from svbrdf_render import MIN_REFINE_SIDE
 
-    from .one import MAX_PIXELS, MIN_SIDE
+    from .photos import MAX_PIXELS, MIN_SIDE
     from .refining import DEFAULT_MAP_SIZE
 
     limits = {"min_refine": MIN_REFINE_SIDE, "min_side": MIN_SIDE, "megapixels": MAX_PIXELS // 1_000_000,
               "map_size": DEFAULT_MAP_SIZE}  # fmt: skip
-    parts = [p.format(refine=refine, **limits) for p in HELP_SECTIONS]
+    parts = [p.format(refine=refine, folder=folder_listing(), **limits) for p in HELP_SECTIONS]
     return "\n\n".join(f"\b\n{p}" if click else p for p in parts)
 
 
-def pick_device(name: str, local_rank: int = 0) -> torch.device:
-    """``auto`` (CUDA when there is one), ``cpu``, ``cuda`` or ``cuda:K``; ``cuda`` takes the GPU
-    of ``local_rank`` (under torchrun). A device this machine lacks is a :class:`DataError`."""
-    if name == "auto":
-        name = "cuda" if torch.cuda.is_available() else "cpu"
-    if name == "cuda" or re.fullmatch(r"cuda:[0-9]+", name):
-        if not torch.cuda.is_available():
-            raise DataError(f"--device {name}: this torch sees no CUDA GPU; use --device cpu")
-        count = torch.cuda.device_count()
-        if name == "cuda":
-            name = f"cuda:{local_rank % count}"
-        elif int(name[5:]) >= count:
-            raise DataError(f"--device {name}: this machine has {count} GPU(s), cuda:0 to cuda:{count - 1}")
-    elif name != "cpu":
-        raise DataError(f"--device {name!r}: expected auto, cpu, cuda or cuda:K")
-    return torch.device(name)
+# -- the material folder as people read it: made from its declaration (material.FOLDER) ----------
+
+#: How the listings show an encoding; "albedo" is said under them (:data:`ALBEDO_NOTE`).
+_SHOWN = {"srgb": "sRGB", "linear": "linear", "albedo": "sRGB*", "": ""}
+ALBEDO_NOTE = "*sRGB unless --albedo-encoding linear (the default with --linear), as Des18 stores them"
+_NORMAL_SHOWN = "opengl (y up; --normal dx: directx, green flipped)"
+
+
+def _rows() -> list[tuple[str, str, str, str]]:
+    """``(name, encoding, holds, when)`` of each file the folder may hold, as the listings show them."""
+    from .material import FOLDER, WHEN
+
+    return [(f.name, _SHOWN[f.encoding], f.holds.format(normal=_NORMAL_SHOWN), WHEN[f.when][0])
+            for f in FOLDER]  # fmt: skip
+
+
+def folder_listing() -> str:
+    """The material folder in ``predict --help``: a line per file (wrapped), then the albedo note."""
+    import textwrap
+
+    lines = []
+    for name, encoding, holds, when in _rows():
+        text = f"{holds} [{when}]" if when != "always" else holds
+        first = f"  {name:<22} {encoding:<7} "
+        lines += textwrap.wrap(text, 92, initial_indent=first, subsequent_indent=" " * len(first))
+    return "\n".join([*lines, f"  {ALBEDO_NOTE}"])
+
+
+def folder_table() -> str:
+    """The material folder as docs/capture.md shows it: a Markdown table, then the albedo note."""
+    lines = ["| file | encoding | holds | written |", "| --- | --- | --- | --- |"]
+    for name, encoding, holds, when in _rows():
+        cell = holds.replace("|", "\\|")  # a bare bar would end the cell
+        lines.append(f"| `{name}` | {encoding} | {cell} | {when} |")
+    return "\n".join([*lines, "", ALBEDO_NOTE.replace("*", "\\*", 1)])
 
 
 def set_threads(requested: int | None):
-    """Choose and set the torch threads (:func:`svbrdf_render.machine.choose_threads`: one per
+    """Choose and set the torch threads (:func:`svbrdf_render.plumbing.choose_threads`: one per
     free core unless ``requested``); say so on stderr, and at the end of every progress line
-    when the machine is busy. Returns the :class:`~svbrdf_render.machine.ThreadChoice`."""
-    from svbrdf_render.machine import choose_threads
+    when the machine is busy. Returns the :class:`~svbrdf_render.plumbing.ThreadChoice`."""
+    from svbrdf_render.plumbing import choose_threads
 
     global _CHOICE
     choice = _CHOICE = choose_threads(requested)
@@ -166,7 +160,7 @@ def rechoose_threads(prog: str) -> None:
     gets busy half-way through a batch would otherwise keep threads spinning for cores that
     another program holds (a 3.5 s refinement took 42-181 s). A change is said in one line."""
     global _CHOICE
-    from svbrdf_render.machine import choose_threads
+    from svbrdf_render.plumbing import choose_threads
 
     if _CHOICE is None or _CHOICE.source != "free cores":
         return
@@ -175,20 +169,6 @@ def rechoose_threads(prog: str) -> None:
         print(f"{prog}: now {choice.describe()}", file=sys.stderr, flush=True)
     _CHOICE = choice
     _busy_note(choice)
-
-
-def load_scene(path):
-    """A scene file for refinement, refused (one line naming it) when it is not one camera and
-    one view (the shapes :func:`svbrdf_render.refine_maps` takes for one photo)."""
-    from svbrdf_render import Scene, SceneError, SVBRDFError
-
-    from .refining import check_scene
-
-    scene = Scene.load(path)  # a SceneError naming the file when it cannot be read or parsed
-    try:
-        return check_scene(scene)
-    except SVBRDFError as e:
-        raise SceneError(f"--scene {path}: {e}") from None
 
 
 def folder_name(path: Path, used: set[str]) -> str:
@@ -218,18 +198,14 @@ def check_material_folders(photos, out: Path) -> None:
             check_material_folder(Path(out) / name, path)
 
 
-def capture_batch(
-    predictor, photos, out: Path, options, *, prog: str, summary: dict, checked: bool = False
-) -> int:
+def capture_batch(predictor, photos, out: Path, options, *, prog: str, summary: dict) -> int:
     """Capture each photo into ``out/NAME``, write ``out/summary.json`` (with ``summary``'s
-    fields), print the table; the exit status (see the module). The photos' folders are checked
-    once (:func:`check_material_folders`), here unless ``checked`` (the commands check them
-    before the model loads)."""
-    from svbrdf_render.formats.files import sigterm_as_interrupt
+    fields), print the table; the exit status (see the module). A photo whose folder holds
+    another material fails at its writing (the commands refuse it before the model loads:
+    :func:`check_material_folders`)."""
+    from svbrdf_render.plumbing import sigterm_as_interrupt
 
     out = Path(out)
-    if not checked:
-        check_material_folders(photos, out)
     with sigterm_as_interrupt():  # SIGTERM (kill, a scheduler) stops the batch as Ctrl-C does
         entries, stopped = _capture_all(predictor, photos, out, options, prog)
     if stopped == INTERRUPTED:
@@ -259,7 +235,7 @@ def _capture_all(predictor, photos, out: Path, options, prog: str):
     """Capture each photo into its own folder of ``out``; the summary entries, and what stopped the
     batch (None: every photo was tried; an OutputError; or INTERRUPTED). A photo that fails is
     reported and skipped; a file that cannot be written stops the photos after it. An interrupt
-    (Ctrl-C, or SIGTERM under :func:`~svbrdf_render.formats.files.sigterm_as_interrupt`) is caught
+    (Ctrl-C, or SIGTERM under :func:`~svbrdf_render.plumbing.sigterm_as_interrupt`) is caught
     wherever it lands, between photos too: the entries of the photos done are kept."""
     entries: list[dict] = []
     now: dict = {}  # the photo in progress and its bar, for an interrupt wherever it lands
@@ -277,7 +253,7 @@ def _capture_all(predictor, photos, out: Path, options, prog: str):
 def _stoppable(bar: ProgressBar):
     """The refinement's ``callback(step, total, loss)``: ``bar`` drawn, and a stop that a signal
     asked for but whose interrupt was lost taken at the next step."""
-    from svbrdf_render.formats.files import raise_if_interrupted
+    from svbrdf_render.plumbing import raise_if_interrupted
 
     def callback(step: int, total: int, loss: float) -> None:
         raise_if_interrupted()
@@ -291,12 +267,12 @@ def _capture_each(predictor, photos, out: Path, options, prog: str, entries: lis
     photo in progress; what stopped the batch (None, or the OutputError of a failed write)."""
     from svbrdf_render import SVBRDFError
     from svbrdf_render.errors import OutputError
-    from svbrdf_render.formats.files import raise_if_interrupted
+    from svbrdf_render.plumbing import raise_if_interrupted
 
     from .one import capture_one
 
     from .flashpoint import flash_line
-    from .material import model_record
+    from .record import model_record
 
     used: set[str] = set()
     made = model_record(predictor)  # in each entry as SOURCE@SHA12: which model, briefly
@@ -311,7 +287,7 @@ def _capture_each(predictor, photos, out: Path, options, prog: str, entries: lis
         _announce_cost(path, options, prog)
         bar = now["bar"] = ProgressBar(path.name)
         try:
-            entry = capture_one(predictor, path, out / name, options, progress=_stoppable(bar), checked=True)
+            entry = capture_one(predictor, path, out / name, options, progress=_stoppable(bar))
         except OutputError as e:  # the disk, not the photo: the photos after it would fail alike
             bar.close()
             print(f"{prog}: error: {e}", file=sys.stderr)

@@ -313,15 +313,15 @@ def capture_calibrated(predictor, folder, out_dir, options, *, use: list[int] | 
     """Capture the calibrated set in ``folder`` (or the pair :func:`read_calibrated` gave) into
     the material folder ``out_dir`` (see the module); material.json's content. ``options`` is a
     :class:`~svbrdf_models.capture.one.CaptureOptions` (the maps' files, the refinement's
-    budget); ``use`` the views refined against (default all); ``holdout`` judges the others."""
-    from .material import MaterialContent, check_material_folder, write_material
+    budget); ``use`` the views refined against (default all); ``holdout`` judges the others. A
+    folder that holds another material is refused by the writer (``predict --calibrated``
+    refuses it before the model loads)."""
+    from .material import MaterialContent, write_material
 
     began = time.monotonic()  # --refine-seconds covers the whole capture from here
     check_options(options)
     cal, photos = folder if isinstance(folder, tuple) else read_calibrated(folder, linear=options.linear)
     used = check_views(use, len(cal.files), holdout)
-    sha = cal.sha256()
-    check_material_folder(out_dir, cal.folder, sha256=sha)
     size = _map_size(photos.shape[-1], options)
     if options.refine and size < MIN_REFINE_SIDE:
         raise DataError(f"--calibrated {cal.folder}: maps of {size} px are too few pixels to refine "
@@ -339,7 +339,7 @@ def capture_calibrated(predictor, folder, out_dir, options, *, use: list[int] | 
                             began=began)
     refined = result.svbrdf.to("cpu")
     judged = judge(small, [cal.scene(i) for i in range(len(cal.files))], network, refined)
-    record = _record(predictor, cal, sha, options, size, used, frontal, judged, result)
+    record = _record(predictor, cal, cal.sha256(), options, size, used, frontal, judged, result)
     figure, relit = _figure(cal, small, judged, used), relit_preview(network, refined, options)
     write_material(out_dir, refined, MaterialContent(small[frontal], figure, relit, record), options)
     return record
@@ -347,7 +347,7 @@ def capture_calibrated(predictor, folder, out_dir, options, *, use: list[int] | 
 
 def _record(predictor, cal, sha, options, size, used, frontal, judged: Judged, result) -> dict:
     """material.json's fields that the calibrated capture knows."""
-    from .material import model_record, provenance
+    from .record import model_record, provenance
 
     mean = finite(sum(judged.rmse[i] for i in used) / len(used))
     return {

@@ -58,7 +58,8 @@ MIN_WINDOW_CM, MAX_WINDOW_CM, WINDOW_STEP_CM = 4.0, 14.0, 0.5
 #: (one marker has them), but a 2 cm marker extrapolated over a 10 cm window multiplies its
 #: corners' error about five times, and with three markers around the window one that is
 #: misread is outvoted.
-MARKERS_PER_FRAME, MIN_MARKERS = 8, 3
+MARKERS_PER_FRAME = 8
+MIN_MARKERS = 3
 #: The dictionary's name in cv2.aruco, and how many codes it has.
 DICTIONARY, DICTIONARY_SIZE = "DICT_APRILTAG_36h11", 587
 #: Resolution of the drawn sheet unless told otherwise (dots per inch).
@@ -370,7 +371,7 @@ def write_frame(path: str | os.PathLike, layout: FrameLayout, dpi: int = DEFAULT
     """Draw the frame and write it to ``path`` (``.pdf`` or ``.png``) at its true physical size:
     the PDF's page is the paper (points = pixels / dpi * 72), the PNG carries ``dpi``. Written
     atomically: on a failure the file is as it was."""
-    from svbrdf_render.formats.files import atomic_output
+    from svbrdf_render.plumbing import atomic_output
 
     path = Path(path)
     suffix = path.suffix.lower()

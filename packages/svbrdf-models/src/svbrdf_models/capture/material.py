@@ -2,49 +2,38 @@
 
 One folder per photo, written whole or not at all (staged in a temporary folder beside it,
 then moved in), with every image saying its encoding inside the file (PNG colour chunks,
-:func:`svbrdf_render.write_image`) and in ``material.json``:
+:func:`svbrdf_render.write_image`) and in ``material.json``.
 
-==========================  ========  ===========================================================
-file                        encoding  holds
-==========================  ========  ===========================================================
-``basecolor.png``           sRGB      metal/rough base colour (:mod:`svbrdf_render.metalrough`)
-``metallic.png``            linear    metalness, grey
-``roughness.png``           linear    perceptual roughness, grey; GGX alpha = roughness^2
-``metallic_roughness.png``  linear    glTF's packing: G roughness, B metallic (R 0)
-``normal.png``              linear    tangent-space normal stored (n+1)/2; OpenGL (+Y up) unless
-                                      ``directx`` (green flipped); then ``normal_opengl.png``
-                                      too, for the material files
-``diffuse.png``             sRGB      the project's diffuse albedo (``linear``: as Des18 stores it)
-``specular.png``            sRGB      the project's specular albedo (F0), encoded like diffuse
-``*.exr``                   linear    with ``exr``: the same maps as half floats
-``material.json``                     this table, conventions, BRDF, model, refinement, provenance
-``material.gltf``                     glTF 2.0: a textured plane, metal/rough PBR material
-``material.mtlx``                     MaterialX document of the same material
-``index.html``                        viewer: the material under a light that follows the mouse
-``input.png``, ``rerender.png``, ``relit.gif``: the photo's square, its re-rendering, a relit preview
-==========================  ========  ===========================================================
+The files are declared once, in :data:`FOLDER` (name, encoding, what it holds, when it is
+written, where material.json lists it, its writer): the writer (:func:`write_material`) writes
+exactly the files declared for the options given, and material.json's lists, the ``predict
+--help`` listing and docs/capture.md's table (:mod:`svbrdf_models.capture.batch`) are made from
+it. A new file is an entry and its writer here, and the docs table printed again.
 
-A folder that already holds another material (a ``material.json`` of another photo, or maps
-and no ``material.json``) is refused before any work (:func:`check_material_folder`): rerunning
-the same photo replaces its own files and leaves anything else there alone.
+material.json, written last, is built by :mod:`svbrdf_models.capture.record` from the capture's
+fields and the files written.
+
+A folder that holds another material (a ``material.json`` of another photo, or maps and no
+``material.json``) is refused (:func:`check_material_folder`) by the command before the model
+loads and by the writer, where the check and the move are one step under a lock. Rerunning the
+same photo replaces its own files and leaves anything else there alone.
 """
 
 from __future__ import annotations
 
-import datetime
-import hashlib
 import json
 import os
 import shutil
 import unicodedata
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
 from torch import Tensor
 
 from svbrdf_render import SVBRDF, encode_normal, linear_to_srgb, write_image
-from svbrdf_render.formats.files import (
+from svbrdf_render.plumbing import (
     atomic_output,
     locked,
     replace_folder,
@@ -54,47 +43,26 @@ from svbrdf_render.formats.files import (
 )
 
 from ..errors import DataError
+from .record import MATERIAL_FORMAT, material_record, photo_sha256
 
 __all__ = [
+    "FOLDER",
+    "FolderFile",
     "MATERIAL_FILES",
-    "MATERIAL_FORMAT",
     "MaterialContent",
+    "WHEN",
     "check_material_folder",
-    "model_record",
-    "photo_sha256",
     "to_directx",
     "write_gif",
     "write_material",
+    "written",
 ]
-
-MATERIAL_FORMAT = "svbrdf-material"
-MATERIAL_VERSION = 1
-
-#: Every file name a material folder may hold (what a rerun replaces).
-MATERIAL_FILES = (
-    "basecolor.png", "metallic.png", "roughness.png", "metallic_roughness.png", "normal.png",
-    "normal_opengl.png", "diffuse.png", "specular.png", "basecolor.exr", "metallic.exr",
-    "roughness.exr", "normal.exr", "diffuse.exr", "specular.exr", "material.json", "material.gltf",
-    "material.mtlx", "index.html", "input.png", "rerender.png", "relit.gif", "relit.png",
-)  # fmt: skip
-_MAP_FILES = ("normal.png", "diffuse.png", "roughness.png", "specular.png", "basecolor.png")
 
 _NORMAL_NOTES = {
     "opengl": "svbrdf normal map: tangent space, OpenGL convention (+X right, +Y up = image top), "
     "stored (n+1)/2, linear",
     "directx": "svbrdf normal map: tangent space, DirectX convention (+X right, +Y down = green "
     "flipped), stored (n+1)/2, linear",
-}
-
-#: What material.json says about the BRDF the maps are for.
-BRDF = {
-    "model": "des18",
-    "formula": "f = d (1 - s) / pi + F(v.h) D(n.h) V / 4",
-    "distribution": "GGX, alpha = 0.001 + 0.999 roughness^2",
-    "masking": "Schlick-GGX, k = alpha / 2",
-    "fresnel": "Schlick, spherical-Gaussian form, F0 = specular",
-    "metal_rough": "glTF 2.0 metal/rough: F0 = mix(0.04, basecolor, metallic), diffuse colour "
-    "basecolor (1 - metallic); converted from diffuse/specular by svbrdf_render.metalrough",
 }
 
 
@@ -104,23 +72,6 @@ def to_directx(normal: Tensor) -> Tensor:
     Its own inverse. Stored as ``(n + 1) / 2``, this is the green channel ``g -> 1 - g``.
     """
     return normal * normal.new_tensor([1.0, -1.0, 1.0]).view(1, 3, 1, 1)
-
-
-def photo_sha256(path) -> str:
-    """The SHA-256 of the photo file: the material's identity in ``material.json``."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
-def _read_json(path: Path) -> dict | None:
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) else None
 
 
 def check_material_folder(folder, photo: Path, flag: str = "-o", *, sha256: str | None = None) -> None:
@@ -138,8 +89,11 @@ def check_material_folder(folder, photo: Path, flag: str = "-o", *, sha256: str 
         return
     record = folder / "material.json"
     if record.is_file():
-        data = _read_json(record)
-        if data is None or data.get("format") != MATERIAL_FORMAT:
+        try:
+            data = json.loads(record.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            data = None
+        if not isinstance(data, dict) or data.get("format") != MATERIAL_FORMAT:
             raise DataError(
                 f"{flag} {folder}: its material.json is not an svbrdf material record; choose "
                 "another output folder or remove it"
@@ -178,106 +132,227 @@ class MaterialContent:
     record: dict
 
 
-#: Maps that get an OpenEXR copy with ``exr`` (linear values; the normal stored as in its PNG).
-_EXR_MAPS = ("basecolor", "metallic", "roughness", "normal", "diffuse", "specular")
-
-
 @dataclass(frozen=True)
 class _Map:
-    stem: str
     stored: Tensor  # (C, H, W) the PNG's values
-    encoding: str
-    holds: str
     linear: Tensor  # (C, H, W) the same map's linear values (its EXR copy)
 
 
-def _maps(svbrdf: SVBRDF, options) -> list[_Map]:
-    """Every map of the folder, in the encodings ``options`` ask for."""
+def _maps(svbrdf: SVBRDF, options) -> dict[str, _Map]:
+    """The values of every map of the folder by name, in the normal convention ``options`` ask for
+    (the albedos linear: their PNGs encode them as declared)."""
     from svbrdf_render.metalrough import to_metal_rough
 
     svbrdf = svbrdf.detach().to("cpu", torch.float32)
     mr = to_metal_rough(svbrdf)
     normal = svbrdf.normal
     stored = encode_normal((to_directx(normal) if options.normal_convention == "directx" else normal)[0])
-    albedo = options.albedo_encoding
-    encode = linear_to_srgb if albedo == "srgb" else (lambda x: x)
-    base, metal, rough = mr.basecolor[0], mr.metallic[0], svbrdf.roughness[0]
+    base, metal = mr.basecolor[0], mr.metallic[0]
     packed = torch.cat([torch.zeros_like(metal), mr.roughness[0], metal])
-    maps = [
-        _Map("basecolor", linear_to_srgb(base), "srgb", "metal/rough base colour", base),
-        _Map("metallic", metal, "linear", "metalness", metal),
-        _Map("roughness", rough, "linear", "perceptual roughness (GGX alpha = roughness^2)", rough),
-        _Map("metallic_roughness", packed, "linear", "glTF packing: G roughness, B metallic", packed),
-        _Map("normal", stored, "linear", f"tangent-space normal, {options.normal_convention}", stored),
-        _Map("diffuse", encode(svbrdf.diffuse[0]), albedo, "diffuse albedo (des18)", svbrdf.diffuse[0]),
-        _Map("specular", encode(svbrdf.specular[0]), albedo, "specular albedo, F0 (des18)",
-             svbrdf.specular[0]),
-    ]  # fmt: skip
-    if options.normal_convention == "directx":
-        gl = encode_normal(normal[0])
-        maps.append(_Map("normal_opengl", gl, "linear", "tangent-space normal, opengl", gl))
-    return maps
+    gl = encode_normal(normal[0])
+    return {
+        "basecolor": _Map(linear_to_srgb(base), base), "metallic": _Map(metal, metal),
+        "roughness": _Map(svbrdf.roughness[0], svbrdf.roughness[0]),
+        "metallic_roughness": _Map(packed, packed), "normal": _Map(stored, stored),
+        "diffuse": _Map(svbrdf.diffuse[0], svbrdf.diffuse[0]),
+        "specular": _Map(svbrdf.specular[0], svbrdf.specular[0]), "normal_opengl": _Map(gl, gl),
+    }  # fmt: skip
+
+
+@dataclass
+class _Made:
+    """What the writers of one folder share; ``listed``: material.json's entries of the maps written."""
+
+    svbrdf: SVBRDF
+    content: MaterialContent
+    options: object  # a CaptureOptions
+    maps: dict[str, _Map]
+    listed: dict[str, dict] = field(default_factory=dict)
+    record: dict | None = None
+
+    def encoding(self, f: FolderFile) -> str:
+        """The encoding ``f`` is written in for these options."""
+        return self.options.albedo_encoding if f.encoding == "albedo" else f.encoding
+
+    def holds(self, f: FolderFile) -> str:
+        """What ``f`` holds, the normal convention of these options said."""
+        return f.holds.format(normal=self.options.normal_convention)
+
+
+def _png_map(path: Path, f: FolderFile, made: _Made) -> dict:
+    """A map's PNG, its encoding and what it holds told in the file (a normal: its convention)."""
+    m, encoding, holds, bits = made.maps[path.stem], made.encoding(f), made.holds(f), made.options.bits
+    stored = linear_to_srgb(m.stored) if f.encoding == "albedo" and encoding == "srgb" else m.stored
+    if path.stem.startswith("normal"):
+        note = _NORMAL_NOTES[made.options.normal_convention if path.stem == "normal" else "opengl"]
+    else:
+        note = f"svbrdf {holds}, {encoding}"
+    write_image(path, stored, bits=bits, encoding=encoding, note=note)
+    return {"file": f.name, "encoding": encoding, "bits": bits, "channels": int(stored.shape[0]),
+            "holds": holds}  # fmt: skip
+
+
+def _exr_map(path: Path, f: FolderFile, made: _Made) -> dict:
+    """A map's OpenEXR copy: its linear values (the normal as stored) in half floats."""
+    from svbrdf_render.formats.mapfiles import write_exr
+
+    m = made.maps[path.stem]
+    write_exr(path, m.linear)
+    return {"file": f.name, "encoding": "linear", "bits": "half float", "channels": int(m.linear.shape[0]),
+            "holds": made.holds(f)}  # fmt: skip
+
+
+def _image(path: Path, f: FolderFile, made: _Made) -> None:
+    """input.png (the photo's square, linear: encoded and noted), rerender.png or relit.png
+    (display values, as they are)."""
+    if path.stem == "input":
+        write_image(path, linear_to_srgb(made.content.photo), bits=made.options.bits, encoding=f.encoding,
+                    note=f"svbrdf: {f.holds}")  # fmt: skip
+    else:
+        shown = made.content.figure if path.stem == "rerender" else made.content.relit
+        write_image(path, shown, encoding=f.encoding)
+
+
+def _gif(path: Path, f: FolderFile, made: _Made) -> None:
+    write_gif(path, made.content.relit)
+
+
+def _gl_normal(made: _Made) -> str:
+    """The OpenGL normal map the material files take (glTF and MaterialX know no other)."""
+    return "normal_opengl.png" if made.options.normal_convention == "directx" else "normal.png"
+
+
+def _gltf(path: Path, f: FolderFile, made: _Made) -> None:
+    from svbrdf_render.formats import write_gltf
+
+    write_gltf(path, basecolor="basecolor.png", normal=_gl_normal(made),
+               metallic_roughness="metallic_roughness.png", name=_name(made),
+               extras={"svbrdf": "material.json"})  # fmt: skip
+
+
+def _mtlx(path: Path, f: FolderFile, made: _Made) -> None:
+    from svbrdf_render.formats import write_materialx
+
+    write_materialx(path, basecolor="basecolor.png", metallic="metallic.png", roughness="roughness.png",
+                    normal=_gl_normal(made), name=_mtlx_name(_name(made)))  # fmt: skip
+
+
+def _viewer(path: Path, f: FolderFile, made: _Made) -> None:
+    from svbrdf_render.viewer import write_viewer
+
+    flash = made.content.record.get("flash") or {}
+    intensity = flash.get("intensity")
+    write_viewer(path, made.svbrdf.detach().to("cpu", torch.float32), title=_name(made),
+                 intensity=intensity if isinstance(intensity, (int, float)) and intensity > 0 else None,
+                 light=_above(flash.get("position")), shots=_shot_lights(made.content.record))  # fmt: skip
+
+
+def _name(made: _Made) -> str:
+    return made.content.record.get("name") or "svbrdf material"
+
+
+def _record(path: Path, f: FolderFile, made: _Made) -> None:
+    """material.json, the last file (:func:`~svbrdf_models.capture.record.material_record`): the
+    capture's fields, the maps written, and every other file it lists (None: not written)."""
+    others, now = [g for g in FOLDER if g.listed.startswith("files.")], written(made.options)
+    files = {g.listed.removeprefix("files."): None for g in others}
+    files.update({g.listed.removeprefix("files."): g.name for g in others if g in now})
+    made.record = material_record(made.content.record, made.listed, files, made.options.normal_convention)
+    write_text(path, json.dumps(made.record, indent=2) + "\n")
+
+
+@dataclass(frozen=True)
+class FolderFile:
+    """One file of the material folder, as :data:`FOLDER` declares it.
+
+    Attributes:
+        name: the file's name in the folder.
+        encoding: how the image stores its values: ``"srgb"``, ``"linear"``, ``"albedo"`` (as
+            the options' ``albedo_encoding`` says), or ``""`` for a file that is no image.
+        holds: what it holds: a map's ``holds`` in material.json and its PNG's note;
+            ``{normal}`` stands for the normal convention.
+        when: the key of :data:`WHEN` that says when it is written.
+        listed: where material.json lists it (``maps.KEY``, ``files.KEY``; ``""``: material.json).
+        make: its writer, ``make(path, file, made)``: material.json's entry of a map, else None.
+    """
+
+    name: str
+    encoding: str
+    holds: str
+    when: str
+    listed: str
+    make: Callable[[Path, FolderFile, _Made], dict | None]
+
+
+#: When a file is written: the options' words (help, docs) and the test of the options.
+WHEN: dict[str, tuple[str, Callable[[object], bool]]] = {
+    "always": ("always", lambda o: True),
+    "exr": ("--exr", lambda o: o.exr),
+    "dx": ("--normal dx", lambda o: o.normal_convention == "directx"),
+    "gif": ("--relit gif (default)", lambda o: o.relit == "gif"),
+    "png": ("--relit png", lambda o: o.relit == "png"),
+}
+
+
+def _map(stem: str, encoding: str, holds: str, exr: bool = True) -> tuple[FolderFile, ...]:
+    """A map's PNG and, with ``exr``, its OpenEXR copy (linear half floats, the normal as stored)."""
+    png = FolderFile(f"{stem}.png", encoding, holds, "always", f"maps.{stem}", _png_map)
+    copy = FolderFile(f"{stem}.exr", "linear", holds, "exr", f"maps.{stem}_exr", _exr_map)
+    return (png, copy) if exr else (png,)
+
+
+#: The material folder, every file it may hold, in the order they are written (material.json
+#: last: it lists the others).
+FOLDER: tuple[FolderFile, ...] = (
+    *_map("basecolor", "srgb", "metal/rough base colour"),
+    *_map("metallic", "linear", "metalness"),
+    *_map("roughness", "linear", "perceptual roughness (GGX alpha = roughness^2)"),
+    *_map("metallic_roughness", "linear", "glTF packing: G roughness, B metallic", exr=False),
+    *_map("normal", "linear", "tangent-space normal, {normal}"),
+    *_map("diffuse", "albedo", "diffuse albedo (des18)"),
+    *_map("specular", "albedo", "specular albedo, F0 (des18)"),
+    FolderFile("normal_opengl.png", "linear", "tangent-space normal, opengl", "dx", "maps.normal_opengl",
+               _png_map),
+    FolderFile("material.gltf", "", "glTF 2.0: a square plane of side 2 facing +Z, metal/rough material, "
+               "repeat sampler", "always", "files.gltf", _gltf),
+    FolderFile("material.mtlx", "", "MaterialX 1.38 document of the same material (gltf_pbr shader)",
+               "always", "files.materialx", _mtlx),
+    FolderFile("index.html", "", "the viewer: the material under a light that follows the mouse (no network)",
+               "always", "files.viewer", _viewer),
+    FolderFile("input.png", "srgb", "the square of the photo the maps are of", "always", "files.input",
+               _image),
+    FolderFile("rerender.png", "srgb", "photo | re-rendering under the fitted flash | |error| heat map; "
+               "refined: the network's and the refined maps', one flash", "always", "files.rerender", _image),
+    FolderFile("relit.gif", "srgb", "a point light circling the material", "gif", "files.relit", _gif),
+    FolderFile("relit.png", "srgb", "the relit frames as a grid (refined: a row per version)", "png",
+               "files.relit", _image),
+    FolderFile("material.json", "", "the maps with their encodings, normal convention, units, BRDF, "
+               "model (source, sha256, steps), refinement (budget, steps, seconds, RMSEs), photo (name, "
+               "sha256, crop), geometry (where the camera stood, and from what), flash (where, how it was "
+               "placed, the highlight found), metal, seam errors, package versions, time", "always", "",
+               _record),
+)  # fmt: skip
+
+#: Every file name a material folder may hold (what a rerun replaces).
+MATERIAL_FILES = tuple(f.name for f in FOLDER)
+#: The maps whose presence marks a material (with or without its material.json).
+_MAP_FILES = tuple(f.name for f in FOLDER if f.listed.startswith("maps.") and f.name.endswith(".png"))
+
+
+def written(options) -> list[FolderFile]:
+    """The files of :data:`FOLDER` a capture with ``options`` writes, in order."""
+    return [f for f in FOLDER if WHEN[f.when][1](options)]
 
 
 def _write_all(stage: Path, svbrdf: SVBRDF, content: MaterialContent, options) -> dict:
-    """Every file of the material into ``stage``; returns material.json's content."""
-    from svbrdf_render.formats.mapfiles import write_exr
-    from svbrdf_render.formats.materialfiles import write_gltf, write_materialx
-    from svbrdf_render.viewer import write_viewer
-
-    bits = options.bits
-    files: dict[str, dict] = {}
-    for m in _maps(svbrdf, options):
-        convention = options.normal_convention if m.stem == "normal" else "opengl"
-        note = _NORMAL_NOTES[convention] if m.stem.startswith("normal") else f"svbrdf {m.holds}, {m.encoding}"
-        write_image(stage / f"{m.stem}.png", m.stored, bits=bits, encoding=m.encoding, note=note)
-        files[m.stem] = {"file": f"{m.stem}.png", "encoding": m.encoding, "bits": bits,
-                         "channels": int(m.stored.shape[0]), "holds": m.holds}  # fmt: skip
-        if options.exr and m.stem in _EXR_MAPS:
-            write_exr(stage / f"{m.stem}.exr", m.linear)
-            files[f"{m.stem}_exr"] = {"file": f"{m.stem}.exr", "encoding": "linear", "bits": "half float",
-                                      "channels": int(m.linear.shape[0]), "holds": m.holds}  # fmt: skip
-    write_image(stage / "input.png", linear_to_srgb(content.photo), bits=bits, encoding="srgb",
-                note="svbrdf: the square of the photo the maps are of")  # fmt: skip
-    write_image(stage / "rerender.png", content.figure, encoding="srgb")
-    if options.relit == "gif":
-        write_gif(stage / "relit.gif", content.relit)
-    elif options.relit == "png":
-        write_image(stage / "relit.png", content.relit, encoding="srgb")
-    gl_normal = "normal_opengl.png" if options.normal_convention == "directx" else "normal.png"
-    name = content.record.get("name") or "svbrdf material"
-    write_gltf(stage / "material.gltf", basecolor="basecolor.png", normal=gl_normal,
-               metallic_roughness="metallic_roughness.png", name=name,
-               extras={"svbrdf": "material.json"})  # fmt: skip
-    write_materialx(stage / "material.mtlx", basecolor="basecolor.png", metallic="metallic.png",
-                    roughness="roughness.png", normal=gl_normal, name=_mtlx_name(name))  # fmt: skip
-    flash = content.record.get("flash") or {}
-    intensity = flash.get("intensity")
-    write_viewer(stage / "index.html", svbrdf.detach().to("cpu", torch.float32), title=name,
-                 intensity=intensity if isinstance(intensity, (int, float)) and intensity > 0 else None,
-                 light=_above(flash.get("position")), shots=_shot_lights(content.record))  # fmt: skip
-    record = {
-        "format": MATERIAL_FORMAT,
-        "version": MATERIAL_VERSION,
-        **content.record,
-        "maps": files,
-        "normal": {
-            "convention": options.normal_convention,
-            "space": "tangent space of the plane: +X image right, +Y image up (opengl; directx: "
-            "down), +Z out of the surface",
-            "stored": "(n + 1) / 2 per channel",
-        },
-        "units": {
-            "patch": "the maps span a square of side 2 (x, y in [-1, 1], z = 0 the surface)",
-            "values": "maps in [0, 1]; albedos are reflectances, roughness is perceptual",
-        },
-        "brdf": BRDF,
-        "files": {"gltf": "material.gltf", "materialx": "material.mtlx", "viewer": "index.html",
-                  "input": "input.png", "rerender": "rerender.png",
-                  "relit": {"gif": "relit.gif", "png": "relit.png"}.get(options.relit)},  # fmt: skip
-    }
-    write_text(stage / "material.json", json.dumps(record, indent=2) + "\n")
-    return record
+    """Each file :data:`FOLDER` declares for ``options`` into ``stage``, by its writer; returns
+    material.json's content."""
+    made = _Made(svbrdf, content, options, _maps(svbrdf, options))
+    for f in written(options):
+        entry = f.make(stage / f.name, f, made)
+        if entry is not None:
+            made.listed[f.listed.partition(".")[2]] = entry
+    return made.record
 
 
 def write_gif(path: Path, frames: Tensor, ms: int = 80) -> Path:
@@ -362,25 +437,3 @@ def _move_in(stage: Path, folder: Path) -> None:
     crash, sees the old material or the new one, never both; files of an earlier run of the
     same photo that this one did not write go, files a user put in the folder stay."""
     replace_folder(stage, folder, keep=MATERIAL_FILES)
-
-
-def model_record(predictor) -> dict:
-    """material.json's ``model``: the source (as text), SHA-256, resolution and training steps of
-    the network that made a material."""
-    model = {key: getattr(predictor, key, None) for key in ("source", "sha256", "resolution")}
-    model["steps"] = getattr(predictor, "steps", getattr(predictor, "step", None))
-    return {k: (str(v) if k == "source" and v is not None else v) for k, v in model.items()}
-
-
-def provenance() -> dict:
-    """The versions of the packages and the time that made a material."""
-    import svbrdf_render
-
-    from .. import __version__
-
-    return {
-        "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "svbrdf_render": svbrdf_render.__version__,
-        "svbrdf_models": __version__,
-        "torch": torch.__version__,
-    }

@@ -2,6 +2,7 @@
 
 The pieces of ``svbrdf-models predict`` (and ``svbrdf-train predict``), each usable alone::
 
+    from svbrdf_models.capture import CaptureOptions, capture_one, flash_consistency, load_photo, tile_predict
     photo, notes = load_photo("shot.jpg")              # EXIF-oriented, centre square, linear
     svbrdf = model.predict(photo)                       # maps at the model's resolution
     svbrdf = model.predict(photo, refine=100)           # refined at the square's own resolution
@@ -12,13 +13,15 @@ The pieces of ``svbrdf-models predict`` (and ``svbrdf-train predict``), each usa
 It needs svbrdf-render and this package only (Pillow through ``svbrdf-models[photo]``, which is
 ``svbrdf-render[io]``): no training code, no tracking.
 
-The steps live in modules of their own, re-exported here: reading and judging photos
+The steps live in modules of their own, each the one address of its names (the public ones are
+stated by :mod:`svbrdf_models.capture`): reading and judging photos
 (:mod:`svbrdf_models.capture.photos`: what is refused, what is noted), tiles and their memory
 cost (:mod:`svbrdf_models.capture.tiles`), the flash fit and the relit preview
-(:mod:`svbrdf_models.capture.relight`).
-This module runs them for one photo (:func:`capture_one`: with refinement, maps asked smaller
-than :data:`svbrdf_render.MIN_REFINE_SIDE` are refused; a square smaller than the model's
-resolution is noted, upsampled); a batch's ``summary.json`` is written by
+(:mod:`svbrdf_models.capture.relight`), the material folder (:mod:`svbrdf_models.capture.material`).
+This module holds the options (:class:`CaptureOptions`, where every rule about which options go
+together is written) and runs the steps for one photo (:func:`capture_one`: with refinement, maps
+asked smaller than :data:`svbrdf_render.MIN_REFINE_SIDE` are refused; a square smaller than the
+model's resolution is noted, upsampled); a batch's ``summary.json`` is written by
 :mod:`svbrdf_models.capture.batch`.
 """
 
@@ -36,12 +39,10 @@ from torch import Tensor
 from svbrdf_render import MAP_NAMES, MIN_REFINE_SIDE, SVBRDF, Refinement, Scene, linear_to_srgb
 
 from ..errors import DataError
-from .photos import square_photo
 from .figures import HEAT_MAX, error_heatmap, image_grid
 from .flashpoint import place_flash, record_flash
 from .geometry import CaptureGeometry, capture_geometry
-from .material import to_directx
-from .photos import MAX_PIXELS, MIN_SIDE, PhotoError, load_photo, orient, square
+from .photos import PhotoError, load_photo, square_photo
 from .reference import Reference
 from .refining import (
     BACKEND,
@@ -50,6 +51,7 @@ from .refining import (
     check_metal,
     check_refine,
     check_refine_memory,
+    load_scene,
     pick_backend,
     refine_cost,
     refine_map_size,
@@ -57,40 +59,17 @@ from .refining import (
     rerender,
     rerender_rmse,
 )
-from .relight import FLASH_FIT, flash_consistency, relight_frames, relit_grid, relit_versions
-from .tiles import (
-    available_memory,
-    check_tiled_memory,
-    tile_count,
-    tile_predict,
-    tiled_capture_bytes,
-)
+from .relight import flash_consistency, relit_grid, relit_versions
+from .tiles import check_tiled_memory, tile_count, tile_predict
 
 __all__ = [
     "ALBEDO_ENCODINGS",
     "CaptureOptions",
-    "FLASH_FIT",
-    "HEAT_MAX",
-    "MAX_PIXELS",
-    "MIN_SIDE",
     "MIN_TILEABLE_PHOTO",
     "NORMAL_ALIASES",
     "NORMAL_CONVENTIONS",
-    "PhotoError",
     "RELIT_FORMATS",
     "capture_one",
-    "available_memory",
-    "check_tiled_memory",
-    "tiled_capture_bytes",
-    "error_heatmap",
-    "flash_consistency",
-    "load_photo",
-    "orient",
-    "relight_frames",
-    "square",
-    "tile_count",
-    "tile_predict",
-    "to_directx",
 ]
 
 #: ``--normal-convention`` values: OpenGL (y up, the project's own) or DirectX (y down).
@@ -137,7 +116,8 @@ class CaptureOptions:
         tileable: make the maps' opposite edges match (:func:`svbrdf_render.tiling.make_tileable`).
         refine: refinement steps after the network (0: the network's maps only).
         refine_seconds: with ``refine``, seconds for all of a photo; its refinement gets what the rest leave.
-        scene: with ``refine``, the capture's scene (default: the flash found from the maps).
+        scene: with ``refine``, the capture's scene, or its YAML file (read by
+            :func:`~svbrdf_models.capture.refining.load_scene`; default: the flash found from the maps).
         backend: with ``refine``, the renderer's backend (``"auto"``, ``"eager"`` or ``"compiled"``).
         reference: a region of known albedo (:class:`svbrdf_models.capture.reference.Reference`) that
             pins the diffuse albedo's level, before any refinement.
@@ -163,7 +143,7 @@ class CaptureOptions:
     tileable: bool = False
     refine: int = 0
     refine_seconds: float | None = None
-    scene: Scene | None = None
+    scene: Scene | str | Path | None = None
     backend: str = BACKEND
     reference: Reference | None = None
     fov: float | None = None
@@ -171,6 +151,7 @@ class CaptureOptions:
     metal: str = "auto"
 
     def __post_init__(self):
+        self._check_together()
         convention = NORMAL_ALIASES.get(self.normal_convention, self.normal_convention)
         object.__setattr__(self, "normal_convention", convention)
         if self.albedo_encoding not in ALBEDO_ENCODINGS:
@@ -190,6 +171,26 @@ class CaptureOptions:
         self._check_geometry()
         self._check_refine()
         check_metal(self.metal)
+        if isinstance(self.scene, (str, Path)):  # a scene file, read once the options agree
+            object.__setattr__(self, "scene", load_scene(self.scene))
+
+    def _check_together(self) -> None:
+        """The rules about which options go together, the one place they are written: the
+        command line's flags reach them through this class, so its words are the flags'."""
+        if self.map_size is not None and not (self.tiles or self.refine):
+            raise DataError("--map-size goes with --tiles or --refine STEPS > 0")
+        alone = [flag for flag, value in (("--refine-seconds", self.refine_seconds), ("--scene", self.scene))
+                 if value is not None]  # fmt: skip
+        if alone and not self.refine:
+            verb = "goes" if len(alone) == 1 else "go"
+            raise DataError(f"{' and '.join(alone)} {verb} with --refine STEPS > 0, not --refine 0")
+        if self.reference is not None and self.scene is not None:
+            raise DataError(
+                "a reference (--reference) measures the flash and a scene (--scene) gives it: give one"
+            )
+        if self.scene is not None and (self.fov is not None or self.distance is not None):
+            flag = "--fov" if self.fov is not None else "--distance"
+            raise DataError(f"{flag} and --scene: the scene places the camera itself; give one of them")
 
     def _check_geometry(self) -> None:
         from .geometry import check_geometry_options
@@ -197,29 +198,15 @@ class CaptureOptions:
         fov, distance = check_geometry_options(self.fov, self.distance)
         object.__setattr__(self, "fov", fov)
         object.__setattr__(self, "distance", distance)
-        if self.scene is not None and (fov is not None or distance is not None):
-            flag = "--fov" if fov is not None else "--distance"
-            raise DataError(f"{flag} and --scene: the scene places the camera itself; give one of them")
 
     def _check_refine(self) -> None:
         check_refine(self.refine, self.refine_seconds)
-        if self.map_size is not None and not (self.tiles or self.refine):
-            raise DataError("map size is for tiled or refined capture: give tiles=True (--tiles) with it")
         if self.map_size is not None and self.map_size != FULL and not isinstance(self.map_size, int):
             raise DataError(f"map size must be a number of pixels or 'full', got {self.map_size!r}")
         if self.refine and isinstance(self.map_size, int) and self.map_size < MIN_REFINE_SIDE:
             raise DataError(
                 f"map size (--map-size) {self.map_size} is smaller than {MIN_REFINE_SIDE} px: too few "
                 "pixels to refine"
-            )
-        if self.reference is not None and self.scene is not None:
-            raise DataError(
-                "a reference (--reference) measures the flash and a scene (--scene) gives it: give one"
-            )
-        if not self.refine and (self.refine_seconds is not None or self.scene is not None):
-            raise DataError(
-                "refine seconds and scene (--refine-seconds, --scene) are for refined capture: give "
-                "refine > 0 (--refine STEPS) with them"
             )
 
 
@@ -234,8 +221,7 @@ class _Judged:
     entry: dict
 
 
-def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None, *, progress=None,
-                checked: bool = False) -> dict:  # fmt: skip
+def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None, *, progress=None) -> dict:
     """Capture one photo into the material folder ``out_dir``; its summary entry (status ``ok``).
 
     ``predictor`` has ``resolution`` and ``predict(photo)`` (a :class:`~svbrdf_models.TrainedModel`,
@@ -244,16 +230,16 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None,
     material.mtlx, index.html, input.png (the square the maps are of, sRGB), rerender.png (photo
     | re-rendering | error heat map; with refinement the network's and the refined maps side by
     side) and relit.gif or relit.png: see :mod:`svbrdf_models.capture.material`. ``progress(step, total,
-    loss)`` follows the refinement. A photo that cannot be used, or a folder that holds another
-    material, raises before any work (unless ``checked``: ``capture_batch`` checks every photo's
-    folder once); an interrupt or an error leaves ``out_dir`` as it was (staged, moved in whole).
+    loss)`` follows the refinement. A photo that cannot be used raises before any work; a folder
+    that holds another material is refused by the writer, where the check and the move are one
+    step under a lock (the commands check every photo's folder before the model loads, too); an
+    interrupt or an error leaves ``out_dir`` as it was (staged, moved in whole).
     """
-    from .material import MaterialContent, check_material_folder, write_material
+    from .material import MaterialContent, write_material
+    from .record import photo_record
 
     options, began = options or CaptureOptions(), time.monotonic()  # the photo's --refine-seconds from here
     path, out_dir = Path(path), Path(out_dir)
-    if not checked:
-        check_material_folder(out_dir, path)
     photo, notes = load_photo(path, linear=options.linear, crop=options.crop)
     geometry = capture_geometry(path, options.crop, fov=options.fov, distance=options.distance)
     side = photo.shape[-1]
@@ -291,7 +277,7 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None,
         "tileable": tileable,
         "reference": reference,
     }
-    record = _material_record(predictor, path, options, entry, geometry)
+    record = photo_record(predictor, path, options, entry, geometry)
     write_material(out_dir, svbrdf, MaterialContent(photo, judged.figure, relit, record), options)
     return entry
 
@@ -355,31 +341,6 @@ def _tileable(svbrdf: SVBRDF) -> tuple[SVBRDF, dict]:
     before = seams(svbrdf)
     tiled = make_tileable(svbrdf)
     return tiled, {"seam_error_before": before, "seam_error_after": seams(tiled)}
-
-
-def _material_record(predictor, path: Path, options: CaptureOptions, entry: dict,
-                     geometry: CaptureGeometry) -> dict:  # fmt: skip
-    """material.json's fields that the capture knows: photo, model, refinement, geometry, provenance."""
-    from .material import model_record, photo_sha256, provenance
-    from .photos import photo_encoding
-
-    return {
-        "name": path.stem,
-        "photo": {"file": path.name, "sha256": photo_sha256(path), "square": entry["square"],
-                  "crop": list(options.crop) if options.crop else None,
-                  "encoding": photo_encoding(path, options.linear)},  # fmt: skip
-        "model": model_record(predictor),
-        "maps_size": entry["maps"],
-        "tiles": entry["tiles"],
-        "rerender_rmse": entry["rmse"],
-        "flash": entry["flash"],
-        "refine": entry["refine"] or {"budget": 0},
-        "tileable": entry["tileable"],
-        "reference": entry.get("reference"),
-        "metal": options.metal,
-        "geometry": geometry.record(used=bool(options.refine) and options.scene is None),
-        "provenance": provenance(),
-    }
 
 
 def _judge_network(photo: Tensor, svbrdf: SVBRDF, options: CaptureOptions) -> _Judged:

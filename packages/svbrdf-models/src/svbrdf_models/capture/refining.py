@@ -53,7 +53,7 @@ __all__ = [
     "check_refine_memory",
     "refine_cost",
     "refine_map_size",
-    "MAX_UNTIMED_REFINE", "check_refine", "check_scene", "refine_prediction", "rerender", "rerender_rmse",
+    "MAX_UNTIMED_REFINE", "check_refine", "load_scene", "refine_prediction", "rerender", "rerender_rmse",
     "AFTER_REFINE_SECONDS_PER_PIXEL", "seconds_left", "steps_seconds",
     "METALS", "as_dielectric", "check_metal"]
 
@@ -153,7 +153,7 @@ def check_refine_memory(size: int, steps: int, where: str, *, count: int = 1, re
     """Refuse (:class:`DataError`, one line naming ``where``) refining ``count`` maps of ``size``
     px at once when this machine's free memory cannot hold it; ``remedy`` says what to do (the
     command line's by default)."""
-    from svbrdf_render import machine
+    from svbrdf_render.plumbing import machine
 
     need = refine_cost(size, steps)[1] * count
     free = machine.available_memory()
@@ -204,11 +204,18 @@ def check_refine(refine, seconds=None) -> int:
     return int(refine)
 
 
-def check_scene(scene: Scene) -> Scene:
-    """``scene`` when it can be one photo's capture (one camera, one view: configuration shape
-    ``()`` or ``(1, 1)``), else the :class:`~svbrdf_render.SceneError` of
-    :func:`svbrdf_render.refine_maps` itself, raised at once (checked on a 1-pixel photo)."""
-    refine_maps(torch.zeros(1, 3, 1, 1), SVBRDF.constant(1, 1), scene=scene, steps=0)
+def load_scene(path) -> Scene:
+    """The scene file ``path`` for refining one photo (``--scene``), refused in one line naming
+    it (a :class:`~svbrdf_render.SceneError`) when it cannot be read or is not one camera and one
+    view (configuration shape ``()`` or ``(1, 1)``): what :func:`svbrdf_render.refine_maps` says
+    of it, asked at once on a 1-pixel photo."""
+    from svbrdf_render import SceneError, SVBRDFError
+
+    scene = Scene.load(path)  # a SceneError naming the file when it cannot be read or parsed
+    try:
+        refine_maps(torch.zeros(1, 3, 1, 1), SVBRDF.constant(1, 1), scene=scene, steps=0)
+    except SVBRDFError as e:
+        raise SceneError(f"--scene {path}: {e}") from None
     return scene
 
 

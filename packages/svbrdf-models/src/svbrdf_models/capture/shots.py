@@ -74,7 +74,8 @@ CLIPPED = 0.98
 #: the median of the other shots' and above ODD_FLOOR. Measured on the synthetic shots of
 #: tests/models/test_models_shots.py (64 px, 20-60 steps): shots of one material refined
 #: together leave 0.05-0.15; a shot of another material among them 0.9, the frontal one too.
-ODD_RATIO, ODD_FLOOR = 3.0, 0.25
+ODD_RATIO = 3.0
+ODD_FLOOR = 0.25
 #: Where a shot's exposure came from (see the module).
 EXPOSURES = ("strip", "relative", "free")
 

@@ -14,15 +14,14 @@ from collections.abc import Callable
 import torch
 from torch import Tensor
 
-from svbrdf_render import SVBRDF, machine, safe_normalize
-from svbrdf_render.machine import available_memory
+from svbrdf_render import SVBRDF, safe_normalize
+from svbrdf_render.plumbing import machine
 
 from ..errors import DataError
 
 __all__ = [
     "TILED_BYTES_PER_PIXEL",
     "TILED_FIXED_BYTES",
-    "available_memory",
     "check_tiled_memory",
     "tile_count",
     "tile_predict",
@@ -112,8 +111,9 @@ def tiled_capture_bytes(size: int) -> int:
 
 def check_tiled_memory(size: int, what: str) -> None:
     """Refuse (:class:`DataError`, one line starting with ``what``) a tiled capture of ``size x
-    size`` maps that needs more memory than :func:`available_memory` says there is; a tiled
-    capture past it would be killed by the system, or swap for hours, after minutes of work."""
+    size`` maps that needs more memory than :func:`svbrdf_render.plumbing.available_memory` says
+    there is; a tiled capture past it would be killed by the system, or swap for hours, after
+    minutes of work."""
     need, have = tiled_capture_bytes(size), machine.available_memory()
     if have is None or need <= have:
         return

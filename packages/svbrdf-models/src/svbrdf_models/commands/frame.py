@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from svbrdf_render.cli import int_range
+from svbrdf_render.plumbing import int_range
 
 from .._registry import Registry
 

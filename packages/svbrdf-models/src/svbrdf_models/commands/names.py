@@ -8,7 +8,7 @@ import difflib
 import statistics
 import time
 
-from svbrdf_render.cli import int_range
+from svbrdf_render.plumbing import int_range
 
 from .._registry import _NOUNS, KINDS, REINSTALL_HINT, Registry
 from ..errors import RegistryError, UnknownNameError

@@ -11,8 +11,7 @@ import sys
 from pathlib import Path
 
 from svbrdf_render import BACKENDS, DEFAULT_REFINE_STEPS
-from svbrdf_render.cli import Once, float_range, int_range
-from svbrdf_render.machine import MAX_THREADS, THREADS_HELP
+from svbrdf_render.plumbing import MAX_THREADS, THREADS_HELP, Once, float_range, int_range
 
 from .._registry import Registry
 from ..capture.refining import DEFAULT_MAP_SIZE, FULL, METALS
@@ -299,9 +298,9 @@ def run_predict(args, load, *, prog: str) -> int:
     """A parsed ``predict`` (the options of :func:`add_options`): the options checked, the model
     loaded and announced, the photos captured; the batch's exit status. ``load(args, device)``
     gives the model and the line naming it; ``prog`` starts the messages."""
-    from svbrdf_render.formats.files import check_output_folder
+    from svbrdf_render.plumbing import check_output_folder, pick_device
 
-    from ..capture.batch import capture_batch, check_material_folders, pick_device, set_threads
+    from ..capture.batch import capture_batch, check_material_folders, set_threads
 
     calibrated = _calibrated(args)  # photos, or a calibrated set: one of them
     options = _capture_options(args)
@@ -321,24 +320,15 @@ def run_predict(args, load, *, prog: str) -> int:
     set_threads(args.threads)  # after every refusal, so that a refusal stays one line
     summary = {"model": model.source, "step": model.steps, "resolution": model.resolution,
                "refine": args.refine, "refine_seconds": args.refine_seconds}  # fmt: skip
-    return capture_batch(model, args.photos, args.out, options, prog=prog, summary=summary, checked=True)
+    return capture_batch(model, args.photos, args.out, options, prog=prog, summary=summary)
 
 
 def _capture_options(args):
-    """The :class:`~svbrdf_models.capture.one.CaptureOptions` of ``predict``'s flags; flags that go
-    with another one given alone, and a scene that cannot be a photo's capture, are refused."""
-    from ..capture.batch import load_scene
+    """The :class:`~svbrdf_models.capture.one.CaptureOptions` of ``predict``'s flags: flags that go
+    with another one given alone are refused there (the one place that rule is written), and the
+    --scene file is read there once they agree."""
     from ..capture.one import CaptureOptions
-    from ..errors import DataError
 
-    if args.map_size is not None and not (args.tiles or args.refine):
-        raise DataError("--map-size goes with --tiles or --refine STEPS > 0")
-    alone = [
-        f for f, v in (("--refine-seconds", args.refine_seconds), ("--scene", args.scene)) if v is not None
-    ]
-    if alone and not args.refine:
-        verb = "goes" if len(alone) == 1 else "go"
-        raise DataError(f"{' and '.join(alone)} {verb} with --refine STEPS > 0, not --refine 0")
     return CaptureOptions(
         linear=args.linear,
         crop=args.crop,
@@ -352,7 +342,7 @@ def _capture_options(args):
         tileable=args.tileable,
         refine=args.refine,
         refine_seconds=args.refine_seconds,
-        scene=None if args.scene is None else load_scene(args.scene),
+        scene=args.scene,
         reference=args.reference,
         backend=args.backend,
         fov=args.fov,
@@ -384,7 +374,7 @@ def _announce(model, line: str, tile_size: int | None) -> None:
         raise DataError(f"--map-size {tile_size} is smaller than the model's resolution ({model.resolution})")
     print(line, file=sys.stderr)
     if tile_size is not None:
-        from svbrdf_render import machine
+        from svbrdf_render.plumbing import machine
 
         from ..capture.tiles import tile_count, tiled_capture_bytes
 
@@ -425,20 +415,22 @@ def _run_calibrated(args, options, load, prog: str) -> int:
     """``predict --calibrated DIR``: the set checked before the model loads, captured into
     OUT/DIR-NAME/ (:func:`svbrdf_models.capture.calibrated.capture_calibrated`); the folder and
     the held-out views' relighting RMSEs printed."""
-    from svbrdf_render.formats.files import check_output_folder
+    from svbrdf_render.plumbing import ProgressBar, check_output_folder, pick_device
 
-    from ..capture.batch import ProgressBar, pick_device, set_threads
+    from ..capture.batch import set_threads
     from ..capture.calibrated import capture_calibrated, check_options, check_views, read_calibrated
+    from ..capture.material import check_material_folder
 
     device = pick_device(args.device)
     check_output_folder(args.out, "-o")
     check_options(options)
     calibrated = read_calibrated(args.calibrated, linear=options.linear)
     check_views(args.use, len(calibrated[0].files), args.holdout)
+    folder = args.out / calibrated[0].folder.resolve().name
+    check_material_folder(folder, calibrated[0].folder, sha256=calibrated[0].sha256())
     model, line = load(args, device)
     _announce(model, line, None)
     set_threads(args.threads)
-    folder = args.out / calibrated[0].folder.resolve().name
     bar = ProgressBar(folder.name)
     try:
         record = capture_calibrated(model, calibrated, folder, options, use=args.use, holdout=args.holdout,

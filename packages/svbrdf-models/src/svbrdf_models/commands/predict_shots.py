@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from svbrdf_render.cli import float_range
+from svbrdf_render.plumbing import float_range
 
 __all__ = ["add_shots_options", "run_shots"]
 
@@ -54,9 +54,9 @@ def run_shots(args, options, load, prog: str, announce) -> int:
     (a shot without the frame skipped with a line), captured as one material into
     OUT/FIRST-STEM/ (:mod:`svbrdf_models.capture.shots`); the folder printed. ``load`` as
     :func:`~svbrdf_models.commands.predict.run_predict`'s; ``announce(model, line, None)`` names it."""
-    from svbrdf_render.formats.files import check_output_folder
+    from svbrdf_render.plumbing import ProgressBar, check_output_folder, pick_device
 
-    from ..capture.batch import ProgressBar, pick_device, set_threads
+    from ..capture.batch import set_threads
     from ..capture.frame import FLASH_OFFSET_CM
     from ..capture.shotcapture import capture_shots
     from ..capture.shots import prepare_shots

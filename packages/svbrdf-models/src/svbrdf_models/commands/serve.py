@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from svbrdf_render.cli import float_range, int_range
-from svbrdf_render.machine import MAX_THREADS, THREADS_HELP
+from svbrdf_render.plumbing import MAX_THREADS, THREADS_HELP, float_range, int_range
 
 from .._registry import Registry
 from ..modelfile.serve_limits import ServeLimits
@@ -75,7 +74,7 @@ def add_parser(sub) -> None:
 
 
 def run(args, registry: Registry, out) -> None:
-    from svbrdf_render.machine import choose_threads
+    from svbrdf_render.plumbing import choose_threads
 
     from ..modelfile.files import load_model
     from ..modelfile.serve import check_open_files, serve

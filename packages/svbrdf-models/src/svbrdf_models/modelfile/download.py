@@ -21,7 +21,7 @@ from typing import Any
 
 import torch
 
-from svbrdf_render.cli import positive_number
+from svbrdf_render.plumbing import positive_number
 
 from ..errors import ModelFileError
 from .modelcheck import MAX_EXPANDED_BYTES, _bytes, _first_line, _load_checked, file_sha256, read_model_file
@@ -81,7 +81,7 @@ def _from_url(url: str, device, model_dir, progress: bool) -> TrainedModel:
                 "delete it to download again"
             )
         return _load_checked(local, device, url, sha)
-    from svbrdf_render.formats.files import temporary_path, write_failure
+    from svbrdf_render.plumbing import temporary_path, write_failure
 
     timeout = download_timeout()
     tmp = temporary_path(local)
@@ -106,7 +106,7 @@ def _download(url: str, tmp: Path, target: Path, timeout: float, progress: bool)
     """Fetch ``url`` into ``tmp`` (the temporary file of the cache's ``target``); its SHA-256.
     One line (:class:`ModelFileError`) for a server that is silent for ``timeout`` seconds, an
     HTTP error, or more bytes than a model file holds."""
-    from svbrdf_render.formats.files import write_failure
+    from svbrdf_render.plumbing import write_failure
 
     setting = f"SVBRDF_DOWNLOAD_TIMEOUT={timeout:g} s"
     digest, total = hashlib.sha256(), 0

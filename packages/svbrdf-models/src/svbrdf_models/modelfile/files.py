@@ -10,9 +10,11 @@ Loading needs only this package and svbrdf-render (and mlflow for MLflow URIs)::
     maps = model.predict(photo)                       # (3, H, W) linear photo -> SVBRDF of one
     maps = model.predict(photo, refine=150)           # + refined against the photo, at its size
 
-This module is the one place to import from; the work is done in three modules beneath it:
-:mod:`svbrdf_models.modelfile.trained` (:class:`TrainedModel`, the predictor), :mod:`svbrdf_models.modelfile.modelcheck`
-(reading and checking a local file) and :mod:`svbrdf_models.modelfile.download` (URLs and MLflow URIs).
+This module saves model files and finds the one a source names; the public names of model files
+are stated by :mod:`svbrdf_models.modelfile`, each defined in one module:
+:mod:`~svbrdf_models.modelfile.trained` (:class:`~svbrdf_models.modelfile.trained.TrainedModel`,
+the predictor), :mod:`~svbrdf_models.modelfile.modelcheck` (reading and checking a local file)
+and :mod:`~svbrdf_models.modelfile.download` (URLs and MLflow URIs).
 
 A model file is one ``torch.save`` dict of tensors and plain values, read with
 ``weights_only=True`` (no code is unpickled):
@@ -20,7 +22,7 @@ A model file is one ``torch.save`` dict of tensors and plain values, read with
 ===========  ===================================================================================
 key          what
 ===========  ===================================================================================
-format       ``"svbrdf-model"``; ``version``: :data:`FORMAT_VERSION`
+format       ``"svbrdf-model"``; ``version``: :data:`.modelcheck.FORMAT_VERSION`
 generator    ``{"name": registry name, "config": its complete resolved config}``
 weights      the generator's ``state_dict``: float32, or float16 with ``precision: "fp16"``
 precision    ``"fp32"`` or ``"fp16"`` (the weights are rounded; they run in float32)
@@ -31,15 +33,16 @@ metrics      figures measured on the weights (name -> float), possibly empty
 ===========  ===================================================================================
 
 An MLflow URI names an MLflow model (:mod:`svbrdf_models.modelfile.pyfunc`: what fits and ``svbrdf-train
-export --register`` log; its model file is the artifact :data:`PYFUNC_ARTIFACT`), a folder
-holding one ``.pt`` file (versions registered before the MLflow model), or a file.
+export --register`` log; its model file is the artifact :data:`.download.PYFUNC_ARTIFACT`), a
+folder holding one ``.pt`` file (versions registered before the MLflow model), or a file.
 
 Every key is checked against that table (types, ranges, the provenance fields tools read)
 before anything uses the file: a field of the wrong type or out of range is one line naming the
 file and the field. A file whose ``NAME.sha256`` sidecar (what ``svbrdf-train export`` writes
 beside it) gives another SHA-256 is refused: it changed after it was written. A file whose zip
-archive declares more than :data:`MAX_EXPANDED_BYTES`, or more than :data:`MAX_EXPANSION` times
-its own size, is refused before it is unpacked: ``torch.save`` stores tensors uncompressed, so
+archive declares more than :data:`.modelcheck.MAX_EXPANDED_BYTES`, or more than
+:data:`.modelcheck.MAX_EXPANSION` times its own size, is refused before it is unpacked:
+``torch.save`` stores tensors uncompressed, so
 a model file is about as large on disk as in memory, and one that inflates far beyond its size
 was packed by another tool to exhaust the memory of whoever loads it.
 
@@ -50,8 +53,8 @@ whole name's last ``-HEX`` (torch.hub's own check reads the first ``-`` of the n
 ``x-.y-deadbeef.pt`` unchecked). A download goes to a temporary file beside the cache's copy
 and is moved in only once it matched its hash and loaded; any refusal, an interrupt or a
 timeout leaves nothing in the cache. A server that sends nothing for
-``SVBRDF_DOWNLOAD_TIMEOUT`` seconds (default :data:`DOWNLOAD_TIMEOUT`) is given up on, in one
-line naming the URL and the setting. A cached copy that no longer matches its name is refused.
+``SVBRDF_DOWNLOAD_TIMEOUT`` seconds (default :data:`.download.DOWNLOAD_TIMEOUT`) is given up
+on, in one line naming the URL and the setting. A cached copy that no longer matches its name is refused.
 """
 
 from __future__ import annotations
@@ -65,62 +68,11 @@ from torch import Tensor
 from .._config import config_to_dict
 from .._registry import resolve_config
 from ..errors import ModelFileError
-from .download import (
-    DOWNLOAD_TIMEOUT,
-    MLFLOW_SCHEMES,
-    PYFUNC_ARTIFACT,
-    _from_mlflow,
-    _from_url,
-    download_timeout,
-    hash_name,
-)
-from .modelcheck import (
-    FORMAT,
-    FORMAT_VERSION,
-    MAX_EXPANDED_BYTES,
-    MAX_EXPANSION,
-    MAX_RESOLUTION,
-    check_archive,
-    check_contents,
-    check_sidecar,
-    file_sha256,
-    is_model_file,
-    nonfinite_tensors,
-    read_model_file,
-    unreadable_reason,
-    weights_mismatch,
-)
-from ..capture.photos import square_photo
+from .download import MLFLOW_SCHEMES, _from_mlflow, _from_url
+from .modelcheck import FORMAT, FORMAT_VERSION, file_sha256, read_model_file
 from .trained import TrainedModel
 
-__all__ = [
-    "FORMAT",
-    "FORMAT_VERSION",
-    "PRETRAINED",
-    "PYFUNC_ARTIFACT",
-    "TrainedModel",
-    "load_model",
-    "save_model",
-    "model_dict",
-    "pretrained_path",
-    "card_path",
-    "file_sha256",
-    "hash_name",
-    "square_photo",
-    "weights_mismatch",
-    "nonfinite_tensors",
-    "unreadable_reason",
-    "read_model_file",
-    "is_model_file",
-    "check_contents",
-    "check_sidecar",
-    "check_archive",
-    "MAX_RESOLUTION",
-    "MAX_EXPANDED_BYTES",
-    "MAX_EXPANSION",
-    "DOWNLOAD_TIMEOUT",
-    "download_timeout",
-]
+__all__ = ["PRETRAINED", "card_path", "load_model", "model_dict", "pretrained_path", "save_model"]
 
 #: The model shipped inside this package (``pretrained/NAME.pt``, its card ``NAME.md``): what
 #: ``load_model("pretrained")`` and ``svbrdf-models predict`` without ``--model`` use.
@@ -163,7 +115,7 @@ def model_dict(
 
 def save_model(path: str | Path, contents: dict[str, Any]) -> str:
     """Write a :func:`model_dict` to ``path`` atomically; its SHA-256 (hex)."""
-    from svbrdf_render.formats.files import atomic_output
+    from svbrdf_render.plumbing import atomic_output
 
     path = Path(path)
     with atomic_output(path) as tmp, open(tmp, "wb") as f:

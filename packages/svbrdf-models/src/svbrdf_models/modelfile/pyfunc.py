@@ -50,9 +50,11 @@ from svbrdf_render import MAP_NAMES
 from svbrdf_render.maps import MAP_CHANNELS
 
 from ..errors import DataError
-from .files import PYFUNC_ARTIFACT, TrainedModel, load_model
+from .download import PYFUNC_ARTIFACT
+from .files import load_model
 from .serve import maps_arrays
 from .serve_limits import ServeLimits, check_photo_array, refine_budget
+from .trained import TrainedModel
 
 __all__ = [
     "SERVE_LIMITS",

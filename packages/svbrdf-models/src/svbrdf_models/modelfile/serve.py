@@ -58,7 +58,7 @@ from .serve_json import CHILD_BYTES, JsonPool, encode_answer
 from .serve_limits import Refused, RequestCost, ServeLimits, check_cost, estimate_request, parse_request
 from .serve_log import FailureLog, quiet_logs
 
-__all__ = ["build_app", "serve", "server_config", "maps_arrays", "encode_answer"]
+__all__ = ["build_app", "serve", "server_config", "maps_arrays"]
 
 #: Of what the other stages' estimates leave, the share the refinement gets: the estimates are
 #: an idle machine's, and a busy one is slower.
@@ -193,7 +193,7 @@ async def _read_body(request, limits: ServeLimits, deadline: float) -> bytes:
 async def _answer(request, worker: _Worker, limits: ServeLimits, start: float, timing: dict) -> bytes:
     """The answer's body to a request that arrived at ``start``, or :class:`Refused`; the seconds
     of each stage go to ``timing``."""
-    from svbrdf_render import machine
+    from svbrdf_render.plumbing import machine
 
     deadline = start + limits.timeout
     kind = request.headers.get("content-type", "").split(";")[0].strip()

@@ -185,9 +185,9 @@ def parse_request(body: bytes, limits: ServeLimits) -> tuple[np.ndarray, int]:
 # -- what a request costs, estimated before any work -------------------------------------------
 
 #: Bytes of the answer's JSON per map value: ``-0.123456,`` and the brackets (:func:`~svbrdf_models.
-#: modelfile.serve.encode_answer` writes 6 decimals; measured 10.8).
+#: modelfile.serve_json.encode_answer` writes 6 decimals; measured 10.8).
 ANSWER_BYTES_PER_VALUE = 11
-#: Seconds to encode one value (:func:`~svbrdf_models.modelfile.serve.encode_answer`, numpy's
+#: Seconds to encode one value (:func:`~svbrdf_models.modelfile.serve_json.encode_answer`, numpy's
 #: fixed-width text): measured 0.16-0.3 us on one busy core (1.7-3.1 s for a 1024 px material).
 ANSWER_SECONDS_PER_VALUE = 3e-7
 #: Memory per value while the answer is made: the float32 map, its float64 and int64 copies, the

@@ -25,9 +25,8 @@ from torch import Tensor, nn
 from svbrdf_render import MAP_NAMES, SVBRDF
 
 from .._config import param
-from .._init import normal_init
 from .._registry import ModelSpec
-from .generators import MAX_PARAMETERS
+from .generators import MAX_PARAMETERS, normal_init
 
 __all__ = [
     "PatchGANConfig",

@@ -41,10 +41,19 @@ from torch import Tensor, nn
 from svbrdf_render import SVBRDF
 
 from .._config import param
-from .._init import normal_init
 from .._registry import ModelSpec, create_attention
 
-__all__ = ["GeneratorConfig", "UNetGenerator", "encode_photo", "normalise_exposure", "OURS", "UNET", "NO_ATTN", "PRESETS"]
+__all__ = [
+    "GeneratorConfig",
+    "UNetGenerator",
+    "encode_photo",
+    "normal_init",
+    "normalise_exposure",
+    "OURS",
+    "UNET",
+    "NO_ATTN",
+    "PRESETS",
+]
 
 #: Output channels of the last up block: normal xy, diffuse, roughness, specular.
 OUTPUT_CHANNELS = 9
@@ -65,6 +74,20 @@ MAX_DEPTH = 13
 #: the paper's generator (105 million). A config over it is refused before a layer is built,
 #: rather than left to exhaust the memory while building.
 MAX_PARAMETERS = 500_000_000
+
+
+def normal_init(module: nn.Module, std: float) -> None:
+    """pix2pix's init for every conv, deconv and linear layer inside ``module``: weights
+    ~ N(0, std), biases 0. Other layers (norms, attention plugins' own) are left alone. The
+    built-in networks' one init: the discriminators use it too."""
+
+    def visit(m: nn.Module) -> None:
+        if isinstance(m, (nn.Conv2d, nn.ConvTranspose2d, nn.Linear)):
+            nn.init.normal_(m.weight, 0.0, std)
+            if m.bias is not None:
+                nn.init.zeros_(m.bias)
+
+    module.apply(visit)
 
 
 @dataclass(frozen=True)

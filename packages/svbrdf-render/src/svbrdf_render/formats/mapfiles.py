@@ -40,7 +40,7 @@ from .._optional import require
 from ..errors import MapFileError
 from ..geometry import safe_normalize
 from ..maps import MAP_NAMES, SVBRDF, decode_normal, encode_normal
-from .files import atomic_output
+from ..plumbing import atomic_output
 
 __all__ = [
     "Des18Sample",
@@ -232,7 +232,7 @@ def write_image(
     ``encoding`` (``"srgb"`` or ``"linear"``) says how the values given are encoded and is
     written into the file's colour chunks (see the module); the values are stored as given.
     ``note`` goes into a ``tEXt Comment`` chunk. The parent folder is created; the file is
-    written through :func:`~svbrdf_render.formats.files.atomic_output`, so a failure leaves no
+    written through :func:`~svbrdf_render.plumbing.atomic.atomic_output`, so a failure leaves no
     half-written image and raises an :class:`~svbrdf_render.errors.OutputError` naming ``path``.
     """
     path = Path(path)

@@ -54,12 +54,10 @@ from .rings import RingBins, ring_penalty
 
 __all__ = [
     "DEFAULT_REFINE_STEPS",
-    "FLASH_MODES",
     "MIN_REFINE_SIDE",
     "RefineLoss",
     "RefineSettings",
     "Refinement",
-    "axis_flash",
     "refine_maps",
     "refine_start",
 ]

@@ -68,9 +68,9 @@ def _strip_samples(path: Path, count: int, resolution: int, seed: int) -> tuple[
     """``count`` training samples of a strip folder or shard, drawn as a fit draws them."""
     from torch.utils.data import default_collate
 
-    from ..data.capture import PhotoSettings
-    from ..data.strip_bank import MaterialBank
-    from ..data.strips import MaterialStrips
+    from ..data.real.strip_bank import MaterialBank
+    from ..data.real.strips import MaterialStrips
+    from ..data.simulated_photo import PhotoSettings
 
     bank = MaterialBank.open(path)
     data = MaterialStrips(bank, count, resolution, seed=seed, photo=PhotoSettings.preset("phone"))
@@ -122,9 +122,10 @@ def table(rows) -> str:
 
 
 def _sheet(proc: dict, families: list[str], real: dict, rows: int):
+    from svbrdf_models.capture.figures import image_grid
     from svbrdf_render.formats.mapfiles import linear_to_srgb
 
-    from ..data.sheet import COLUMNS, image_grid, map_tiles
+    from ..data.sheet import COLUMNS, map_tiles
 
     tiles, labels = [], []
     for k in range(rows):
@@ -232,7 +233,7 @@ def compare(ctx, real_folder, count, resolution, seed, real_count, sheet_path, r
             "in the statistic's unit",
             "statistics": [r.to_dict() for r in results],
         }
-        from svbrdf_render.formats.files import write_text
+        from svbrdf_render.plumbing import write_text
 
         write_text(json_path, json.dumps(doc, indent=2) + "\n")
         click.echo(f"wrote {json_path}")

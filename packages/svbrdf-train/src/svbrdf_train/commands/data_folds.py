@@ -1,5 +1,5 @@
 """``svbrdf-train data folds``: train/judge folders in which no judged strip shares a source material
-with a training strip (:mod:`svbrdf_train.data.materials`)."""
+with a training strip (:mod:`svbrdf_train.data.real.materials`)."""
 
 from __future__ import annotations
 
@@ -41,7 +41,7 @@ materials on each side.
 
 def _clear(folder: Path) -> None:
     """Make ``folder`` an empty folder, removing only the links an earlier run left there."""
-    from ..errors import DataError
+    from svbrdf_models.errors import DataError
 
     folder.mkdir(parents=True, exist_ok=True)
     others = [p for p in folder.iterdir() if not p.is_symlink()]
@@ -83,9 +83,10 @@ def _link(files: list[Path], folder: Path) -> None:
 def folds(des18_folder, out, spec):
     """Split the strips of DES18_FOLDER into material folds: folders of links to train on and
     to judge on, such that no judged strip shares a source material with a training strip."""
-    from ..data.des18 import Des18Folder
-    from ..data.materials import fold_from_spec, material_folds, materials_of
-    from ..errors import DataError
+    from svbrdf_models.errors import DataError
+
+    from ..data.real.des18 import Des18Folder
+    from ..data.real.materials import fold_from_spec, material_folds, materials_of
 
     try:
         files = Des18Folder(des18_folder, "test", crop=None).files

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import click
 
-from svbrdf_render.formats.files import raise_if_interrupted
+from svbrdf_models.errors import DataError
+from svbrdf_render.plumbing import raise_if_interrupted
 
-from ..errors import DataError
 from ..recipe.datasection import CAPTURES
 from .options import SEED, FiniteFloatRange, explicit, threads_option
 
@@ -71,7 +71,7 @@ def _writing(out: Path):
     """Ctrl-C and SIGTERM alike: the shard's temporary file is removed and ``out`` is left as it
     was, one line says so, and the exit status is 130 (click alone would print "Aborted!" and
     exit 1). Temporaries of ``out`` left by earlier runs killed outright are removed first."""
-    from svbrdf_render.formats.files import INTERRUPTED, remove_stale_temporaries, sigterm_as_interrupt
+    from svbrdf_render.plumbing import INTERRUPTED, remove_stale_temporaries, sigterm_as_interrupt
 
     remove_stale_temporaries(out.parent, (out.name,))
     try:
@@ -164,8 +164,9 @@ def make(count, resolution, out, seed, bits, batch, families, mix, capture, forc
     No download: each sample is generated from (--seed, index), rendered under a jittered
     phone flash, and stored with its four maps.
     """
-    from ..data.procedural import GENERATOR_VERSION, PhotoSettings, ProceduralMaterials
+    from ..data.procedural import GENERATOR_VERSION, ProceduralMaterials
     from ..data.shards import ShardWriter
+    from ..data.simulated_photo import PhotoSettings
 
     bits = int(bits)
     kwargs = {} if mix is None else {"mix": mix}
@@ -226,7 +227,7 @@ def import_(ctx, folder, out, split, crop, full, bits, force):
     """Import a Des18 folder (strips with ground truth) into a shard."""
     if full and explicit(ctx, "crop"):
         raise click.UsageError(f"--crop {crop} and --full: --full keeps whole tiles, give one of them")
-    from ..data.des18 import Des18Folder
+    from ..data.real.des18 import Des18Folder
     from ..data.shards import ShardWriter
 
     bits = int(bits)

@@ -1,5 +1,5 @@
 """``svbrdf-train data strips``: map-only material strips decoded once into a strip shard, and
-the folds of their materials (:mod:`svbrdf_train.data.strips`)."""
+the folds of their materials (:mod:`svbrdf_train.data.real.strips`)."""
 
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ fold: k/N, or comma-separated names) and validates on it as val_fold/.
 
 
 def _folds(bank, n: int) -> None:
-    from ..data.strips import fold_split
+    from ..data.real.strips import fold_split
 
     for k in range(1, n + 1):
         try:
@@ -62,7 +62,7 @@ def _folds(bank, n: int) -> None:
 def strips(folder, out, tile, folds, force):
     """Check a folder of map-only material strips; write them to a strip shard (--out) or list
     their folds (--folds)."""
-    from ..data.strip_bank import MaterialBank, resize_bank, write_strip_shard
+    from ..data.real.strip_bank import MaterialBank, resize_bank, write_strip_shard
 
     if out is None and folds is None:
         raise click.UsageError("give --out FILE.h5 to write a strip shard, or --folds N to list folds")

@@ -77,9 +77,9 @@ def export(checkpoint, run_id, out, half, hash_name, register_as, metrics, force
 
     CHECKPOINT is a checkpoint file (last.pt, weights.pt) or a fit's --out folder.
     """
-    from svbrdf_models.modelfile.files import hash_name as hashed
+    from svbrdf_models.modelfile.download import hash_name as hashed
     from svbrdf_models.modelfile.files import save_model
-    from svbrdf_render.formats.files import check_output_folder
+    from svbrdf_render.plumbing import check_output_folder
 
     from ..errors import CheckpointError
 

@@ -40,7 +40,7 @@ checkpoint is kept, no temporary file is left); 130 interrupted (a checkpoint wa
 
 def _data_overrides(items: tuple[str, ...]) -> dict:
     """``--data`` values -> recipe overrides: ``procedural``, shard files/folders, or one Des18 folder."""
-    from ..errors import DataError
+    from svbrdf_models.errors import DataError
 
     if not items:
         return {}
@@ -337,13 +337,13 @@ def _output_lock(out: Path):
     """Hold ``out/.fit.lock`` for the fit's lifetime: a second fit on ``out`` (new or --resume) is
     refused with one line naming the PID of the fit that holds it.
 
-    The lock is :func:`svbrdf_render.formats.files.locked`, not waiting, the PID written in the
+    The lock is :func:`svbrdf_render.plumbing.locked`, not waiting, the PID written in the
     lock file: a fit that dies, even by SIGKILL, releases it, so a lock file left by a dead
     process is simply taken over. The file is removed when the fit ends, and so is ``out`` if the
     fit made it and left it empty (refused early). Where ``flock`` is missing (Windows)
     ``filelock`` locks the same file, without the PID.
     """
-    from svbrdf_render.formats.files import LockHeld, check_output_folder, locked
+    from svbrdf_render.plumbing import LockHeld, check_output_folder, locked
 
     from ..errors import TrainingError
 

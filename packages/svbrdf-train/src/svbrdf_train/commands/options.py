@@ -53,11 +53,11 @@ def explicit(ctx: click.Context, name: str) -> bool:
 
 def threads_option():
     """``--threads N``: torch threads on the CPU, set as soon as the option is read (default:
-    one per free core, :func:`svbrdf_render.machine.choose_threads`); the command never sees it."""
-    from svbrdf_render.machine import MAX_THREADS, THREADS_HELP
+    one per free core, :func:`svbrdf_render.plumbing.choose_threads`); the command never sees it."""
+    from svbrdf_render.plumbing import MAX_THREADS, THREADS_HELP
 
     def apply(ctx, param, value):
-        from svbrdf_render.machine import choose_threads
+        from svbrdf_render.plumbing import choose_threads
 
         choose_threads(value)
 

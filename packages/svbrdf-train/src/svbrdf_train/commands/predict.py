@@ -44,7 +44,7 @@ def build_parser(prog: str = "svbrdf-train predict") -> argparse.ArgumentParser:
     from svbrdf_models.capture.batch import help_text
     from svbrdf_models.commands.predict import add_options
     from svbrdf_render import DEFAULT_REFINE_STEPS
-    from svbrdf_render.cli import OneLineParser
+    from svbrdf_render.plumbing import OneLineParser
 
     parser = OneLineParser(
         prog=prog,

@@ -1,5 +1,18 @@
 """Training data: procedural materials, real data set readers and HDF5 shards.
 
+Three rooms, each importing only the shared modules here, never one another but for the
+strip shards of ``real``, which are ``shards``' format:
+
+- :mod:`.procedural`: materials drawn from seeded families, with nothing to download;
+- :mod:`.real`: the Des18 data set and material strips (measured or scanned maps);
+- :mod:`.shards`: samples stored in HDF5 files, written once and read by many workers.
+
+Shared by them: the sample layout (:mod:`.sample`), the seeded streams (:mod:`.seeds`), the
+simulated phone photo of a sample (:mod:`.simulated_photo`, with its JPEG round trip in
+:mod:`.jpeg`), resizing a sample (:mod:`.fov`), folders of photos without maps
+(:mod:`.photos`), statistics and contact sheets of data sets (:mod:`.stats`, :mod:`.sheet`),
+and the data sets of one fit (:mod:`.fitdata`, above the three rooms).
+
 Every data set returns the sample dict of :mod:`svbrdf_train.data.sample` (``input``,
 ``maps``, ``name``), so DataLoader's default collate works on all of them::
 
@@ -9,25 +22,18 @@ Every data set returns the sample dict of :mod:`svbrdf_train.data.sample` (``inp
     photos = PhotoFolder("my-photos/", encoding="srgb", size=256)       # no ground truth
     shards = ShardDataset(["train-0.h5", "train-1.h5"])                # written by `data make`
 
-The shard module (and h5py with it) is imported on first use of a shard name.
+The shards room (and h5py with it) is imported on first use of a shard name.
 """
 
 from __future__ import annotations
 
 import importlib
 
-from .des18 import Des18Folder, dihedral, dihedral_image
 from .photos import PhotoFolder
-from .procedural import (
-    FAMILIES,
-    GENERATOR_VERSION,
-    PhotoSettings,
-    ProceduralMaterials,
-    material,
-    materials,
-    photo_scene,
-)
+from .procedural import FAMILIES, GENERATOR_VERSION, ProceduralMaterials, material, materials
+from .real.des18 import Des18Folder, dihedral, dihedral_image
 from .sample import batch_svbrdf
+from .simulated_photo import PhotoSettings, photo_scene
 
 _SHARD_NAMES = ("ShardDataset", "ShardWriter", "ShardInfo", "inspect_shard", "write_shard")
 

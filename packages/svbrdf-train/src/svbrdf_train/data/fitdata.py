@@ -11,7 +11,7 @@ des18          the folder's ``trainBlended/`` (or the strips),     ``testBlended
                random crops and the 8 symmetries                   else the last ``validation`` strips;
                                                                    whole tiles resized
 materials      ``count`` samples an epoch of the strips of the     the held-out fold (``data.fold``),
-               folder or strip shard (:mod:`.data.strips`):         whole tiles resized, fixed photos
+               folder or strip shard (:mod:`.real.strips`):         whole tiles resized, fixed photos
                random windows, turns, photos on the fly            (none without a fold)
 mix            ``count`` samples an epoch, each drawn from entry   every entry's own validation set
                ``i`` of ``data.mix`` with probability w_i / sum w   (its ``validation``), put together
@@ -22,9 +22,9 @@ from, and walks through each entry's samples in shuffled passes; a real strip me
 the same epoch gets another crop and symmetry (its pass number goes into the draw). All of it
 follows from ``data.seed`` and the epoch, so a resumed fit sees the very same samples.
 
-Des18 tiles are brought to ``train.resolution`` without changing the share of the surface a
-model sees (:mod:`svbrdf_train.data.fov`): training tiles are scaled by ``resolution / 256``
-before their random crop, validation tiles are resized whole.
+Des18 tiles are brought to ``train.resolution`` keeping the share of the surface a model sees
+(:mod:`.fov`): training tiles scaled by ``resolution / 256`` before their crop, validation
+tiles resized whole.
 
 A ``materials`` source with a ``fold`` is also validated alone, as ``val_fold/``
 (:func:`fold_validation_set`): materials the fit never trained on, of the same kind.
@@ -50,22 +50,14 @@ import numpy as np
 import torch
 from torch.utils.data import ConcatDataset, Dataset, Subset, default_collate
 
-from ..errors import DataError
+from svbrdf_models.errors import DataError
+
 from . import Des18Folder, PhotoSettings, ProceduralMaterials
 
 __all__ = [
-    "DataSettings",
-    "build_datasets",
-    "section_datasets",
-    "data_paths",
-    "device_batch",
-    "open_materials",
-    "real_validation_set",
-    "fold_validation_set",
-    "set_epoch",
-    "Mixture",
-    "Resized",
-]
+    "DataSettings", "build_datasets", "section_datasets", "data_paths", "device_batch", "open_materials",
+    "real_validation_set", "fold_validation_set", "set_epoch", "Mixture", "Resized",
+]  # fmt: skip
 
 
 class DataSettings(Protocol):
@@ -280,10 +272,10 @@ def _device_batch(data: Dataset, indices: list[int], device: torch.device) -> di
         return _device_batch(data.dataset, [data.indices[i] for i in indices], device)
     if isinstance(data, ProceduralMaterials):
         return data.batch(indices, device=device)
-    from .strips import MaterialStrips
+    from .real.strips import MaterialStrips
 
     if isinstance(data, MaterialStrips) and device.type != "cpu":  # the CPU keeps its exact path
-        from .strip_batch import strip_batch
+        from .real.strip_batch import strip_batch
 
         return strip_batch(data, indices, device)
     if isinstance(data, Mixture):
@@ -425,7 +417,7 @@ def real_validation_set(path: str | None, resolution: int) -> tuple[Dataset, str
 
 def _bank(path):
     """The materials of a strip folder or shard, decoded once per process and path."""
-    from .strip_bank import MaterialBank
+    from .real.strip_bank import MaterialBank
 
     p = Path(path).expanduser().resolve()
     stamp = p.stat().st_mtime_ns if p.exists() else 0
@@ -439,8 +431,8 @@ _BANKS: dict = {}
 
 
 def _strip_datasets(d: DataSettings, res: int) -> tuple[Dataset, Dataset]:
-    """``(train, held-out fold)`` of a ``materials`` source (:mod:`.data.strips`)."""
-    from .strips import MaterialStrips, fold_split
+    """``(train, held-out fold)`` of a ``materials`` source (:mod:`.real.strips`)."""
+    from .real.strips import MaterialStrips, fold_split
 
     if not d.path:
         raise DataError("data.source materials needs a path: give --data FOLDER (strips) or a strip shard")
@@ -475,9 +467,9 @@ def fold_validation_set(d: DataSettings, res: int) -> tuple[Dataset, str] | None
 
 def _strip_materials(p: Path, shards: list[Path], role: str) -> tuple[Dataset, str] | None:
     """Map-only strips (a strip folder or one strip shard) as materials with ground truth: each
-    whole tile under a fixed phone photo (:class:`.data.strips.MaterialStrips`); else None."""
-    from .strip_bank import STRIP_FORMAT, is_strip_folder
-    from .strips import MaterialStrips
+    whole tile under a fixed phone photo (:class:`.real.strips.MaterialStrips`); else None."""
+    from .real.strip_bank import STRIP_FORMAT, is_strip_folder
+    from .real.strips import MaterialStrips
 
     if len(shards) == 1 and shards[0] == p:
         import h5py

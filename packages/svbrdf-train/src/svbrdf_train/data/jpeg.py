@@ -24,7 +24,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ..errors import DataError
+from svbrdf_models.errors import DataError
 
 __all__ = ["LUMINANCE_TABLE", "CHROMINANCE_TABLE", "quantisation_table", "jpeg_roundtrip"]
 
@@ -89,7 +89,7 @@ def _srgb_encode_8bit(x: Tensor) -> Tensor:
 
     The curve's ``pow`` gives a code that may be one off at a step (torch's vectorised and
     scalar ``pow`` kernels differ in the last bit, and which elements take which depends on
-    the batch: see :mod:`.procedural_noise`); exact comparisons with the steps then settle
+    the batch: see :mod:`.procedural.noise`); exact comparisons with the steps then settle
     it, so a sample's codes are the same in any batch."""
     x = x.clamp(0, 1)
     v = torch.where(x <= 0.0031308, x * 12.92, x.clamp_min(0.0031308).pow(1 / 2.4) * 1.055 - 0.055)

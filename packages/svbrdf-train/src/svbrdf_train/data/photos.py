@@ -13,14 +13,12 @@ from pathlib import Path
 
 from torch.utils.data import Dataset
 
-from svbrdf_models.capture.photos import exif_orientation, file_orientation, orient
-from svbrdf_models.capture.photos import square_photo
+from svbrdf_models.capture.photos import file_orientation, orient, square_photo
+from svbrdf_models.errors import DataError
 from svbrdf_render import read_image
 from svbrdf_render.formats.mapfiles import srgb_to_linear
 
-from ..errors import DataError
-
-__all__ = ["PhotoFolder", "ENCODINGS", "PHOTO_EXTENSIONS", "exif_orientation", "orient", "square_photo"]
+__all__ = ["PhotoFolder", "ENCODINGS", "PHOTO_EXTENSIONS"]
 
 #: How the values of a photo file are encoded.
 ENCODINGS = ("srgb", "linear")

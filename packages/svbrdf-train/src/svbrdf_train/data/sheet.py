@@ -17,12 +17,11 @@ from typing import Any
 from torch import Tensor
 
 from svbrdf_models.capture.figures import image_grid
+from svbrdf_models.errors import DataError
 from svbrdf_render import MAP_NAMES, encode_normal
 from svbrdf_render.formats.mapfiles import linear_to_srgb
 
-from ..errors import DataError
-
-__all__ = ["contact_sheet", "image_grid", "map_tiles", "COLUMNS"]
+__all__ = ["contact_sheet", "map_tiles", "COLUMNS"]
 
 #: Column titles, left to right (after the label column).
 COLUMNS = ("input", *MAP_NAMES)

@@ -16,11 +16,11 @@ if TYPE_CHECKING:  # annotations only
 
 __all__ = ["CAPTURES", "BALANCES", "MIX_KEYS", "MIX_SOURCES", "DataSection"]
 
-#: The named photo captures of procedural data (``data.capture``; svbrdf_train.data.procedural's
-#: ``CAPTURE_PRESETS``).
+#: The named photo captures of procedural data (``data.capture``;
+#: svbrdf_train.data.simulated_photo's ``CAPTURE_PRESETS``).
 CAPTURES = ("des18", "phone", "handheld")
 #: How ``data.balance`` draws a materials source: each material alike, or by kind
-#: (svbrdf_train.data.kinds.kind_weights).
+#: (svbrdf_train.data.real.kinds.kind_weights).
 BALANCES = ("none", "kind")
 #: Keys of one ``data.mix`` entry, and the sources an entry may name.
 MIX_KEYS = ("source", "weight", "path", "count", "validation", "fold")
@@ -86,14 +86,15 @@ class DataSection:
         "intensity 10-21 drawn independently, white balance within 8%, half of the photos "
         "JPEG-compressed at quality 75-95) or handheld (phone, plus the LED beside the lens with "
         "a cone-shaped beam, the camera up to 0.6 half-widths off-centre, vignetting, a residual "
-        "tone curve and exposure measured against real phone photos: svbrdf_train.data.capture.CAPTURE_PRESETS)",
+        "tone curve and exposure measured against real phone photos: "
+        "svbrdf_train.data.simulated_photo.CAPTURE_PRESETS)",
         choices=CAPTURES,
     )
     balance: str = param(
         "none",
         "how a materials source draws its materials: none (each alike) or kind (by the kind read "
         "from each name, brick, wood, stone, ...: each material 1/sqrt(n) of its kind's n, so rare "
-        "kinds are drawn far more often than their count; svbrdf_train.data.kinds)",
+        "kinds are drawn far more often than their count; svbrdf_train.data.real.kinds)",
         choices=BALANCES,
     )
     albedo_prior: tuple[float, float] | None = param(

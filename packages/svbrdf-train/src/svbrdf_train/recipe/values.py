@@ -14,8 +14,10 @@ __all__ = ["SIZES", "MAX_SEED", "MIN_RESOLUTION", "MAX_RESOLUTION", "MAX_SAMPLES
 SIZES = ("paper", "cpu", "smoke")
 #: Seeds are drawn from [0, MAX_SEED] (numpy's SeedSequence refuses negative ones).
 MAX_SEED = 2**32 - 1
-#: Training sizes in pixels: below, no network has a layer left; above, no GPU holds a batch.
-MIN_RESOLUTION, MAX_RESOLUTION = 8, 8192
+#: The smallest training size in pixels: below it, no network has a layer left.
+MIN_RESOLUTION = 8
+#: The largest training size in pixels: above it, no GPU holds a batch.
+MAX_RESOLUTION = 8192
 #: Samples per epoch and held out for validation (``data.count``, ``data.validation``, a mix
 #: entry's): 10**8, 500 times the paper's 200k. Each epoch's shuffle holds one 8-byte index per
 #: sample (800 MB at this bound); 10**12 asked torch for 8 TB and failed deep in the fit.

@@ -66,7 +66,7 @@ def _store_lock(uri: str):
     MLflow creates and migrates a SQLite store's tables on first open, without a lock: two fits
     started together on a new store race, and the loser dies (``table experiment_tags already
     exists``) or leaves the store unopenable. Other stores need no lock (a server serialises).
-    The lock is :func:`svbrdf_render.formats.files.locked`, waiting: ``flock`` on POSIX (the
+    The lock is :func:`svbrdf_render.plumbing.locked`, waiting: ``flock`` on POSIX (the
     lock file stays, so every process locks the same file, and a process of an earlier version,
     which took the same ``flock`` by hand or through ``filelock``, is still excluded), the
     system's own file lock through ``filelock`` on Windows.
@@ -75,7 +75,7 @@ def _store_lock(uri: str):
     if parsed.scheme != "sqlite":
         yield
         return
-    from svbrdf_render.formats.files import locked
+    from svbrdf_render.plumbing import locked
 
     db = Path(unquote(parsed.path)[1:]).resolve()
     with locked(db.with_name(db.name + ".lock")):

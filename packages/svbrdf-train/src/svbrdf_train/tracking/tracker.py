@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import unquote, urlparse
 
-from svbrdf_render.formats.files import atomic_output
+from svbrdf_render.plumbing import atomic_output
 
 from ..errors import CheckpointError, TrackingError
 from .datasets import fit_datasets, log_datasets
@@ -144,7 +144,7 @@ class MlflowTracker(Tracker):
     def log_artifact(self, path: str | Path, artifact_path: str | None = None) -> None:
         """Copy a file into the run's artifacts.
 
-        Into a local store the copy is atomic (:func:`svbrdf_render.formats.files.atomic_output`): a full
+        Into a local store the copy is atomic (:func:`svbrdf_render.plumbing.atomic_output`): a full
         disk keeps the previous artifact of that name (the last good checkpoint) and leaves no
         partial file. A server's store goes through MLflow's client.
         """

@@ -19,7 +19,7 @@ world_size         processes of the fit (a resume must use as many)
 =================  ==============================================================================
 
 Writing goes to a temporary file in the same folder, flushed to disk, then renamed over the
-target (:func:`svbrdf_render.formats.files.atomic_output`), so a fit killed at any instant leaves the
+target (:func:`svbrdf_render.plumbing.atomic_output`), so a fit killed at any instant leaves the
 previous checkpoint or the new one, never a mix; a full disk leaves the previous one and no
 temporary file. A fit killed by SIGKILL mid-write leaves its ``.last.pt.PID.tmp``:
 :func:`remove_leftovers` clears such files when the next fit in that folder starts. A small
@@ -46,9 +46,8 @@ from typing import Any
 
 import torch
 
-from svbrdf_models.modelfile.modelcheck import file_sha256
-from svbrdf_models.modelfile.files import nonfinite_tensors, unreadable_reason, weights_mismatch
-from svbrdf_render.formats.files import atomic_output, remove_stale_temporaries, write_text
+from svbrdf_models.modelfile.modelcheck import file_sha256, nonfinite_tensors, unreadable_reason, weights_mismatch
+from svbrdf_render.plumbing import atomic_output, remove_stale_temporaries, write_text
 
 from ..errors import CheckpointError
 

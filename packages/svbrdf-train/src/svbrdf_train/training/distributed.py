@@ -21,14 +21,14 @@ __all__ = ["Dist", "init", "pick_device"]
 
 def pick_device(name: str, local_rank: int = 0) -> torch.device:
     """``auto`` (CUDA when there is one), ``cpu``, ``cuda`` or ``cuda:K``; under torchrun each
-    process takes the GPU of its local rank (:func:`svbrdf_models.capture.batch.pick_device`, whose
+    process takes the GPU of its local rank (:func:`svbrdf_render.plumbing.pick_device`, whose
     refusals are :class:`TrainingError` here)."""
-    from svbrdf_models.capture.batch import pick_device as pick
-    from svbrdf_models.errors import DataError
+    from svbrdf_render import SVBRDFError
+    from svbrdf_render.plumbing import pick_device as pick
 
     try:
         return pick(name, local_rank)
-    except DataError as e:
+    except SVBRDFError as e:
         raise TrainingError(str(e)) from None
 
 

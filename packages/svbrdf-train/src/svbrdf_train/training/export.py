@@ -123,7 +123,7 @@ def check_export_target(out: Path, force: bool = False) -> None:
     a file that is not one (a fit's checkpoint, a photo, anything else) unless ``force``: the
     file would be lost, and a checkpoint overwritten can no longer be resumed. A model file over
     a model file, or a new path, is always fine; a folder in the way is always refused."""
-    from svbrdf_models.modelfile.files import is_model_file
+    from svbrdf_models.modelfile.modelcheck import is_model_file
     from svbrdf_render import SVBRDFError
 
     out = Path(out)

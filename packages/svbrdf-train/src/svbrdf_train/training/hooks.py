@@ -50,8 +50,8 @@ from .progress import format_duration
 from .run import Run, RunChange, RunView, StepEnd
 
 __all__ = [
-    "Run", "RunView", "RunChange", "StepEnd", "Cadence", "Timer", "Hook", "HookRunner",
-    "BudgetWarning", "Logging", "Validation", "Checkpoints", "KeepBest", "Snapshots", "snapshot_name",
+    "Cadence", "Timer", "Hook", "HookRunner", "BudgetWarning", "Logging", "Validation", "Checkpoints",
+    "KeepBest", "Snapshots", "snapshot_name",
 ]  # fmt: skip
 #: Checkpoint fields a user of the weights needs (predict, --init); the rest is for resuming.
 WEIGHT_FIELDS = (

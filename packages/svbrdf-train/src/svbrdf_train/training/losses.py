@@ -48,7 +48,6 @@ from svbrdf_render import MAP_NAMES, SVBRDF, Scene, log_radiance, render
 from ..recipe.paper_weights import MAP_WEIGHTS
 
 __all__ = [
-    "MAP_WEIGHTS",
     "GAN_KINDS",
     "LossWeights",
     "map_loss",

@@ -2,7 +2,7 @@
 
 On a terminal the line is redrawn in place (at most 10 times a second); into a file or a
 pipe (CI logs, ``nohup``) a full line is printed every ``every_s`` seconds instead, so logs
-stay readable. The drawing is :class:`svbrdf_models.progress.StatusLine`'s, the one the photo
+stay readable. The drawing is :class:`svbrdf_render.plumbing.StatusLine`'s, the one the photo
 tool's refinement bar uses too. :class:`Interrupt` turns Ctrl-C and SIGTERM into a request the
 fit answers after its current step, on the same line.
 """
@@ -14,7 +14,7 @@ import signal
 from collections.abc import Mapping
 from typing import Any, TextIO
 
-from svbrdf_models.progress import StatusLine
+from svbrdf_render.plumbing import StatusLine
 
 __all__ = ["Progress", "Interrupt", "format_duration"]
 

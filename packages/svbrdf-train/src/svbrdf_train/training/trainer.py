@@ -26,22 +26,22 @@ from pathlib import Path
 import torch
 
 from svbrdf_render.errors import OutputError, SVBRDFError
-from svbrdf_render.formats.files import write_text
+from svbrdf_render.plumbing import write_text
 
 from ..errors import CheckpointError
 from ..recipe import Recipe, check_recipe
 from . import distributed
 from .checkpoint import CHECKPOINT_NAME, check_resumable, check_run_kept
-from .clock import WARMUP_STEPS, Stopwatch, TrainClock
+from .clock import Stopwatch, TrainClock
 from .hooks import BudgetWarning, Checkpoints, HookRunner, KeepBest, Logging, Snapshots, Validation
 from .order import BatchOrder
 from .progress import Interrupt, Progress, format_duration
-from .resume import RESUMABLE_CHANGES, check_out, check_world, resolve_resume
+from .resume import check_out, check_world, resolve_resume
 from .run import Run, StepEnd
 from .step import GanStep
 from .validation import Validator
 
-__all__ = ["FitOptions", "FitResult", "fit", "RESUMABLE_CHANGES", "WARMUP_STEPS"]
+__all__ = ["FitOptions", "FitResult", "fit"]
 
 
 @dataclass
@@ -61,7 +61,7 @@ class FitOptions:
         init: start from these weights (a checkpoint file, a fit's folder or an MLflow run id;
             :mod:`svbrdf_train.training.init`) in a new fit and a new run.
         overrides: with ``resume`` and no recipe, dotted overrides of the checkpoint's recipe
-            (``{"train.max_steps": 8}``; budgets and cadences: :data:`RESUMABLE_CHANGES`).
+            (``{"train.max_steps": 8}``; budgets and cadences: :data:`~.resume.RESUMABLE_CHANGES`).
     """
 
     out: Path
@@ -90,7 +90,7 @@ class FitResult:
     message: str
     metrics: dict[str, float] = field(default_factory=dict)
     samples_per_s: float | None = None
-    """Training throughput of all processes after the first :data:`WARMUP_STEPS` steps of this
+    """Training throughput of all processes after the first :data:`~.clock.WARMUP_STEPS` steps of this
     session (None when it made no more steps than that)."""
     best: dict[str, Any] | None = None
     """With ``train.keep_best``: ``{"metric", "value", "step"}`` of the weights in ``OUT/best.pt``."""

@@ -14,8 +14,9 @@ from torch import Tensor, nn
 from torch.utils.data import DataLoader, Dataset
 
 from svbrdf_render import MAP_NAMES, SVBRDF, evaluation_scene
+from svbrdf_render.compare import METRIC_NAMES, display_rendering, map_rmse, render_rmse
 
-from ..metrics import METRIC_NAMES, display_rendering, map_rmse, preview_flash, render_rmse
+from ..metrics import preview_flash
 
 __all__ = ["GRID_SAMPLES", "GRID_MIN_SIZE", "Validator"]
 
@@ -79,7 +80,7 @@ class Validator:
 
     @staticmethod
     def _sheet(rows: list, labels: list[str]) -> Tensor:
-        from ..data.sheet import image_grid
+        from svbrdf_models.capture.figures import image_grid
 
         keep = 2 * GRID_SAMPLES
         return image_grid(
