@@ -279,6 +279,44 @@ def test_one_seed_and_one_budget_per_model_has_no_section():
                for line in section.section_lines(one_seed))  # fmt: skip
 
 
+def test_a_benchmark_stopped_in_the_middle_resumes_its_fits_and_keeps_them_only_until_it_ends(
+    tmp_path, monkeypatch
+):
+    import subprocess
+
+    from svbrdf_bench import children
+
+    out, calls, real_run = tmp_path / "report", [], subprocess.run
+
+    def fits_counted(stop_at: int | None):
+        def run(cmd, *args, **kwargs):  # subprocess.run is patched for every caller: count the fits
+            calls.extend([cmd] if "svbrdf_train" in cmd else [])
+            if len(calls) == stop_at:  # Ctrl-C while this fit trains
+                raise KeyboardInterrupt
+            return real_run(cmd, *args, **kwargs)
+
+        return run
+
+    monkeypatch.setattr(children.subprocess, "run", fits_counted(stop_at=2))
+    args = ["run", "--models", "ours", "--seeds", "2", "--steps", "1,2", *TINY, "-o", str(out)]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 130  # stopped as Ctrl-C stops it
+    assert "run the same command again to resume them" in result.stderr
+    first = children.fits_folder(out) / "ours-seed-0"
+    run_id = json.loads((first / "last.json").read_text())["run_id"]
+
+    calls.clear()
+    monkeypatch.setattr(children.subprocess, "run", fits_counted(stop_at=None))
+    result = _invoke(*args)
+    assert result.exit_code == 0, result.output
+    assert "--resume" in calls[0] and "--force" not in calls[0]  # the first seed goes on in its run
+    assert "--force" in calls[1] and "--resume" not in calls[1]  # the second starts again
+    parent = json.loads((out / "results.json").read_text())["parent_run"]
+    fits = {c.info.run_id for c in _children(parent) if "svbrdf.model" not in c.data.tags}
+    assert run_id in fits and len(fits) == 2  # the resumed fit is the new benchmark's child
+    assert not children.fits_folder(out).exists()  # every fit is in MLflow: nothing left beside the report
+
+
 # -- the rows of one fit, and reused seeds ------------------------------------------------------
 
 

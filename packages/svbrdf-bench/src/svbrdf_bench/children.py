@@ -46,6 +46,7 @@ from .seeding import TrainBudget, row_label
 __all__ = [
     "tracking_client",
     "resolve_reuse",
+    "fits_folder",
     "train",
     "fit_checkpoint",
     "log_child",
@@ -138,29 +139,48 @@ def _finished_fits(client, recipe: str, seeds: int, trainable: bool) -> list:
     return found
 
 
+def fits_folder(out: Path) -> Path:
+    """Where a benchmark with report folder ``out`` trains its fits: ``OUT-fits`` beside it, kept
+    when the benchmark stops before its end (the same command then resumes each unfinished fit:
+    :func:`train`) and removed when it finishes."""
+    out = Path(out)
+    return out.with_name(f"{out.name}-fits")
+
+
 def train(
     model: str, options: BenchOptions, parent: str, work: Path, *, seed: int | None = None,
     budget: TrainBudget | None = None, name: str | None = None,
 ) -> tuple[str, float, Path]:  # fmt: skip
     """Train one recipe in its own process (as a user would): its run id, wall seconds and folder.
     ``seed``: ``train.seed`` and ``data.seed`` (None: the recipe's); ``budget``: how long, with
-    snapshots at its marks (default: the options'); ``name``: the run's (default: the recipe's)."""
+    snapshots at its marks (default: the options'); ``name``: the run's (default: the recipe's).
+
+    A fit the same arguments started before in ``work`` (a benchmark stopped in the middle, run
+    again) is resumed from its checkpoint, in its MLflow run, now a child of ``parent``; its
+    arguments are recorded beside its folder (``NAME.json``), so another fit is never resumed."""
     p = options.preset
     budget = budget or options.train_budget()
     name = name or Path(model).stem
     out = work / name.replace(" ", "-")
     size = options.size or p.size
-    cmd = [
-        sys.executable, "-m", "svbrdf_train", "fit",
-        "--recipe", model, "--size", size, "--out", str(out), "--force",
-        "--experiment", options.experiment, "--parent-run", parent, "--run-name", name,
+    args = [
+        "--recipe", model, "--size", size, "--experiment", options.experiment, "--run-name", name,
         "--set", f"train.validate_every={p.validate_every}", "--device", options.device,
         *budget.fit_args(),
     ]  # fmt: skip
     if seed is not None:
-        cmd += ["--set", f"train.seed={seed}", "--set", f"data.seed={seed}"]
+        args += ["--set", f"train.seed={seed}", "--set", f"data.seed={seed}"]
     for item in (*p.overrides, *options.overrides):
-        cmd += ["--set", item]
+        args += ["--set", item]
+    record = out.with_name(out.name + ".json")
+    fit = [sys.executable, "-m", "svbrdf_train", "fit", "--out", str(out), "--parent-run", parent]
+    if (out / "last.json").is_file() and record.is_file() and json.loads(record.read_text()) == args:
+        options.say(f"  resuming {name} from its checkpoint in {out} (a run of this benchmark stopped there)")
+        cmd = [*fit, "--resume"]
+    else:
+        work.mkdir(parents=True, exist_ok=True)
+        record.write_text(json.dumps(args))
+        cmd = [*fit, "--force", *args]
     start = time.perf_counter()
     done = subprocess.run(cmd, stdout=subprocess.PIPE, text=True)
     wall = time.perf_counter() - start

@@ -28,6 +28,7 @@ child run (:mod:`svbrdf_bench.children`); :func:`_report` writes the report and 
 
 from __future__ import annotations
 
+import shutil
 import tempfile
 import time
 from collections import Counter
@@ -38,13 +39,14 @@ from pathlib import Path
 
 import torch
 
-from svbrdf_render.formats.files import check_output_folder
+from svbrdf_render.plumbing import check_output_folder
 
 from .children import (
     Fit,
     FitRow,
     baseline_child,
     fit_checkpoint,
+    fits_folder,
     fit_rows,
     fit_seed,
     log_child,
@@ -82,8 +84,8 @@ from .layout import (
     phase_key,
     test_groups_json,
 )
-from .mlflow_view import describe_in_mlflow, metric_prefix, parent_metrics, parent_note
-from .options import BASELINES, BenchOptions
+from .mlflow_view import describe_in_mlflow
+from .options import BenchOptions
 from .references import (
     check_resolution,
     check_trained_strips,
@@ -96,7 +98,7 @@ from .scoring import RowScorer, comparison_grid, real_grid, training_figures
 from .seeding import TrainBudget, budget_text, check_overrides, row_label
 from .testset import TestSet
 
-__all__ = ["BenchOptions", "run_bench", "BASELINES", "metric_prefix", "parent_metrics", "parent_note"]
+__all__ = ["run_bench"]
 
 
 @dataclass
@@ -225,7 +227,21 @@ def run_bench(options: BenchOptions) -> str:
         raise
     finally:
         parent.finish(status)
+        _fits_left(options, status)
     return parent.run_id
+
+
+def _fits_left(options: BenchOptions, status: str) -> None:
+    """The fits' folder (:func:`~svbrdf_bench.children.fits_folder`): removed when the benchmark
+    finished (every fit is in MLflow), else kept, and said, for the same command to resume."""
+    folder = fits_folder(options.out)
+    if not folder.is_dir():
+        return
+    if status == "FINISHED":
+        shutil.rmtree(folder, ignore_errors=True)
+    else:
+        options.say(f"the fits so far are kept in {folder}: run the same command again to resume them "
+                    "(a fit that finished is scored again, not trained again)")
 
 
 # -- before MLflow: the arguments -----------------------------------------------------------------
@@ -394,7 +410,7 @@ def _fits(bench: _Bench) -> list[FitRow]:
         label = row_label(stem, seed if counts[stem] > 1 else None, None)
         options.say(f"[{i}/{len(plan.to_train)}] training {label} ({plan.size} size)")
         with bench.phases(f"training {label}"):
-            run_id, wall, out = train(model, options, parent.run_id, bench.work, seed=seed,
+            run_id, wall, out = train(model, options, parent.run_id, fits_folder(options.out), seed=seed,
                                       budget=plan.budget, name=label)  # fmt: skip
         own = seed if seed is not None else fit_seed(client.get_run(run_id))
         fits.append(Fit(stem, own, run_id, wall, out, seeds_shown=counts[stem] > 1))

@@ -10,8 +10,8 @@ from svbrdf_render.errors import SVBRDFError
 
 from ..tracking import Tracker, flatten_params, run_tags
 from .clock import CLOCK_TAG
-from .hooks import Run
 from .progress import format_duration
+from .run import Run
 
 __all__ = ["open_tracker", "plan", "nan_message", "with_checkpoint_kept", "summary_metrics", "count_params"]
 
@@ -25,9 +25,10 @@ def open_tracker(run: Run, experiment: str, run_name: str | None, parent_run: st
     from ..tracking import MlflowTracker
 
     recipe, gan = run.recipe, run.gan
-    if run.run_id is not None:
+    if run.run_id is not None:  # resumed: a benchmark run again adopts the fit as its child
+        more = {"mlflow.parentRunId": parent_run} if parent_run else {}
         return MlflowTracker(
-            experiment=experiment, run_id=run.run_id, tags={"svbrdf.resumed_at": str(gan.step)}
+            experiment=experiment, run_id=run.run_id, tags={"svbrdf.resumed_at": str(gan.step), **more}
         )
     tags = run_tags(
         recipe=recipe.name,
