@@ -210,27 +210,9 @@ def test_what_a_hook_returns_is_applied_to_the_run_before_the_next_hook_runs():
         _drive([wrong], 1)
 
 
-class _Legacy:
-    """A hook of the earlier design: ``after_step(run, end)`` and ``observe(run, end)``."""
-
-    cadence = Cadence(steps=2)
-
-    def __init__(self):
-        self.seen = []
-
-    def observe(self, run, end):
-        self.seen.append(end.step)
-
-    def after_step(self, run, end):
-        run.saved_at = end.step
-
-
-def test_a_hook_of_the_earlier_design_still_runs_with_a_deprecation_warning():
-    run, hook, later = _run(), _Legacy(), _Recorder(Cadence(steps=1))
-    later.on_step = lambda view: later.ran.append(view.saved_at)
-    with pytest.warns(DeprecationWarning, match="_Legacy has after_step"):
-        _drive([hook, later], 3, run=run)
-    assert hook.seen == [1, 2, 3] and run.saved_at == 3
-    assert later.ran == [0, 2, 3]
+def test_a_hook_of_the_earlier_design_is_refused_with_what_to_write_instead():
+    legacy = SimpleNamespace(cadence=Cadence(steps=2), after_step=lambda run, end: None)
+    with pytest.raises(TypeError, match=r"after_step\(run, end\), which went in 0.2.0: define on_step"):
+        HookRunner([legacy])
     with pytest.raises(TypeError, match="no on_step"):
         HookRunner([SimpleNamespace(cadence=Cadence())])

@@ -32,15 +32,13 @@ it is made with the view before the first step. The view (:class:`~svbrdf_train.
 is narrow and read-only: what hooks read of the run, never the run itself. ``on_step`` returns
 what it changes, a :class:`~svbrdf_train.training.run.RunChange` (or None), and
 :class:`HookRunner`, the one place that decides after each step which hooks run, applies it to
-the run. A hook with the earlier ``after_step(run, end)`` (and ``observe(run, end)``) instead of
-``on_step`` still runs, given the whole run, with a ``DeprecationWarning``; it goes in the next
-release.
+the run. The earlier design, ``after_step(run, end)`` given the whole run, went in 0.2.0: such
+a hook is refused with what to write instead.
 """
 
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -104,13 +102,17 @@ class Hook(Protocol):
     def on_step(self, view: RunView) -> RunChange | None: ...
 
 
-def _is_legacy(hook: Any) -> bool:
-    """Whether ``hook`` has the earlier ``after_step(run, end)`` instead of ``on_step(view)``."""
+def _check_hook(hook: Any) -> None:
+    """Refuse a hook without ``on_step(view)``, naming the earlier design where it has that."""
     if hasattr(hook, "on_step"):
-        return False
-    if not hasattr(hook, "after_step"):
-        raise TypeError(f"hook {type(hook).__name__} has no on_step(view): a hook is a cadence and on_step")
-    return True
+        return
+    if hasattr(hook, "after_step"):
+        raise TypeError(
+            f"hook {type(hook).__name__} has after_step(run, end), which went in 0.2.0: define "
+            "on_step(view) (and observe(view)) on the read-only RunView, and return a RunChange for what "
+            "it changes (svbrdf_train.training.hooks)"
+        )
+    raise TypeError(f"hook {type(hook).__name__} has no on_step(view): a hook is a cadence and on_step")
 
 
 class HookRunner:
@@ -125,15 +127,8 @@ class HookRunner:
     def __init__(self, hooks: list):
         self.hooks = list(hooks)
         self._timers = [Timer(hook.cadence.minutes) for hook in self.hooks]
-        self._legacy = [_is_legacy(hook) for hook in self.hooks]
-        for hook in [h for h, legacy in zip(self.hooks, self._legacy, strict=True) if legacy]:
-            warnings.warn(
-                f"hook {type(hook).__name__} has after_step(run, end), which gets the whole run and "
-                "goes in the next release: define on_step(view) (and observe(view)) on the read-only "
-                "RunView, and return a RunChange for what it changes (svbrdf_train.training.hooks)",
-                DeprecationWarning,
-                stacklevel=2,
-            )
+        for hook in self.hooks:
+            _check_hook(hook)
 
     def minutes_passed(self) -> list[bool]:
         """Per hook, whether its ``cadence.minutes`` have passed on this process."""
@@ -142,17 +137,13 @@ class HookRunner:
     def after_step(self, run: Run, end: StepEnd, minutes_passed: list[bool]) -> None:
         """Each hook in order: ``observe`` (if it has one), then ``on_step`` when it is due."""
         view = run.view(end)
-        hooks = zip(self.hooks, self._timers, minutes_passed, self._legacy, strict=True)
-        for hook, timer, passed, legacy in hooks:
+        for hook, timer, passed in zip(self.hooks, self._timers, minutes_passed, strict=True):
             observe = getattr(hook, "observe", None)
             if observe is not None:
-                observe(run, end) if legacy else observe(view)
+                observe(view)
             if not hook.cadence.due(end, passed) or (hook.cadence.main_only and not view.main):
                 continue
-            if legacy:
-                hook.after_step(run, end)
-                view = run.view(end)  # it may have changed the run
-            elif (change := hook.on_step(view)) is not None:
+            if (change := hook.on_step(view)) is not None:
                 _apply(run, hook, change)
                 view = run.view(end)  # the next hooks see the run as it is now
             timer.reset()
