@@ -394,3 +394,41 @@ def test_docs_architecture_names_every_subpackage():
     named = set(re.findall(r"^\| `(svbrdf_\w+(?:\.\w+)+)` \|", section, re.M))  # the table's first column
     assert real - named == set(), f"subpackages missing from docs/architecture.md: {sorted(real - named)}"
     assert named - real == set(), f"docs/architecture.md names subpackages that do not exist: {sorted(named - real)}"
+
+
+def _architecture_order() -> list[str]:
+    """The subpackages in the order docs/architecture.md's table lists them."""
+    text = (REPO / "docs" / "architecture.md").read_text()
+    section = text.split("## Subpackages", 1)[1].split("\n## ", 1)[0]
+    return re.findall(r"^\| `(svbrdf_\w+(?:\.\w+)+)` \|", section, re.M)
+
+
+def _floor_breaches(graph: dict[str, list[Edge]], order: list[str]) -> list[str]:
+    """Imports from a subpackage into one listed after it in its package (nesting aside)."""
+    def room(module: str) -> str | None:
+        found = [s for s in order if module == s or module.startswith(s + ".")]
+        return max(found, key=len, default=None)
+
+    breaches = set()
+    for source, edges in graph.items():
+        for e in edges:
+            a, b = room(source), room(e.target)
+            nested = a and b and (a.startswith(b + ".") or b.startswith(a + "."))
+            if a and b and a != b and not nested and order.index(b) > order.index(a):
+                breaches.add(f"{a} imports {b}, listed after it ({e.source} line {e.line})")
+    return sorted(breaches)
+
+
+def test_the_floors_follow_the_order_docs_architecture_gives(graph):
+    """Issue 48: docs/architecture.md lists each package's subpackages from the ground floor up,
+    and the code follows that order: a subpackage imports only those listed before it."""
+    breaches = _floor_breaches(graph, _architecture_order())
+    assert not breaches, "imports against docs/architecture.md's order:\n" + "\n".join(breaches)
+
+
+def test_the_floor_check_sees_an_upward_import():
+    edges = {"pkg.low.x": [Edge("pkg.low.x", "pkg.high.y", 4)], "pkg.high.y": [Edge("pkg.high.y", "pkg.low", 2)],
+             "pkg.low.sub.z": [Edge("pkg.low.sub.z", "pkg.low", 1)]}  # fmt: skip
+    assert _floor_breaches(edges, ["pkg.low", "pkg.low.sub", "pkg.high"]) == [
+        "pkg.low imports pkg.high, listed after it (pkg.low.x line 4)"
+    ]

@@ -1,4 +1,12 @@
-"""svbrdf-models: generators, attention modules and discriminators, extensible by plugins.
+"""svbrdf-models: the networks, a trained generator as a file, and the photo tool.
+
+- :mod:`svbrdf_models.networks`: generators, attention modules, discriminators and the untrained
+  baselines, in a registry that plugins extend;
+- :mod:`svbrdf_models.capture`: the photo tool (``svbrdf-models predict``): one photo, batches,
+  shots of the printed frame, calibrated sets, the material folder;
+- :mod:`svbrdf_models.modelfile`: saving, loading and checking a trained generator (files, URLs,
+  MLflow URIs, the shipped ``pretrained`` models), the MLflow model and ``svbrdf-models serve``;
+- :mod:`svbrdf_models.commands`: one module per command line command.
 
 Public API (timm style: list, describe, create)::
 
@@ -52,7 +60,7 @@ from .errors import (
 )
 
 #: The package's version, its one source: pyproject.toml reads it (setuptools dynamic version).
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 # The built-in networks load on first access, like any plugin.
 _LAZY = {
@@ -111,7 +119,9 @@ __all__ = [
 ]
 
 # Modules that moved into subpackages (issue 38): the old names import the new modules with a
-# DeprecationWarning for one release (svbrdf_render.plumbing.moved; CHANGELOG.md).
+# DeprecationWarning until release _MOVED_UNTIL (svbrdf_render.plumbing.moved; CHANGELOG.md).
+#: The release that removes the old names below (0.2.0 keeps them, with a warning).
+_MOVED_UNTIL = "0.3.0"
 _MOVED = {
     "svbrdf_models.generators": "svbrdf_models.networks.generators",
     "svbrdf_models.attention": "svbrdf_models.networks.attention",
@@ -133,4 +143,4 @@ _MOVED = {
 
 from svbrdf_render.plumbing.moved import install as _install_moved
 
-_install_moved(_MOVED)
+_install_moved(_MOVED, _MOVED_UNTIL)
