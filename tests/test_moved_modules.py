@@ -1,6 +1,7 @@
-"""Modules moved into subpackages (issue 38) keep their old names for one release: the old name
-imports the very module under its new name, with a DeprecationWarning that says where it went;
-and no file stands at an old name (the old names are listed once, in each package's _MOVED)."""
+"""Modules moved into subpackages (issues 38 and 48) keep their old names until a stated release:
+the old name imports the very module under its new name, with a DeprecationWarning that says where
+it went and which release removes it; no file stands at an old name (the old names are listed once,
+in each package's _MOVED), and no alias outlives the release that removes it."""
 
 from __future__ import annotations
 
@@ -21,7 +22,8 @@ MOVED = {**svbrdf_render._MOVED, **svbrdf_models._MOVED, **svbrdf_train._MOVED}
 def test_an_old_module_name_is_the_new_module_with_a_warning(old, new):
     module = importlib.import_module(new)
     sys.modules.pop(old, None)
-    with pytest.warns(DeprecationWarning, match=f"{old} moved to {new}"):
+    package = importlib.import_module(old.split(".")[0])
+    with pytest.warns(DeprecationWarning, match=rf"{old} moved to {new}: .* goes in {package._MOVED_UNTIL}"):
         assert importlib.import_module(old) is module
     top, _, leaf = old.rpartition(".")
     assert getattr(importlib.import_module(top), leaf) is module  # `import pkg.old` then `pkg.old.x` works
@@ -49,3 +51,14 @@ def test_aliases_of_paths_that_never_shipped_are_gone(gone):
     sys.modules.pop(gone, None)
     with pytest.raises(ModuleNotFoundError):
         importlib.import_module(gone)
+
+
+def _release(version: str) -> tuple[int, ...]:
+    return tuple(int(part) for part in version.split("."))
+
+
+@pytest.mark.parametrize("package", [svbrdf_render, svbrdf_models, svbrdf_train], ids=lambda p: p.__name__)
+def test_no_alias_outlives_the_release_that_removes_it(package):
+    """Each package's aliases name the release that removes them, later than the package's own:
+    a release at that version fails here until its aliases are deleted."""
+    assert _release(package._MOVED_UNTIL) > _release(package.__version__)

@@ -4,4 +4,4 @@ Nothing here imports mlflow, scikit-image or matplotlib at import time.
 """
 
 #: The package's version, its one source: pyproject.toml reads it (setuptools dynamic version).
-__version__ = "0.1.0"
+__version__ = "0.2.0"

@@ -50,7 +50,7 @@ from .tiling import MIN_TILEABLE_SIDE, make_tileable, make_tileable_map, seam_er
 from .viewer import VIEWER_INTENSITY, viewer_scene, write_viewer
 
 #: The package's version, its one source: pyproject.toml reads it (setuptools dynamic version).
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 __all__ = [
     "BACKENDS",
@@ -124,8 +124,10 @@ __all__ = [
 ]
 
 # Modules that moved into subpackages (issues 38 and 48): the old names import the new modules
-# with a DeprecationWarning for one release (svbrdf_render.plumbing.moved; CHANGELOG.md). A
+# with a DeprecationWarning until release _MOVED_UNTIL (svbrdf_render.plumbing.moved; CHANGELOG.md). A
 # module split in several (files, materialfiles) names the subpackage that states their names.
+#: The release that removes the old names below (0.2.0 keeps them, with a warning).
+_MOVED_UNTIL = "0.3.0"
 _MOVED = {
     "svbrdf_render.refine": "svbrdf_render.refinement.refine",
     "svbrdf_render.fit": "svbrdf_render.refinement.fit",
@@ -141,4 +143,4 @@ _MOVED = {
 
 from .plumbing.moved import install as _install_moved
 
-_install_moved(_MOVED)
+_install_moved(_MOVED, _MOVED_UNTIL)

@@ -16,7 +16,7 @@ import importlib
 import sys
 
 #: The package's version, its one source: pyproject.toml reads it (setuptools dynamic version).
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 #: Module (relative to this package) -> the public names it defines, imported on first use.
 _PUBLIC: dict[str, tuple[str, ...]] = {
@@ -69,7 +69,9 @@ def __dir__() -> list[str]:
     return sorted({*globals(), *_WHERE})
 
 # Modules that moved into subpackages (issues 38 and 48): the old names import the new modules with a
-# DeprecationWarning for one release (svbrdf_render.plumbing.moved; CHANGELOG.md).
+# DeprecationWarning until release _MOVED_UNTIL (svbrdf_render.plumbing.moved; CHANGELOG.md).
+#: The release that removes the old names below (0.2.0 keeps them, with a warning).
+_MOVED_UNTIL = "0.3.0"
 _MOVED = {
     "svbrdf_train.trainer": "svbrdf_train.training.trainer",
     "svbrdf_train.step": "svbrdf_train.training.step",
@@ -114,7 +116,7 @@ class _MovedFinder:
             return None
         from svbrdf_render.plumbing.moved import spec_for
 
-        return spec_for(fullname, _MOVED)
+        return spec_for(fullname, _MOVED, _MOVED_UNTIL)
 
 
 if _MovedFinder not in sys.meta_path:
