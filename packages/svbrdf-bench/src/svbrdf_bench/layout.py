@@ -114,6 +114,12 @@ tag ``svbrdf.snapshot``             child   of a row scored from a snapshot of i
                                             ``minutes-8.pt`` (:data:`SNAPSHOT_TAG`)
 params ``seeds``, ``train_budgets`` parent  ``--seeds N`` and the training budgets, ``minutes 2,8,32``
                                             (:data:`SEEDS_PARAM`, :data:`BUDGETS_PARAM`)
+param ``published_file``            parent  with ``--published FILE.yaml``: the file's name; the file
+                                            itself, as written, is the artifact
+                                            ``eval/published.yaml`` (:data:`PUBLISHED_PARAM`,
+                                            :data:`PUBLISHED`; read by :mod:`svbrdf_bench.published`)
+param ``test_resolution``           parent  the side in px the test images were scored at
+                                            (:data:`TEST_RESOLUTION_PARAM`; absent in older runs)
 artifact ``eval/missed_*.json``     parent  ``eval/missed_budgets.json``: the budgets a fit never
                                             reached, each ``{model, seed, budget, why}``
                                             (:data:`MISSED_BUDGETS`, :func:`read_missed`)
@@ -196,6 +202,9 @@ __all__ = [
     "read_budget",
     "missed_json",
     "read_missed",
+    "PUBLISHED",
+    "PUBLISHED_PARAM",
+    "TEST_RESOLUTION_PARAM",
 ]
 
 #: Tag of the parent run; its value :data:`BENCH_KIND` marks a benchmark's parent.
@@ -231,6 +240,12 @@ PER_SAMPLE = "eval/per_sample.json"
 TEST_GROUPS = "eval/test_groups.json"
 #: Param of the parent run: how the test samples were grouped into materials.
 GROUP_BY_PARAM = "group_by"
+#: Param of the parent run: the side in px the test images were scored at.
+TEST_RESOLUTION_PARAM = "test_resolution"
+#: Artifact of the parent run with ``--published FILE.yaml``: the file as written, and the param
+#: that names it (:mod:`svbrdf_bench.published`).
+PUBLISHED = "eval/published.yaml"
+PUBLISHED_PARAM = "published_file"
 #: Artifact folder of the parent run holding the written report.
 REPORT_ARTIFACTS = "report"
 

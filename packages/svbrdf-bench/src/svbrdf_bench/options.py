@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .presets import Preset
+from .published import Published
 from .refinement import RefinePlan
 from .seeding import TrainBudget, train_budget
 
@@ -54,6 +55,8 @@ class BenchOptions:
     """Fits per model (``--seeds N``): seed s in 0..N-1 set as ``train.seed`` and ``data.seed``."""
     budget: TrainBudget | None = None
     """Training budgets (``--minutes 2,8,32``, ``--steps 500,2000``); None: ``minutes`` or the preset's."""
+    published: Published | None = None
+    """Published numbers set beside the rows (``--published FILE.yaml``), checked; None: none."""
     say: Callable[[str], None] = print
 
     def train_budget(self) -> TrainBudget:

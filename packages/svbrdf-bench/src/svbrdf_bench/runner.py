@@ -70,6 +70,7 @@ from .layout import (
     MISSED_BUDGETS,
     MODEL_TAG,
     PRESET_PARAM,
+    PUBLISHED_PARAM,
     REAL_DATA_PARAM,
     REFERENCE_TAG,
     REFERENCES_PARAM,
@@ -79,6 +80,7 @@ from .layout import (
     REPORT_ARTIFACTS,
     SEEDS_PARAM,
     TEST_GROUPS,
+    TEST_RESOLUTION_PARAM,
     TEST_SET_PARAM,
     missed_json,
     phase_key,
@@ -86,6 +88,7 @@ from .layout import (
 )
 from .mlflow_view import describe_in_mlflow
 from .options import BenchOptions
+from .published import check_test_set, log_published
 from .references import (
     check_resolution,
     check_trained_strips,
@@ -279,6 +282,7 @@ def _plan(options: BenchOptions) -> _Plan:
     if test is None:
         test = _test_set(options, _models_resolution(reuse, refs))
     check_trained_strips(refs, test, options.allow_trained_strips, options.say)
+    check_test_set(options.published, test)  # published numbers on another test set: refused
     photos = None
     if options.real_data is not None:
         photos = PhotoFolder(options.real_data, encoding=options.real_encoding, pattern=options.real_pattern)
@@ -371,6 +375,8 @@ def _open_parent(options: BenchOptions, plan: _Plan, sha: str, dirty: bool):
             PRESET_PARAM: p.name, "recipe_size": plan.size, MINUTES_PARAM: budget,
             SEEDS_PARAM: str(options.seeds), BUDGETS_PARAM: plan.budget.param,
             TEST_SET_PARAM: test.description, "test_count": str(len(test)), GROUP_BY_PARAM: test.group_by,
+            TEST_RESOLUTION_PARAM: str(test.resolution),
+            **({PUBLISHED_PARAM: options.published.origin} if options.published else {}),
             "overrides": " ".join([*p.overrides, *options.overrides]) or "-",
             REAL_DATA_PARAM: f"{len(plan.photos)} photos of {options.real_data} ({options.real_encoding})"
             if plan.photos else "-",
@@ -381,6 +387,7 @@ def _open_parent(options: BenchOptions, plan: _Plan, sha: str, dirty: bool):
                if refine.active else {}),
         },
     )  # fmt: skip
+    log_published(parent, options.published)
     refining = (
         f"; refinement budgets: {', '.join(map(str, refine.budgets))} steps "
         f"({refine.backend}, flash: {refine.flash_words()})"

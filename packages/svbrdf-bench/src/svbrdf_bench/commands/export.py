@@ -29,8 +29,9 @@ def export(parent_run_id, fmt, out):
 
     Rows: the models (reference and refined rows included), then the constant-map baselines
     `mean` and `photo`; columns: the RMSE of normal, diffuse, roughness, specular and of the
-    renderings, each with its 95% bootstrap interval; the best of each column in bold. The
-    caption names the test set, its number of materials, the seeds and the protocol.
+    renderings, each with its 95% bootstrap interval; the best of each column in bold; then the
+    numbers of `run --published FILE.yaml`, marked "published, not rerun" (no interval, never
+    bold). The caption names the test set, its number of materials, the seeds and the protocol.
 
     \b
     Examples:

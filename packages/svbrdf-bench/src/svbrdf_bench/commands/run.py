@@ -74,6 +74,12 @@ the next; the front of render RMSE against training minutes; and accuracy_vs_tra
 different train.seed; a recipe name: its last finished fit of each seed).
 
 \b
+Published numbers: --published FILE.yaml sets figures copied from papers beside the rows, each
+marked `NAME (published, not rerun)`: no interval, no verdict, outside the Pareto front; the
+report states their protocol and where this benchmark scores otherwise. The file names its test
+set (des18: needs --test-data of Des18 strips); none ship with svbrdf-bench.
+
+\b
 Inference cost: every row gets its FLOPs per 256x256 image (torch.utils.flop_counter; they grow
 with the pixel count, x4 at 512 px, x16 at 1024 px) and its latency on --device at each
 SIZExBATCH point of the latency grid: ms per forward pass of BATCH images of SIZE px, median of
@@ -269,6 +275,14 @@ def _once(flag: str, values: tuple):
     "(position too), or the intensity of the on-axis flash the photos were taken with (e.g. 15).",
 )
 @click.option(
+    "--published",
+    metavar="FILE.yaml",
+    help="Published numbers to set beside the rows, copied from papers into a YAML file (its test set, "
+    "protocol and rows: docs/svbrdf-bench.md, \"Published numbers\"); each row is shown as "
+    "`NAME (published, not rerun)`, with no interval and no verdict. None ship with svbrdf-bench. "
+    "Example: --test-data DATA/des18-dev --published des18-papers.yaml.",
+)
+@click.option(
     "--no-baselines",
     is_flag=True,
     help="Leave out the untrained baselines `mean` and `photo` (and the comparison with `mean`).",
@@ -294,6 +308,7 @@ def _bench_options(flags: dict):
     from ..inference import parse_latency_grid
     from ..options import BASELINES, BenchOptions
     from ..presets import get_preset
+    from ..published import read_published
     from ..refinement import RefinePlan, parse_budgets, parse_flash
     from ..seeding import parse_seeds, train_budget
 
@@ -316,6 +331,7 @@ def _bench_options(flags: dict):
             "and/or --from-models FILE,..."
         )
     test_data, real_data = flags["test_data"], flags["real_data"]
+    published = read_published(flags["published"]) if flags["published"] is not None else None
     return BenchOptions(
         models=chosen,
         preset=preset,
@@ -338,6 +354,7 @@ def _bench_options(flags: dict):
         size=flags["size"],
         baselines=[] if flags["no_baselines"] else list(BASELINES),
         refine=plan,
+        published=published,
         latency_grid=parse_latency_grid(flags["latency_grid"]) if flags["latency_grid"] is not None else (),
         say=lambda s: click.echo(s, err=not s.startswith("svbrdf-bench:")),
     )

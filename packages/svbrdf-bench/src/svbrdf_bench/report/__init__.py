@@ -50,6 +50,8 @@ runner that writes them. It keeps the figures apart from how they are shown:
 - :mod:`~svbrdf_bench.report.files`: the report folder (:func:`write_report`: Markdown, CSV,
   JSON, plots);
 - :mod:`~svbrdf_bench.report.read`: :func:`build_report`, the report read back from MLflow;
+- :mod:`~svbrdf_bench.report.published`: published numbers (``--published FILE.yaml``) beside the
+  rows, never rows of their own, and their protocol against this benchmark's scoring;
 - :mod:`~svbrdf_bench.report.export`: :func:`export_table`, the RMSE table as a paper prints it
   (``svbrdf-bench export``: Markdown or LaTeX).
 """

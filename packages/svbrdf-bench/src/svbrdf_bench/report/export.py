@@ -6,6 +6,10 @@ LaTeX (a booktabs ``tabular`` inside a ``table``). With several seeds (``--seeds
 budgets per model, a model is one row per budget over its seeds, as the report's section
 "Across seeds and budgets" gives it (:mod:`~svbrdf_bench.report.seeds`).
 
+Published numbers (``--published``) follow, marked "published, not rerun": copied figures, with
+no interval, never in bold, and a caption sentence naming where their protocol differs from this
+table's (:mod:`~svbrdf_bench.report.published`).
+
 Figures are the report's own (:meth:`Report.interval`), printed to 3 decimals as the paper's
 Table 1 prints them; "best" is the lowest mean at that precision, so rows that print alike are
 bold alike.
@@ -14,6 +18,7 @@ bold alike.
 from __future__ import annotations
 
 from .figures import Report
+from .published import export_rows, export_words
 from .rows import COLUMNS, PURE_OPTIMISATION, REFERENCE, ModelEntry
 from .verdicts import unit_count
 
@@ -123,6 +128,7 @@ def caption(report: Report, seeds: int | None = None) -> str:
         + (" of the per-material means" if report.per_material_on else "")
         + f", with its 95% percentile-bootstrap interval over {unit}; best per column in bold. "
         + (f"Untrained baselines: {baselines}. " if baselines else "")
+        + export_words(report)
         + f"Training: {report.minutes} ({report.preset} preset). svbrdf-bench parent run {report.parent_id}."
     )
 
@@ -137,13 +143,21 @@ def _cell(ci: tuple[float, float, float] | None, best: float | None, bold: str) 
     return figure, f"[{ci[1]:.{DIGITS}f}, {ci[2]:.{DIGITS}f}]"
 
 
+def _published(report: Report) -> list[tuple[str, list[str]]]:
+    """The published rows (``--published``): their label and each RMSE as printed, ``-`` where not
+    given; copied figures, so no interval and never in bold."""
+    return [(name, ["-" if v is None else f"{v:.{DIGITS}f}" for v in values])
+            for name, values in export_rows(report).items()]  # fmt: skip
+
+
 def _markdown(report: Report, seeds: int | None) -> str:
     figures, _ = _figures(report)
     best = _best(figures)
     lines = [f"**Table.** {caption(report, seeds)}", "", "| model | " + " | ".join(COLUMNS) + " |",
              "| :--- | " + " | ".join("---:" for _ in COLUMNS) + " |"]  # fmt: skip
-    for name, cells in figures.items():
-        shown = [" ".join(_cell(ci, b, "**{}**")).strip() for ci, b in zip(cells, best, strict=True)]
+    rows = [(name, [" ".join(_cell(ci, b, "**{}**")).strip() for ci, b in zip(cells, best, strict=True)])
+            for name, cells in figures.items()]  # fmt: skip
+    for name, shown in [*rows, *_published(report)]:
         name = name.replace("|", "\\|")  # a bar would end the cell
         lines.append(f"| {name} | " + " | ".join(shown) + " |")
     return "\n".join(lines) + "\n"
@@ -161,6 +175,9 @@ def _latex(report: Report, seeds: int | None) -> str:
             figure, interval = _cell(ci, b, r"\textbf{{{}}}")
             shown.append(f"{figure} {{\\scriptsize {interval}}}" if interval else figure)
         body.append(f"{latex_escape(name)} & " + " & ".join(shown) + r" \\")
+    published = _published(report)
+    body += [r"\midrule"] * bool(published)  # copied from papers: apart from the rows scored here
+    body += [f"{latex_escape(name)} & " + " & ".join(cells) + r" \\" for name, cells in published]
     head = "Model & " + " & ".join(c.capitalize() for c in COLUMNS) + r" \\"
     return "\n".join([
         f"% svbrdf-bench export {report.parent_id} --format latex; needs \\usepackage{{booktabs}}",

@@ -20,6 +20,7 @@ import numpy as np
 from ..errors import BenchError
 from ..layout import INPUT_RERENDER, REAL_PREFIX, REAL_RERENDER
 from ..inference import CUDA_MEMORY_PREFIX, FLOPS_METRIC
+from ..published import Published
 from ..timing import LATENCY_METRIC, Load
 from .rows import COLUMNS, METRICS, REFERENCE, TIME_COLUMNS, ModelEntry
 
@@ -59,6 +60,11 @@ class Report:
     #: The training budgets a fit never reached (parent artifact ``eval/missed_budgets.json``):
     #: ``[{model, seed, budget, why}]`` (:mod:`~svbrdf_bench.report.seeds`).
     missed_budgets: list[dict] = field(default_factory=list)
+    #: Published numbers set beside the rows (``--published``; the parent artifact
+    #: ``eval/published.yaml``), never rows of their own: :mod:`~svbrdf_bench.report.published`.
+    published: Published | None = None
+    #: The side in px the test images were scored at (parent param ``test_resolution``); None: not recorded.
+    resolution: int | None = None
     #: :meth:`latency_front`'s last answer, with the rows it was computed for.
     _front_cache: dict = field(default_factory=dict, repr=False, compare=False)
 

@@ -18,6 +18,7 @@ from svbrdf_render.plumbing import atomic_output, write_text
 from ..layout import SECONDS_PER_IMAGE
 from . import seeds, words
 from .figures import Report
+from .published import published_json
 from .rows import PURE_OPTIMISATION, REFERENCE
 from .text import markdown
 from .verdicts import ALPHA, Family, family, holm_note, small_sample_note
@@ -61,6 +62,7 @@ def results_json(report: Report, records: list[dict], costs: list[dict], against
         "small_sample": small_sample_note(report),
         "comparisons": comparisons_json(family(report)),
         "across_seeds": seeds.section_json(report),  # None: one seed and one budget per model
+        "published": published_json(report),  # None: no --published numbers
     }
 
 

@@ -28,6 +28,8 @@ from ..layout import (
     PARENT_TAG,
     PER_SAMPLE,
     PRESET_PARAM,
+    PUBLISHED,
+    PUBLISHED_PARAM,
     REAL_DATA_PARAM,
     REFINE_BACKEND_PARAM,
     REFINE_FLASH_PARAM,
@@ -36,6 +38,7 @@ from ..layout import (
     STEPS_METRIC,
     STEPS_WALL_METRIC,
     TEST_GROUPS,
+    TEST_RESOLUTION_PARAM,
     TEST_SET_PARAM,
     TRAINER_PREFIXES,
     is_baseline,
@@ -94,6 +97,8 @@ def build_report(parent_id: str) -> Report:
         },
         phases=read_phases(parent.data.metrics),
         missed_budgets=_missed(client, parent_id, params),
+        published=_published(client, parent_id, params),
+        resolution=int(side) if (side := params.get(TEST_RESOLUTION_PARAM, "")).isdigit() else None,
         **_grouping(client, parent_id, params),
     )
 
@@ -183,6 +188,26 @@ def _missed(client, parent_id: str, params: dict) -> list[dict]:
         except Exception:  # absent: every fit reached every budget
             return []
         return read_missed(Path(local).read_text())
+
+
+def _published(client, parent_id: str, params: dict):
+    """The published numbers the benchmark set beside its rows (the parent's ``eval/published.yaml``,
+    read as ``--published`` read it); None without ``--published``. A run that records the file
+    but lost it is refused: its rows would go missing without a word."""
+    from ..published import parse_published
+
+    origin = params.get(PUBLISHED_PARAM)
+    if origin is None:
+        return None
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            local = client.download_artifacts(parent_id, PUBLISHED, tmp)
+        except Exception as e:
+            raise BenchError(
+                f"run {parent_id} records published numbers ({origin}) but its {PUBLISHED} cannot be read "
+                f"({type(e).__name__})"
+            ) from None
+        return parse_published(Path(local).read_text(encoding="utf-8"), origin)
 
 
 def link_refined(models: list[ModelEntry]) -> list[ModelEntry]:
