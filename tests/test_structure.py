@@ -427,8 +427,46 @@ def test_the_floors_follow_the_order_docs_architecture_gives(graph):
 
 
 def test_the_floor_check_sees_an_upward_import():
-    edges = {"pkg.low.x": [Edge("pkg.low.x", "pkg.high.y", 4)], "pkg.high.y": [Edge("pkg.high.y", "pkg.low", 2)],
-             "pkg.low.sub.z": [Edge("pkg.low.sub.z", "pkg.low", 1)]}  # fmt: skip
+    edges = {
+        "pkg.low.x": [Edge("pkg.low.x", "pkg.high.y", 4)],
+        "pkg.high.y": [Edge("pkg.high.y", "pkg.low", 2)],
+        "pkg.low.sub.z": [Edge("pkg.low.sub.z", "pkg.low", 1)],
+    }
     assert _floor_breaches(edges, ["pkg.low", "pkg.low.sub", "pkg.high"]) == [
         "pkg.low imports pkg.high, listed after it (pkg.low.x line 4)"
     ]
+
+
+def _passed_on(path: Path) -> list[str]:
+    """The names a module's ``__all__`` lists but the module does not define (imports it passes on)."""
+    tree = ast.parse(path.read_text())
+    listed, defined = [], set()
+    for node in tree.body:
+        targets = node.targets if isinstance(node, ast.Assign) else []
+        targets += [node.target] if isinstance(node, ast.AnnAssign) else []
+        for target in targets:
+            for name in ast.walk(target):
+                if isinstance(name, ast.Name):
+                    defined.add(name.id)
+                    if name.id == "__all__" and isinstance(node, ast.Assign):
+                        listed = list(ast.literal_eval(node.value))
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            defined.add(node.name)
+    return [name for name in listed if name not in defined]
+
+
+def test_an_ordinary_module_lists_only_what_it_defines():
+    """Issue 48, one address per name: a module's ``__all__`` names what it defines; a subpackage's
+    ``__init__`` states the public names of its modules, and nothing else passes names on."""
+    found = {
+        str(path.relative_to(REPO)): names
+        for path in sorted((REPO / "packages").glob("*/src/*/**/*.py"))
+        if path.name != "__init__.py" and (names := _passed_on(path))
+    }
+    assert not found, f"modules passing on names they do not define: {found}"
+
+
+def test_the_pass_on_check_sees_an_imported_name(tmp_path):
+    module = tmp_path / "m.py"
+    module.write_text("from os import sep\nA, B = 1, 2\n__all__ = ['A', 'B', 'sep', 'f']\ndef f(): pass\n")
+    assert _passed_on(module) == ["sep"]

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from conftest import REPO
-from svbrdf_models.capture.flashpoint import EDGE, EDGE_COST, PLACES, edge_note, flash_line
+from svbrdf_models.capture.geometry import EDGE, EDGE_COST, PLACES, edge_note, flash_line
 from svbrdf_models.cli import main
 from svbrdf_render import SVBRDF, render, write_image
 from svbrdf_render.formats.mapfiles import linear_to_srgb

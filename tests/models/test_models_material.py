@@ -15,8 +15,8 @@ import torch
 
 import svbrdf_models as sm
 from conftest import require_materialx, validate_gltf
-from svbrdf_models.capture import record as material_record
 from svbrdf_models import capture
+from svbrdf_models.capture.material import MATERIAL_FORMAT, photo_sha256
 from svbrdf_models.capture.one import CaptureOptions, capture_one
 from svbrdf_models.cli import main
 from svbrdf_models.errors import DataError
@@ -68,7 +68,7 @@ def folder(tmp_path_factory):
 
 def test_every_image_says_its_encoding_as_material_json_does(folder):
     record = json.loads((folder / "material.json").read_text())
-    assert record["format"] == material_record.MATERIAL_FORMAT and record["name"] == "shot"
+    assert record["format"] == MATERIAL_FORMAT and record["name"] == "shot"
     expected = {"basecolor": "srgb", "diffuse": "srgb", "specular": "srgb", "metallic": "linear",
                 "roughness": "linear", "normal": "linear", "metallic_roughness": "linear"}  # fmt: skip
     assert {name: m["encoding"] for name, m in record["maps"].items()} == expected
@@ -77,7 +77,7 @@ def test_every_image_says_its_encoding_as_material_json_does(folder):
     for figure in ("input.png", "rerender.png"):
         assert read_png_encoding(folder / figure) == "srgb"
     assert record["normal"]["convention"] == "opengl"
-    assert record["photo"]["sha256"] == material_record.photo_sha256(folder.parent / "shot.png")
+    assert record["photo"]["sha256"] == photo_sha256(folder.parent / "shot.png")
     assert record["model"]["source"] == "known:tiles" and record["refine"] == {"budget": 0}
     for key in ("created", "svbrdf_render", "svbrdf_models", "torch"):
         assert record["provenance"][key]

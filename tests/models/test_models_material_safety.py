@@ -71,7 +71,7 @@ def test_two_captures_of_same_named_photos_into_one_folder_lose_nothing(tmp_path
         record = json.loads((out / "tiles" / "material.json").read_text())
         winner = a if codes[0] == 0 else b
         assert record["photo"]["file"] == winner.name
-        from svbrdf_models.capture.record import photo_sha256
+        from svbrdf_models.capture.material import photo_sha256
 
         assert record["photo"]["sha256"] == photo_sha256(winner)
 

@@ -12,7 +12,7 @@ address beside this one. The modules:
 - :mod:`~svbrdf_models.capture.relight`: the flash fit, the relit versions and relit.gif;
 - :mod:`~svbrdf_models.capture.reference`: a region of known albedo (``--reference``);
 - :mod:`~svbrdf_models.capture.geometry`: where the camera stood, from EXIF, the crop,
-  ``--fov`` or ``--distance``;
+  ``--fov`` or ``--distance``, and where its flash was taken to be (the photo's highlight);
 - :mod:`~svbrdf_models.capture.figures`: the error heat map and the re-rendering figure;
 - :mod:`~svbrdf_models.capture.material`: the material folder, its files declared once
   (``FOLDER``), written whole, and its material.json;

@@ -24,6 +24,7 @@ from svbrdf_render.plumbing import INTERRUPTED, ProgressBar, locked, write_text
 
 __all__ = [
     "HELP_SECTIONS",
+    "announce_model",
     "capture_batch",
     "check_material_folders",
     "set_threads",
@@ -129,6 +130,28 @@ def folder_table() -> str:
         cell = holds.replace("|", "\\|")  # a bare bar would end the cell
         lines.append(f"| `{name}` | {encoding} | {cell} | {when} |")
     return "\n".join([*lines, "", ALBEDO_NOTE.replace("*", "\\*", 1)])
+
+
+def announce_model(model, line: str, tile_size: int | None) -> None:
+    """``line`` (the model, as the command loaded it) on stderr, and with --tiles --map-size what
+    the tiles will cost; a --map-size under the model's resolution is refused first."""
+    from ..errors import DataError
+
+    if tile_size is not None and tile_size < model.resolution:
+        raise DataError(f"--map-size {tile_size} is smaller than the model's resolution ({model.resolution})")
+    print(line, file=sys.stderr)
+    if tile_size is not None:
+        from svbrdf_render.plumbing import machine
+
+        from .tiles import tile_count, tiled_capture_bytes
+
+        have = machine.available_memory()
+        print(
+            f"--tiles --map-size {tile_size}: {tile_count(tile_size, model.resolution)} tiles of "
+            f"{model.resolution} px per photo, about {tiled_capture_bytes(tile_size) / 2**30:.1f} GiB "
+            f"of memory" + (f" ({have / 2**30:.1f} GiB available)" if have is not None else ""),
+            file=sys.stderr,
+        )
 
 
 def set_threads(requested: int | None):
@@ -269,10 +292,9 @@ def _capture_each(predictor, photos, out: Path, options, prog: str, entries: lis
     from svbrdf_render.errors import OutputError
     from svbrdf_render.plumbing import raise_if_interrupted
 
+    from .geometry import flash_line
+    from .material import model_record
     from .one import capture_one
-
-    from .flashpoint import flash_line
-    from .record import model_record
 
     used: set[str] = set()
     made = model_record(predictor)  # in each entry as SOURCE@SHA12: which model, briefly

@@ -347,7 +347,7 @@ def capture_calibrated(predictor, folder, out_dir, options, *, use: list[int] | 
 
 def _record(predictor, cal, sha, options, size, used, frontal, judged: Judged, result) -> dict:
     """material.json's fields that the calibrated capture knows."""
-    from .record import model_record, provenance
+    from .material import model_record, provenance
 
     mean = finite(sum(judged.rmse[i] for i in used) / len(used))
     return {

@@ -1,8 +1,9 @@
 """Pictures for people: tiles laid out in a labelled grid, and error heat maps.
 
-The photo tool draws its rerender.png and relit.png with them; svbrdf-train's contact sheets
-and svbrdf-bench's figures use :func:`image_grid` too. Text is drawn with Pillow's default
-font (Pillow comes with svbrdf-render's ``io`` extra, or this package's ``photo`` extra).
+The photo tool draws its rerender.png (:func:`rerender_figure`) and relit.png with them;
+svbrdf-train's contact sheets and svbrdf-bench's figures use :func:`image_grid` too. Text is
+drawn with Pillow's default font (Pillow comes with svbrdf-render's ``io`` extra, or this
+package's ``photo`` extra).
 """
 
 from __future__ import annotations
@@ -12,9 +13,11 @@ from collections.abc import Sequence
 import torch
 from torch import Tensor
 
+from svbrdf_render import linear_to_srgb
+
 from ..errors import DataError
 
-__all__ = ["HEAT_MAX", "error_heatmap", "image_grid"]
+__all__ = ["HEAT_MAX", "error_heatmap", "image_grid", "rerender_figure"]
 
 _BACKGROUND = 30  # 8-bit grey behind the tiles
 _TEXT = (235, 235, 235)
@@ -98,3 +101,17 @@ def image_grid(
         _, th = text_size(label)
         draw.text((gap, header_h + r * (h + gap) + (h - th) // 2), label, fill=_TEXT, font=font)
     return torch.from_numpy(np.asarray(image).copy()).permute(2, 0, 1).float() / 255
+
+
+def rerender_figure(photo: Tensor, renderings: list[Tensor], rmse: list[float], names: list[str]) -> Tensor:
+    """rerender.png: the photo, its re-rendering by each version of the maps, and their error
+    heat maps; the row's label gives the RMSE of each (network first)."""
+    shown = [linear_to_srgb(photo), *(linear_to_srgb(r) for r in renderings)]
+    shown += [error_heatmap(photo, r) for r in renderings]
+    scale = f"|error| 0-{HEAT_MAX:g}"
+    if len(names) == 1:
+        columns = ["photo", names[0], scale]
+    else:
+        columns = ["photo", *(f"{n} re-rendering" for n in names), *(f"{n} {scale}" for n in names)]
+    label = "RMSE " + " -> ".join(f"{r:.4f}" for r in rmse)
+    return image_grid([shown], columns, [label])

@@ -10,8 +10,13 @@ exactly the files declared for the options given, and material.json's lists, the
 --help`` listing and docs/capture.md's table (:mod:`svbrdf_models.capture.batch`) are made from
 it. A new file is an entry and its writer here, and the docs table printed again.
 
-material.json, written last, is built by :mod:`svbrdf_models.capture.record` from the capture's
-fields and the files written.
+material.json, what the folder says about itself, is written last (:func:`material_record`):
+``format`` and ``version``; what the capture knows (the photo, the model, the refinement, the
+flash, where the camera stood: each capture module's own, :mod:`~svbrdf_models.capture.one`'s,
+:mod:`~svbrdf_models.capture.shotcapture`'s, :mod:`~svbrdf_models.capture.calibrated`'s, from
+the same :func:`model_record` and :func:`provenance`); then the folder's own: each map written
+with its encoding and what it holds, the normal convention, the units, the BRDF the maps are
+for, and the other files.
 
 A folder that holds another material (a ``material.json`` of another photo, or maps and no
 ``material.json``) is refused (:func:`check_material_folder`) by the command before the model
@@ -21,10 +26,11 @@ same photo replaces its own files and leaves anything else there alone.
 
 from __future__ import annotations
 
+import datetime
+import hashlib
 import json
 import os
 import shutil
-import unicodedata
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,30 +39,16 @@ import torch
 from torch import Tensor
 
 from svbrdf_render import SVBRDF, encode_normal, linear_to_srgb, write_image
-from svbrdf_render.plumbing import (
-    atomic_output,
-    locked,
-    replace_folder,
-    temporary_path,
-    write_failure,
-    write_text,
-)
+from svbrdf_render.formats.mapfiles import write_gif
+from svbrdf_render.plumbing import locked, replace_folder, temporary_path, write_failure, write_text
 
 from ..errors import DataError
-from .record import MATERIAL_FORMAT, material_record, photo_sha256
 
 __all__ = [
-    "FOLDER",
-    "FolderFile",
-    "MATERIAL_FILES",
-    "MaterialContent",
-    "WHEN",
-    "check_material_folder",
-    "to_directx",
-    "write_gif",
-    "write_material",
-    "written",
-]
+    "BRDF", "FOLDER", "FolderFile", "MATERIAL_FILES", "MATERIAL_FORMAT", "MATERIAL_VERSION",
+    "MaterialContent", "WHEN", "check_material_folder", "material_record", "model_record", "photo_sha256",
+    "provenance", "to_directx", "write_material", "written",
+]  # fmt: skip
 
 _NORMAL_NOTES = {
     "opengl": "svbrdf normal map: tangent space, OpenGL convention (+X right, +Y up = image top), "
@@ -231,10 +223,10 @@ def _gltf(path: Path, f: FolderFile, made: _Made) -> None:
 
 
 def _mtlx(path: Path, f: FolderFile, made: _Made) -> None:
-    from svbrdf_render.formats import write_materialx
+    from svbrdf_render.formats import materialx_name, write_materialx
 
     write_materialx(path, basecolor="basecolor.png", metallic="metallic.png", roughness="roughness.png",
-                    normal=_gl_normal(made), name=_mtlx_name(_name(made)))  # fmt: skip
+                    normal=_gl_normal(made), name=materialx_name(_name(made)))  # fmt: skip
 
 
 def _viewer(path: Path, f: FolderFile, made: _Made) -> None:
@@ -252,7 +244,7 @@ def _name(made: _Made) -> str:
 
 
 def _record(path: Path, f: FolderFile, made: _Made) -> None:
-    """material.json, the last file (:func:`~svbrdf_models.capture.record.material_record`): the
+    """material.json, the last file (:func:`material_record`): the
     capture's fields, the maps written, and every other file it lists (None: not written)."""
     others, now = [g for g in FOLDER if g.listed.startswith("files.")], written(made.options)
     files = {g.listed.removeprefix("files."): None for g in others}
@@ -355,33 +347,6 @@ def _write_all(stage: Path, svbrdf: SVBRDF, content: MaterialContent, options) -
     return made.record
 
 
-def write_gif(path: Path, frames: Tensor, ms: int = 80) -> Path:
-    """``frames`` (linear, ``(N, 3, H, W)``) as a looping GIF. One palette for every frame, built
-    from all of them (every 4th pixel): a palette per frame (Pillow's default) took 1.5 s of a
-    256 px capture's 4.7 s, and flickered between frames."""
-    import numpy as np
-    from PIL import Image
-
-    pixels = (linear_to_srgb(frames) * 255).round().byte().permute(0, 2, 3, 1).numpy()
-    montage = Image.fromarray(np.ascontiguousarray(np.concatenate([p[::4, ::4] for p in pixels])))
-    palette = montage.quantize(256, method=Image.Quantize.MEDIANCUT)
-    images = [Image.fromarray(p).quantize(palette=palette) for p in pixels]
-    with atomic_output(path) as tmp:
-        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=ms, loop=0)
-    return path
-
-
-def _mtlx_name(name: str) -> str:
-    """A MaterialX element name (ASCII letters, digits, underscores, not starting with a digit):
-    accents dropped (``café`` -> ``cafe``), every other character an underscore, and
-    ``material`` for a name with no ASCII letter or digit left (``фото``)."""
-    folded = unicodedata.normalize("NFKD", name).encode("ascii", "ignore").decode("ascii")
-    cleaned = "".join(c if c.isalnum() else "_" for c in folded)
-    if not any(c.isalnum() for c in cleaned):
-        cleaned = "material"
-    return cleaned if not cleaned[0].isdigit() else f"m_{cleaned}"
-
-
 def _above(position) -> list[float] | None:
     """``position`` when it is three finite numbers with ``z > 0`` (a light the viewer can
     start at: where the photo's flash was), else None (the viewer's camera flash)."""
@@ -437,3 +402,79 @@ def _move_in(stage: Path, folder: Path) -> None:
     crash, sees the old material or the new one, never both; files of an earlier run of the
     same photo that this one did not write go, files a user put in the folder stay."""
     replace_folder(stage, folder, keep=MATERIAL_FILES)
+
+
+# -- material.json: the record of the material, built from the capture's fields -----------------
+
+MATERIAL_FORMAT = "svbrdf-material"
+MATERIAL_VERSION = 1
+
+#: What material.json says about the BRDF the maps are for.
+BRDF = {
+    "model": "des18",
+    "formula": "f = d (1 - s) / pi + F(v.h) D(n.h) V / 4",
+    "distribution": "GGX, alpha = 0.001 + 0.999 roughness^2",
+    "masking": "Schlick-GGX, k = alpha / 2",
+    "fresnel": "Schlick, spherical-Gaussian form, F0 = specular",
+    "metal_rough": "glTF 2.0 metal/rough: F0 = mix(0.04, basecolor, metallic), diffuse colour "
+    "basecolor (1 - metallic); converted from diffuse/specular by svbrdf_render.metalrough",
+}
+
+#: What material.json says of the normal map's space, and of the units of the maps.
+_NORMAL_SPACE = {
+    "space": "tangent space of the plane: +X image right, +Y image up (opengl; directx: down), +Z out of "
+    "the surface",
+    "stored": "(n + 1) / 2 per channel",
+}
+_UNITS = {
+    "patch": "the maps span a square of side 2 (x, y in [-1, 1], z = 0 the surface)",
+    "values": "maps in [0, 1]; albedos are reflectances, roughness is perceptual",
+}
+
+
+def material_record(capture: dict, maps: dict[str, dict], files: dict[str, str | None],
+                    convention: str) -> dict:  # fmt: skip
+    """material.json's content: the format, the ``capture``'s fields, then the folder's own: the
+    ``maps`` written (material.json's entry of each), the normal ``convention``, the units, the
+    BRDF and the other ``files`` (None for one not written)."""
+    return {
+        "format": MATERIAL_FORMAT,
+        "version": MATERIAL_VERSION,
+        **capture,
+        "maps": maps,
+        "normal": {"convention": convention, **_NORMAL_SPACE},
+        "units": dict(_UNITS),
+        "brdf": dict(BRDF),
+        "files": files,
+    }
+
+
+def photo_sha256(path) -> str:
+    """The SHA-256 of the photo file: the material's identity in ``material.json``."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def model_record(predictor) -> dict:
+    """material.json's ``model``: the source (as text), SHA-256, resolution and training steps of
+    the network that made a material."""
+    model = {key: getattr(predictor, key, None) for key in ("source", "sha256", "resolution")}
+    model["steps"] = getattr(predictor, "steps", getattr(predictor, "step", None))
+    return {k: (str(v) if k == "source" and v is not None else v) for k, v in model.items()}
+
+
+def provenance() -> dict:
+    """The versions of the packages and the time that made a material."""
+    import svbrdf_render
+
+    from .. import __version__
+
+    return {
+        "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "svbrdf_render": svbrdf_render.__version__,
+        "svbrdf_models": __version__,
+        "torch": torch.__version__,
+    }

@@ -36,12 +36,11 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from svbrdf_render import MAP_NAMES, MIN_REFINE_SIDE, SVBRDF, Refinement, Scene, linear_to_srgb
+from svbrdf_render import MAP_NAMES, MIN_REFINE_SIDE, SVBRDF, Refinement, Scene
 
 from ..errors import DataError
-from .figures import HEAT_MAX, error_heatmap, image_grid
-from .flashpoint import place_flash, record_flash
-from .geometry import CaptureGeometry, capture_geometry
+from .figures import rerender_figure
+from .geometry import CaptureGeometry, capture_geometry, place_flash, record_flash
 from .photos import PhotoError, load_photo, square_photo
 from .reference import Reference
 from .refining import (
@@ -236,7 +235,6 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None,
     interrupt or an error leaves ``out_dir`` as it was (staged, moved in whole).
     """
     from .material import MaterialContent, write_material
-    from .record import photo_record
 
     options, began = options or CaptureOptions(), time.monotonic()  # the photo's --refine-seconds from here
     path, out_dir = Path(path), Path(out_dir)
@@ -277,9 +275,34 @@ def capture_one(predictor, path, out_dir, options: CaptureOptions | None = None,
         "tileable": tileable,
         "reference": reference,
     }
-    record = photo_record(predictor, path, options, entry, geometry)
+    record = _photo_record(predictor, path, options, entry, geometry)
     write_material(out_dir, svbrdf, MaterialContent(photo, judged.figure, relit, record), options)
     return entry
+
+
+def _photo_record(predictor, path: Path, options, entry: dict, geometry) -> dict:
+    """material.json's fields that a capture of one photo knows (its summary ``entry``, the
+    camera's ``geometry``): the photo, the model, the refinement, the flash, the provenance."""
+    from .material import model_record, photo_sha256, provenance
+    from .photos import photo_encoding
+
+    return {
+        "name": path.stem,
+        "photo": {"file": path.name, "sha256": photo_sha256(path), "square": entry["square"],
+                  "crop": list(options.crop) if options.crop else None,
+                  "encoding": photo_encoding(path, options.linear)},  # fmt: skip
+        "model": model_record(predictor),
+        "maps_size": entry["maps"],
+        "tiles": entry["tiles"],
+        "rerender_rmse": entry["rmse"],
+        "flash": entry["flash"],
+        "refine": entry["refine"] or {"budget": 0},
+        "tileable": entry["tileable"],
+        "reference": entry.get("reference"),
+        "metal": options.metal,
+        "geometry": geometry.record(used=bool(options.refine) and options.scene is None),
+        "provenance": provenance(),
+    }
 
 
 def _finished(judged: _Judged, options: CaptureOptions):
@@ -347,7 +370,7 @@ def _judge_network(photo: Tensor, svbrdf: SVBRDF, options: CaptureOptions) -> _J
     """The network's maps judged under the flash fitted to them."""
     fit = flash_consistency(svbrdf, photo)
     rmse = float(fit.rmse[0])
-    figure = _rerender_figure(photo, [fit.rendering[0]], [rmse], ["re-rendering"])
+    figure = rerender_figure(photo, [fit.rendering[0]], [rmse], ["re-rendering"])
     frames = relit_versions([svbrdf]) if options.relit != "none" else None
     entry = {
         "rmse": _finite(rmse),
@@ -365,7 +388,7 @@ def _judge_refined(photo: Tensor, network: SVBRDF, options: CaptureOptions, prog
     """The network's maps refined against ``photo`` on ``device`` (camera and flash where
     ``geometry`` puts them, when it knows); both judged under the refinement's scene. With
     ``pinned`` (a reference card), under the flash measured on it, the card's pixels held.
-    ``point``: ``(1, 2)``, the photo's highlight (:mod:`~svbrdf_models.capture.flashpoint`)."""
+    ``point``: ``(1, 2)``, the photo's highlight (:func:`~svbrdf_models.capture.geometry.place_flash`)."""
     known = geometry is not None and geometry.known and options.scene is None and pinned is None
     result: Refinement = refine_prediction(
         photo[None],
@@ -381,9 +404,9 @@ def _judge_refined(photo: Tensor, network: SVBRDF, options: CaptureOptions, prog
     )
     size = tuple(photo.shape[-2:])
     renderings = [rerender(network, result.scene, size)[0], rerender(result.svbrdf, result.scene)[0]]
-    rmse = [float(rerender_rmse(r[None], photo)[0]) for r in renderings]
+    rmse = rerender_rmse(torch.stack(renderings), photo).tolist()  # network's, refined
     versions = ["network", "refined"]
-    figure = _rerender_figure(photo, renderings, rmse, versions)
+    figure = rerender_figure(photo, renderings, rmse, versions)
     frames = relit_versions([network, result.svbrdf]) if options.relit != "none" else None
     light = result.scene.point_lights[0]
     entry = {
@@ -445,17 +468,3 @@ def _check_refine_size(size: int, options: CaptureOptions, path) -> None:
         )
     if options.refine:
         check_refine_memory(size, options.refine, str(path))
-
-
-def _rerender_figure(photo: Tensor, renderings: list[Tensor], rmse: list[float], names: list[str]) -> Tensor:
-    """rerender.png: the photo, its re-rendering by each version of the maps, and their error
-    heat maps; the row's label gives the RMSE of each (network first)."""
-    shown = [linear_to_srgb(photo), *(linear_to_srgb(r) for r in renderings)]
-    shown += [error_heatmap(photo, r) for r in renderings]
-    scale = f"|error| 0-{HEAT_MAX:g}"
-    if len(names) == 1:
-        columns = ["photo", names[0], scale]
-    else:
-        columns = ["photo", *(f"{n} re-rendering" for n in names), *(f"{n} {scale}" for n in names)]
-    label = "RMSE " + " -> ".join(f"{r:.4f}" for r in rmse)
-    return image_grid([shown], columns, [label])

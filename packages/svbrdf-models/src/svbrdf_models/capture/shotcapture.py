@@ -132,7 +132,7 @@ def _shots(shots: ShotSet, exposure: Exposure, result, residual: Tensor, judged:
 def record(predictor, shots: ShotSet, options, exposure: Exposure, result, residual: Tensor,
            judged: Judged) -> dict:  # fmt: skip
     """material.json's fields that a capture of shots knows."""
-    from .record import model_record, provenance
+    from .material import model_record, provenance
     from .photos import photo_encoding
     from .refining import pick_backend
 

@@ -15,7 +15,7 @@ from svbrdf_render.plumbing import MAX_THREADS, THREADS_HELP, Once, float_range,
 
 from .._registry import Registry
 from ..capture.refining import DEFAULT_MAP_SIZE, FULL, METALS
-from .predict_shots import add_shots_options, run_shots
+from .predict_shots import run_shots
 
 __all__ = ["MAX_MAP_SIZE", "add_options", "add_parser", "run", "run_predict"]
 
@@ -118,7 +118,7 @@ def add_options(p, *, refine: int, refine_note: str, sources=None):
         "it is faster than its compile time costs)",
     )
     _add_calibrated_options(more)
-    add_shots_options(more)
+    _add_shots_options(more)
     _add_output_options(p, more)
     return more
 
@@ -181,6 +181,43 @@ def _add_calibrated_options(more) -> None:
         help="with --calibrated: re-render the views not in --use under their own camera and light "
         "and report each one's relighting RMSE against its photo (material.json: holdout)",
     )
+
+
+def _add_shots_options(more) -> None:
+    """``--shots``, ``--strip-albedo`` and ``--flash-offset``: several shots of one material in
+    the printed frame (:mod:`svbrdf_models.capture.shots`)."""
+    more.add_argument(
+        "--shots",
+        action="store_true",
+        help="the photos are handheld flash shots of ONE material in the printed frame (svbrdf-models "
+        "frame): each one's camera and flash placed by its markers (the focal length from the EXIF, or "
+        "--fov), one material refined against all of them, written to OUT/FIRST-STEM/",
+    )
+    more.add_argument(
+        "--strip-albedo",
+        type=float_range(0.01, 1),
+        metavar="A",
+        help="with --shots: the albedo of the frame's paper (plain printer paper about 0.8): each shot's "
+        "flash is read off the frame's reference strip (default: the shots' exposures relative to "
+        "each other, the level from the network)",
+    )
+    more.add_argument(
+        "--flash-offset",
+        type=_offset,
+        metavar="DX,DY",
+        help="with --shots: the flash's place beside the lens in cm, right and up as the photo is "
+        "shown (default: 1,0; measure your phone's)",
+    )
+
+
+def _offset(text: str) -> tuple[float, float]:
+    try:
+        dx, dy = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected DX,DY (two numbers in cm), got {text!r}") from None
+    if not all(abs(v) <= 10 for v in (dx, dy)):
+        raise argparse.ArgumentTypeError(f"the flash is within 10 cm of the lens, got {text!r}")
+    return dx, dy
 
 
 def _view_list(text: str) -> list[int]:
@@ -300,14 +337,14 @@ def run_predict(args, load, *, prog: str) -> int:
     gives the model and the line naming it; ``prog`` starts the messages."""
     from svbrdf_render.plumbing import check_output_folder, pick_device
 
-    from ..capture.batch import capture_batch, check_material_folders, set_threads
+    from ..capture.batch import announce_model, capture_batch, check_material_folders, set_threads
 
     calibrated = _calibrated(args)  # photos, or a calibrated set: one of them
     options = _capture_options(args)
     if calibrated:
         return _run_calibrated(args, options, load, prog)
     if args.shots:
-        return run_shots(args, options, load, prog, _announce)
+        return run_shots(args, options, load, prog)
     device = pick_device(args.device)  # a GPU that is not there is named as such
     check_output_folder(args.out, "-o")  # before the model is loaded and the first photo is done
     check_material_folders(args.photos, args.out)
@@ -316,7 +353,7 @@ def run_predict(args, load, *, prog: str) -> int:
 
         check_tiled_memory(args.map_size, f"--tiles --map-size {args.map_size}")
     model, line = load(args, device)
-    _announce(model, line, args.map_size if args.tiles and args.map_size != FULL else None)
+    announce_model(model, line, args.map_size if args.tiles and args.map_size != FULL else None)
     set_threads(args.threads)  # after every refusal, so that a refusal stays one line
     summary = {"model": model.source, "step": model.steps, "resolution": model.resolution,
                "refine": args.refine, "refine_seconds": args.refine_seconds}  # fmt: skip
@@ -365,28 +402,6 @@ def _load_predict_model(args, device):
     return model, model.describe()
 
 
-def _announce(model, line: str, tile_size: int | None) -> None:
-    """``line`` (the model) on stderr, and with --tiles --map-size what the tiles will cost; a
-    --map-size under the model's resolution is refused first."""
-    from ..errors import DataError
-
-    if tile_size is not None and tile_size < model.resolution:
-        raise DataError(f"--map-size {tile_size} is smaller than the model's resolution ({model.resolution})")
-    print(line, file=sys.stderr)
-    if tile_size is not None:
-        from svbrdf_render.plumbing import machine
-
-        from ..capture.tiles import tile_count, tiled_capture_bytes
-
-        have = machine.available_memory()
-        print(
-            f"--tiles --map-size {tile_size}: {tile_count(tile_size, model.resolution)} tiles of "
-            f"{model.resolution} px per photo, about {tiled_capture_bytes(tile_size) / 2**30:.1f} GiB "
-            f"of memory" + (f" ({have / 2**30:.1f} GiB available)" if have is not None else ""),
-            file=sys.stderr,
-        )
-
-
 def _calibrated(args) -> bool:
     """Whether ``args`` capture a calibrated set (--calibrated) rather than photos; photos and
     --calibrated together, neither, or --use and --holdout without --calibrated (and the options
@@ -417,7 +432,7 @@ def _run_calibrated(args, options, load, prog: str) -> int:
     the held-out views' relighting RMSEs printed."""
     from svbrdf_render.plumbing import ProgressBar, check_output_folder, pick_device
 
-    from ..capture.batch import set_threads
+    from ..capture.batch import announce_model, set_threads
     from ..capture.calibrated import capture_calibrated, check_options, check_views, read_calibrated
     from ..capture.material import check_material_folder
 
@@ -429,7 +444,7 @@ def _run_calibrated(args, options, load, prog: str) -> int:
     folder = args.out / calibrated[0].folder.resolve().name
     check_material_folder(folder, calibrated[0].folder, sha256=calibrated[0].sha256())
     model, line = load(args, device)
-    _announce(model, line, None)
+    announce_model(model, line, None)
     set_threads(args.threads)
     bar = ProgressBar(folder.name)
     try:

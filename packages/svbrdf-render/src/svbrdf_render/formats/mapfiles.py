@@ -15,7 +15,7 @@ range), with ``sRGB`` + ``gAMA`` 1/2.2 for sRGB and ``gAMA`` 1.0 for linear as t
 older decoders read. A ``tEXt`` ``Comment`` chunk can say what the image holds (a normal
 map's convention, say). :func:`read_png_encoding` reads the tag back. OpenEXR files
 (:func:`write_exr`, the ``exr`` extra: the Academy Software Foundation's ``OpenEXR``
-bindings) are linear by definition.
+bindings) are linear by definition. :func:`write_gif` writes frames as a looping GIF.
 
 Handling of unusual files: 16-bit PNGs are read at full precision; an alpha channel
 that is fully opaque is dropped; palette images are expanded; a grey image is accepted
@@ -47,6 +47,7 @@ __all__ = [
     "read_image",
     "write_image",
     "write_exr",
+    "write_gif",
     "read_png_encoding",
     "ENCODINGS",
     "read_des18",
@@ -283,6 +284,21 @@ def write_exr(path, image: Tensor, *, half: bool = True) -> Path:
     with atomic_output(path) as tmp:
         exr.File(header, channels).write(str(tmp))
     return path
+
+
+def write_gif(path, frames: Tensor, ms: int = 80) -> Path:
+    """``frames`` (linear, ``(N, 3, H, W)``) as a looping GIF of ``ms`` milliseconds a frame,
+    sRGB-encoded, atomically. One palette for every frame, built from all of them (every 4th
+    pixel): a palette per frame (Pillow's default) took 1.5 s of a 256 px capture's 4.7 s, and
+    flickered between frames."""
+    Image = _pil()
+    pixels = (linear_to_srgb(frames) * 255).round().byte().permute(0, 2, 3, 1).numpy()
+    montage = Image.fromarray(np.ascontiguousarray(np.concatenate([p[::4, ::4] for p in pixels])))
+    palette = montage.quantize(256, method=Image.Quantize.MEDIANCUT)
+    images = [Image.fromarray(p).quantize(palette=palette) for p in pixels]
+    with atomic_output(path) as tmp:
+        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=ms, loop=0)
+    return Path(path)
 
 
 class Des18Sample(NamedTuple):

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import re
+import unicodedata
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -20,7 +21,7 @@ from ..errors import SVBRDFError
 from ..plumbing import write_text
 from .gltf import DEFAULT_FILES, image_names, material_path
 
-__all__ = ["MATERIALX_VERSION", "MATERIALX_SHADER", "write_materialx", "validate_materialx"]
+__all__ = ["MATERIALX_VERSION", "MATERIALX_SHADER", "materialx_name", "write_materialx", "validate_materialx"]
 
 #: The MaterialX version the documents declare. 1.38 documents are read by 1.38 tools as they are
 #: and upgraded on load by 1.39 ones (the nodes used here did not change between the two).
@@ -31,6 +32,18 @@ MATERIALX_SHADER = "gltf_pbr"
 
 # MaterialX element names: letters, digits and underscores, not starting with a digit.
 _MTLX_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+def materialx_name(text: str) -> str:
+    """A MaterialX element name (ASCII letters, digits, underscores, not starting with a digit)
+    made of any ``text``, such as a photo's name: accents dropped (``café`` -> ``cafe``), every
+    other character an underscore, and ``material`` for a text with no ASCII letter or digit
+    left (``фото``)."""
+    folded = unicodedata.normalize("NFKD", text).encode("ascii", "ignore").decode("ascii")
+    cleaned = "".join(c if c.isalnum() else "_" for c in folded)
+    if not any(c.isalnum() for c in cleaned):
+        cleaned = "material"
+    return cleaned if not cleaned[0].isdigit() else f"m_{cleaned}"
 
 
 def _sub(parent: ET.Element, tag: str, **attributes: str) -> ET.Element:
@@ -115,7 +128,8 @@ def write_materialx(
         path: the file to write, ending in ``.mtlx``; its folder must exist.
         basecolor, metallic, roughness, normal: the images' file names relative to ``path``'s
             folder (``.png``, ``.jpg`` or ``.jpeg``).
-        name: the material's name: letters, digits and ``_``, not starting with a digit.
+        name: the material's name: letters, digits and ``_``, not starting with a digit
+            (:func:`materialx_name` makes one of any text).
 
     Returns:
         ``path``. Raises :class:`~svbrdf_render.errors.SVBRDFError` on a bad argument and

@@ -1,9 +1,9 @@
 """Refinement: maps optimised through the renderer until they explain a photo.
 
-- :mod:`~svbrdf_render.refinement.refine`: :func:`refine_maps`, its settings, priors and loss;
+- :mod:`~svbrdf_render.refinement.refine`: :func:`refine_maps`, its settings, priors and loss (the
+  prior term :func:`refine_views` adds too);
 - :mod:`~svbrdf_render.refinement.views`: :func:`refine_views`, one material refined against
   several photos, each under its own camera and light;
-- :mod:`~svbrdf_render.refinement.prior`: the prior term both add to their data term;
 - :mod:`~svbrdf_render.refinement.rings`: the flash's rings (the highlight found on a photo, the
   ring penalty, de-ringing);
 - :mod:`~svbrdf_render.refinement.fit`: the flash found from maps and a photo (``axis_flash``,

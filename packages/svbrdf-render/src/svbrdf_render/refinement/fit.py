@@ -234,7 +234,8 @@ def flash_scene(position: Tensor, intensity: Tensor, color: Tensor | None = None
 #: A matte reference card (a grey card, printer paper) as maps: flat, rough, with the small
 #: specular of a non-metal. Its diffuse map is ``albedo / (1 - CARD_F0)`` so that what the
 #: Des18 diffuse term reflects, ``d (1 - s) / pi``, is the stated albedo over pi.
-CARD_F0, CARD_ROUGHNESS = 0.04, 0.9
+CARD_F0 = 0.04
+CARD_ROUGHNESS = 0.9
 
 
 def card_maps(albedo: float, size: tuple[int, int], batch: int = 1, device=None) -> SVBRDF:

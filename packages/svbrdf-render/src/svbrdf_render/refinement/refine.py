@@ -45,22 +45,17 @@ from torch import Tensor
 
 from ..errors import MapError, SceneError
 from ..geometry import safe_normalize
-from ..maps import MAP_NAMES, SVBRDF
+from ..maps import MAP_NAMES, SVBRDF, stored_value
+from ..metalrough import DIELECTRIC_F0
 from ..renderer import BACKENDS, log_radiance, render
 from ..scene import Flash, Scene
 from .fit import FLASH_MODES, _camera_flashes, axis_flash, fit_flash
-from .prior import prior_targets, prior_weights, with_prior
 from .rings import RingBins, ring_penalty
 
 __all__ = [
-    "DEFAULT_REFINE_STEPS",
-    "MIN_REFINE_SIDE",
-    "RefineLoss",
-    "RefineSettings",
-    "Refinement",
-    "refine_maps",
-    "refine_start",
-]
+    "DEFAULT_REFINE_STEPS", "MIN_REFINE_SIDE", "RefineLoss", "RefineSettings", "Refinement", "prior_targets",
+    "prior_weights", "refine_maps", "refine_start", "with_prior",
+]  # fmt: skip
 
 #: The refinement budget the photo tools use when none is given (chosen from the accuracy
 #: curve of ``benchmarks/refine_curve.py``; see docs/measured-refinement.md).
@@ -288,14 +283,9 @@ def _light_xy(scene: Scene, batch: int) -> Tensor:
     return pos.reshape(-1, 3)[:, :2].expand(batch, 2)
 
 
-#: The specular albedo of most dielectrics (index of refraction about 1.5): the prior of a
-#: start whose specular says "not a metal" (:attr:`RefineSettings.dielectric`).
-DIELECTRIC_F0 = 0.04
-
-
 def dielectric_prior(prior: SVBRDF, below: float) -> SVBRDF:
     """``prior`` with the specular of each material whose mean specular luminance is below
-    ``below`` set to the grey :data:`DIELECTRIC_F0`."""
+    ``below`` set to the grey :data:`~svbrdf_render.metalrough.DIELECTRIC_F0` of most dielectrics."""
     if below <= 0:
         return prior
     spec = prior.specular
@@ -303,6 +293,27 @@ def dielectric_prior(prior: SVBRDF, below: float) -> SVBRDF:
     grey = (lum < below).to(spec.dtype)[:, None, None, None]
     specular = spec * (1 - grey) + DIELECTRIC_F0 * grey
     return SVBRDF(prior.normal, prior.diffuse, prior.roughness, specular, validate=False)
+
+
+# -- the prior term (see the module), which refine_views adds to its data term too --------------
+
+
+def prior_targets(prior: SVBRDF) -> dict[str, Tensor]:
+    """The prior's maps on their stored encodings, computed once per refinement."""
+    return {name: stored_value(name, t) for name, t in prior.maps().items()}
+
+
+def prior_weights(settings: RefineSettings) -> dict[str, float]:
+    """Each map's prior weight of ``settings`` (0 for a map it does not name)."""
+    return {name: float(settings.prior.get(name, 0.0)) for name in MAP_NAMES}
+
+
+def with_prior(loss: Tensor, maps: SVBRDF, targets: dict[str, Tensor], weights: dict[str, float]) -> Tensor:
+    """``loss + sum_map w_map * mean |x - x_prior|`` (maps of zero weight left out)."""
+    for name, t in maps.maps().items():
+        if weights[name] > 0:
+            loss = loss + weights[name] * (stored_value(name, t) - targets[name]).abs().mean()
+    return loss
 
 
 class RefineLoss:

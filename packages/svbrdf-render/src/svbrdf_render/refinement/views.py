@@ -18,7 +18,7 @@ The loss is :func:`svbrdf_render.refine_maps`' own, over every seen pixel of eve
 (``R_k`` the rendering of view k times its gain ``g_k``, clipped to [0, 1]; ``m_k`` its mask)::
 
     data  = sum_k sum_px m_k |log(R_k + eps) - log(P_k + eps)| / (3 sum_k sum_px m_k)
-    prior = sum_map w_map * mean | x - x_prior |        (refinement/prior.py, refine_maps' term)
+    prior = sum_map w_map * mean | x - x_prior |        (refinement/refine.py, refine_maps' term)
 
 with the same parametrisation of the maps (:class:`~svbrdf_render.refinement.refine.RefineSettings`,
 the dielectric prior included). Without masks the data term is the plain mean, so that one view
@@ -51,8 +51,8 @@ from ..errors import MapError, SceneError
 from ..maps import SVBRDF
 from ..renderer import log_radiance, render
 from ..scene import Camera, PointLight, Scene
-from .prior import prior_targets, prior_weights, with_prior
-from .refine import RefineSettings, _check_budget, _optimise, _Parameters, dielectric_prior, refine_start
+from .refine import (RefineSettings, _check_budget, _optimise, _Parameters, dielectric_prior, prior_targets,
+                     prior_weights, refine_start, with_prior)
 
 __all__ = ["GAIN_MODES", "ViewsRefinement", "refine_views", "stack_views"]
 
