@@ -470,3 +470,17 @@ def test_the_pass_on_check_sees_an_imported_name(tmp_path):
     module = tmp_path / "m.py"
     module.write_text("from os import sep\nA, B = 1, 2\n__all__ = ['A', 'B', 'sep', 'f']\ndef f(): pass\n")
     assert _passed_on(module) == ["sep"]
+
+
+def test_every_subpackage_states_its_public_names():
+    """Issue 48: each package's and subpackage's ``__init__`` has an ``__all__`` (empty where its modules are
+    reached by name and its public names are the package's own)."""
+    missing = [
+        str(folder.relative_to(REPO))
+        for folder in _package_folders()
+        if "__all__" not in {t.id for n in ast.parse((folder / "__init__.py").read_text()).body
+                             if isinstance(n, (ast.Assign, ast.AnnAssign))
+                             for t in (n.targets if isinstance(n, ast.Assign) else [n.target])
+                             if isinstance(t, ast.Name)}  # fmt: skip
+    ]
+    assert not missing, f"subpackages whose __init__ states no __all__: {missing}"

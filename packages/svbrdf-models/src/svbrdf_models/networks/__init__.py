@@ -11,3 +11,6 @@ They register through entry points like any plugin (:mod:`svbrdf_models._registr
 on first use: ``svbrdf_models.create_generator("ours", ...)``; the classes are public names of
 :mod:`svbrdf_models`.
 """
+
+# Nothing of its own: the networks' public names are svbrdf_models' own (its lazy table).
+__all__: list[str] = []

@@ -11,3 +11,6 @@
 
 The public names are importable from :mod:`svbrdf_render` itself.
 """
+
+# Nothing of its own: the refinement's public names are svbrdf_render's own.
+__all__: list[str] = []

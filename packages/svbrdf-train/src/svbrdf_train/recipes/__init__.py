@@ -7,6 +7,21 @@ from pathlib import Path
 
 _HERE = Path(__file__).resolve().parent
 
+__all__ = [
+    "OURS",
+    "NO_ATTN",
+    "NO_ATTN_WIDE",
+    "NO_ADV",
+    "NO_SVBRDF",
+    "MULTIGAN",
+    "RADN",
+    "OURS_REAL",
+    "OURS_MIX",
+    "OURS_FINETUNE",
+    "OURS_GENERAL",
+    "OURS_MATERIALS",
+]
+
 OURS = _HERE / "ours.yaml"
 NO_ATTN = _HERE / "no-attn.yaml"
 NO_ATTN_WIDE = _HERE / "no-attn-wide.yaml"

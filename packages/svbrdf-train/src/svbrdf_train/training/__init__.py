@@ -13,3 +13,6 @@
 
 The public names are importable from :mod:`svbrdf_train` itself.
 """
+
+# Nothing of its own: the training's public names are svbrdf_train's own.
+__all__: list[str] = []

@@ -11,3 +11,6 @@ Its modules are imported by name (the strips bring h5py with the strip shards), 
 :mod:`svbrdf_train.data` states the public names of the data sets. Nothing here imports
 :mod:`svbrdf_train.data.procedural`.
 """
+
+# Nothing of its own: the data sets' public names are svbrdf_train.data's.
+__all__: list[str] = []
