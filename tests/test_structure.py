@@ -389,15 +389,13 @@ def test_docs_architecture_names_every_subpackage():
     table (``svbrdf_x.sub``), and no row names a subpackage that is gone."""
     real = {".".join(folder.relative_to(REPO / "packages").parts[2:]) for folder in _package_folders()}
     real = {name for name in real if "." in name}  # the four packages themselves aside
-    text = (REPO / "docs" / "architecture.md").read_text()
-    section = text.split("## Subpackages", 1)[1].split("\n## ", 1)[0]
-    named = set(re.findall(r"^\| `(svbrdf_\w+(?:\.\w+)+)` \|", section, re.M))  # the table's first column
+    named = set(_architecture_order())
     assert real - named == set(), f"subpackages missing from docs/architecture.md: {sorted(real - named)}"
     assert named - real == set(), f"docs/architecture.md names subpackages that do not exist: {sorted(named - real)}"
 
 
 def _architecture_order() -> list[str]:
-    """The subpackages in the order docs/architecture.md's table lists them."""
+    """The subpackages in the order docs/architecture.md's table lists them (its first column)."""
     text = (REPO / "docs" / "architecture.md").read_text()
     section = text.split("## Subpackages", 1)[1].split("\n## ", 1)[0]
     return re.findall(r"^\| `(svbrdf_\w+(?:\.\w+)+)` \|", section, re.M)
@@ -437,22 +435,28 @@ def test_the_floor_check_sees_an_upward_import():
     ]
 
 
-def _passed_on(path: Path) -> list[str]:
-    """The names a module's ``__all__`` lists but the module does not define (imports it passes on)."""
-    tree = ast.parse(path.read_text())
-    listed, defined = [], set()
-    for node in tree.body:
+def _top_level(path: Path) -> tuple[ast.expr | None, set[str]]:
+    """The expression a module assigns to ``__all__`` (None without one) and the names its top
+    level defines."""
+    listed, defined = None, set()
+    for node in ast.parse(path.read_text()).body:
         targets = node.targets if isinstance(node, ast.Assign) else []
         targets += [node.target] if isinstance(node, ast.AnnAssign) else []
         for target in targets:
             for name in ast.walk(target):
                 if isinstance(name, ast.Name):
                     defined.add(name.id)
-                    if name.id == "__all__" and isinstance(node, ast.Assign):
-                        listed = list(ast.literal_eval(node.value))
+                    if name.id == "__all__" and node.value is not None:
+                        listed = node.value
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
             defined.add(node.name)
-    return [name for name in listed if name not in defined]
+    return listed, defined
+
+
+def _passed_on(path: Path) -> list[str]:
+    """The names a module's ``__all__`` lists but the module does not define (imports it passes on)."""
+    listed, defined = _top_level(path)
+    return [name for name in ast.literal_eval(listed) if name not in defined] if listed else []
 
 
 def test_an_ordinary_module_lists_only_what_it_defines():
@@ -473,14 +477,11 @@ def test_the_pass_on_check_sees_an_imported_name(tmp_path):
 
 
 def test_every_subpackage_states_its_public_names():
-    """Issue 48: each package's and subpackage's ``__init__`` has an ``__all__`` (empty where its modules are
-    reached by name and its public names are the package's own)."""
+    """Issue 48: each package's and subpackage's ``__init__`` has an ``__all__`` (empty where its
+    modules are reached by name and its public names are the package's own)."""
     missing = [
         str(folder.relative_to(REPO))
         for folder in _package_folders()
-        if "__all__" not in {t.id for n in ast.parse((folder / "__init__.py").read_text()).body
-                             if isinstance(n, (ast.Assign, ast.AnnAssign))
-                             for t in (n.targets if isinstance(n, ast.Assign) else [n.target])
-                             if isinstance(t, ast.Name)}  # fmt: skip
+        if _top_level(folder / "__init__.py")[0] is None
     ]
     assert not missing, f"subpackages whose __init__ states no __all__: {missing}"
