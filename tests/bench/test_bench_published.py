@@ -27,6 +27,7 @@ FILE = f"""\
 test_set: des18
 protocol: {{crop: "centre crop 256 of the 288 px tile", resolution: 256, values: "[0, 1]",
            normals: "(n+1)/2", rmse: per image then mean, renderings: none}}
+scorer: {{window: centre-crop, size: 48, values: "[0, 1]", rmse: per-image}}
 rows:
   - {{name: "Alpha et al. 2018", source: "Venue A, Table 2", rmse: {json.dumps(ROWS["Alpha et al. 2018"])}}}
   - name: "Beta et al. 2021"
@@ -118,6 +119,35 @@ def test_the_report_states_their_protocol_against_this_run_s(bench):
         assert MARKED[1] in lpips and MARKED[0] not in lpips
 
 
+def _section(text: str, title: str) -> list[str]:
+    """The lines of the terminal table titled ``title...`` up to the first empty line."""
+    lines = text.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith(title))
+    return lines[start : next(i for i in range(start, len(lines)) if not lines[i].strip())]
+
+
+def test_this_run_s_rows_are_scored_again_as_the_file_s_scorer_says(bench):
+    out, result, results = bench
+    scorer = results["published"]["scorer"]
+    assert (scorer["window"], scorer["size"], scorer["rmse"]) == ("centre-crop", 48, "per-image")
+    again = scorer["rows"]
+    assert "ours" in again and len(again) == 3  # ours and the two baselines; no refined rows asked
+    whole = {r["model"]: r for r in results["models"]}["ours"]
+    for label, figures in again.items():
+        assert set(figures) == {"normal", "diffuse", "roughness", "specular"}  # maps only
+        assert all(0 <= v < 1 for v in figures.values()), (label, figures)
+    assert again["ours"]["diffuse"] != pytest.approx(whole["rmse_diffuse"], rel=1e-6)  # another scoring
+    table = _section(result.stdout, "Scored as the published rows (papers.yaml)")
+    names = [line.split("  ")[0].strip() for line in table[3:]]
+    assert names == [*again, *MARKED]
+    alpha = table[3 + len(again)].split()[-4:]
+    assert alpha == [f"{v:.4f}" for v in ROWS["Alpha et al. 2018"].values()]
+    protocol = _section(result.stdout, "Published numbers (papers.yaml)")
+    assert "this run, scored as published" in protocol[1]
+    assert "centre 48 px of each stored tile" in "\n".join(protocol)
+    assert "## Scored as the published rows (papers.yaml)" in (out / "report.md").read_text()
+
+
 def test_they_take_no_part_in_verdicts_costs_or_the_front(bench):
     _, _, results = bench
     names = set(ROWS) | set(MARKED)
@@ -140,7 +170,8 @@ def test_the_parent_run_keeps_the_file_and_report_rebuilds_the_rows(bench, numbe
     assert again.exit_code == 0, again.output
     assert _rmse_rows(again.stdout) == _rmse_rows(result.stdout)
     rebuilt = json.loads((tmp_path / "again" / "results.json").read_text())
-    assert rebuilt["published"] == results["published"]
+    assert rebuilt["published"] == results["published"]  # the rows scored as published too
+    assert rebuilt["published"]["scorer"]["rows"]
 
 
 def test_export_marks_them_in_markdown_and_latex(bench):
@@ -152,6 +183,9 @@ def test_export_marks_them_in_markdown_and_latex(bench):
     alpha = next(line for line in lines if line.startswith(f"| {MARKED[0]} |"))
     assert alpha.split(" | ")[1:] == ["0.051", "0.021", "0.063", "0.022", "- |"]  # no interval, no bold
     assert lines.index(alpha) == len(lines) - 2  # after the rows scored here
+    again = [line for line in lines if "(scored as published)" in line]
+    assert again and again[0].startswith("| ours (scored as published) |") and again[0].endswith("| - |")
+    assert lines.index(again[-1]) == lines.index(alpha) - 1 and "Rows marked scored as published" in lines[0]
     tex = _invoke("export", parent, "--format", "latex")
     assert tex.exit_code == 0, tex.output
     body = tex.stdout.splitlines()
@@ -203,6 +237,11 @@ BAD = {
     "no source": ('source: "Venue A, Table 2", ', "", "has no source"),
     "other test set": ("test_set: des18", "test_set: des19", "test_set 'des19' is not one"),
     "not YAML": ("rows:\n", "rows: [\n", "not valid YAML"),
+    "scorer window": ("window: centre-crop", "window: corner", "scorer.window is 'corner'"),
+    "scorer size": ("size: 48", "size: 4.5", "scorer.size is 4.5"),
+    "scorer key": ("rmse: per-image}", "rmse: per-image, gamma: 2.2}", "scorer: unknown key 'gamma'"),
+    "scorer missing": ('values: "[0, 1]", rmse: per-image', "rmse: per-image", "scorer has no values"),
+    "tiles smaller": ("size: 48", "size: 96", "are smaller (the smallest 64 px)"),
 }
 
 

@@ -205,8 +205,8 @@ def run_bench(options: BenchOptions) -> str:
                 parent.log_artifact(groups_file, str(Path(TEST_GROUPS).parent))
             p = options.preset
             scorer = RowScorer(plan.test, plan.device, plan.lpips, plan.photos, options.refine,
-                               p.latency_repeats, options.say, options.latency_points(),
-                               p.grid_repeats)  # fmt: skip
+                               p.latency_repeats, options.say, options.latency_points(), p.grid_repeats,
+                               options.published.scorer if options.published else None)  # fmt: skip
             bench = _Bench(options, plan, client, parent, work, scorer, phases)
             for row in _fits(bench):
                 with phases(f"scoring {row.label}"):

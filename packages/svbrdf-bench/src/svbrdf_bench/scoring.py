@@ -1,8 +1,9 @@
 """Scoring one row of the benchmark: every row (a fit, a reference model file, a baseline) is
 scored alike by :class:`RowScorer`: its figures on the test images, its latency and size (and
-its FLOPs and latency grid: :mod:`svbrdf_bench.inference`), its
-self-consistency on real photos, and the rows of its refinement budgets; a fit's row adds its
-training figures (:func:`training_figures`). The scorer keeps what the comparison sheets show
+its FLOPs and latency grid: :mod:`svbrdf_bench.inference`), its self-consistency on real
+photos, its figures as published papers scored (with a ``--published`` file's ``scorer``:
+:func:`svbrdf_bench.published.score_as_published`), and the rows of its refinement budgets; a
+fit's row adds its training figures (:func:`training_figures`). The scorer keeps what the comparison sheets show
 (:func:`comparison_grid`, :func:`real_grid`).
 """
 
@@ -17,6 +18,7 @@ import torch
 
 from svbrdf_render import MAP_NAMES
 
+from .published import PublishedScorer, score_as_published
 from .inference import inference_cost
 from .layout import FIT_WALL_METRIC, REAL_PREFIX, REAL_RERENDER, STEPS_METRIC, STEPS_WALL_METRIC, TEST_PREFIX
 from .refinement import RefinedRow, RefinePlan, refine_real, refine_rows, refined_label
@@ -118,6 +120,9 @@ class RowScorer:
     #: and the timed runs per point there; FLOPs are counted whatever the grid.
     latency_grid: tuple = ()
     grid_repeats: int = 5
+    #: Each row scored a second time as published papers scored (``--published`` with a ``scorer``:
+    #: :func:`svbrdf_bench.published.score_as_published`), or None.
+    as_published: PublishedScorer | None = None
     shown: dict[str, list] = field(default_factory=dict)
     real_shown: dict[str, list] = field(default_factory=dict)
 
@@ -140,6 +145,9 @@ class RowScorer:
             real = _self_consistency(generator, self.photos, test.resolution, device)
             per_sample[REAL_RERENDER] = real
             figures[f"{REAL_RERENDER}_median"] = float(np.median(real))
+        if self.as_published is not None:
+            self.say(f"scoring {label} as the published rows were: {self.as_published.describe()}")
+            figures |= score_as_published(generator, test.data, self.as_published, device)
         self.shown[shown_as or label] = shown
         refined: dict[int, RefinedRow] = {}
         if self.refine.active:

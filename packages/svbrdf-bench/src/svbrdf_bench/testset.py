@@ -47,6 +47,8 @@ class TestSet(Dataset):
         self.names: set[str] = set()
         #: The name of each sample, in order (empty for the procedural test set).
         self.sample_names: list[str] = []
+        #: The side in px each sample is stored at, before any resizing, in order.
+        self.sides: list[int] = []
         #: The source materials of each sample, in order; None: each image is its own.
         self.groups: list[tuple[str, ...]] | None = None
         #: How the samples were grouped: ``des18``, ``file``, or ``image`` (procedural).
@@ -80,7 +82,7 @@ class TestSet(Dataset):
             from svbrdf_train import resize_sample
 
             sample = resize_sample(sample, r)
-        return {"input": sample["input"], "maps": sample["maps"], "name": sample["name"]}
+        return {"input": sample["input"], "maps": sample["maps"], "name": sample["name"], "side": h}
 
 
 def test_set(path: str | Path | None, resolution: int, count: int, group_by: str = "auto") -> TestSet:
@@ -99,7 +101,9 @@ def test_set(path: str | Path | None, resolution: int, count: int, group_by: str
                 "give that folder as --test-data (procedural test images are each a material of their own)"
             )
         data = ProceduralMaterials(count, resolution, seed=TEST_SEED)
-        return TestSet(data, resolution, f"{count} procedural materials (seed {TEST_SEED})")
+        test = TestSet(data, resolution, f"{count} procedural materials (seed {TEST_SEED})")
+        test.sides = [resolution] * count
+        return test
     from svbrdf_models import DataError
     from svbrdf_train import open_materials
 
@@ -122,7 +126,9 @@ def test_set(path: str | Path | None, resolution: int, count: int, group_by: str
     # that is not square or smaller than the models is refused up front, not after an hour.
     for i in range(len(test)):
         try:
-            test.sample_names.append(str(test[i]["name"]))
+            sample = test[i]
+            test.sample_names.append(str(sample["name"]))
+            test.sides.append(int(sample["side"]))
             test.names.add(test.sample_names[-1])
         except BenchError:
             raise

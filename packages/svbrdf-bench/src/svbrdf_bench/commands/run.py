@@ -77,7 +77,9 @@ different train.seed; a recipe name: its last finished fit of each seed).
 Published numbers: --published FILE.yaml sets figures copied from papers beside the rows, each
 marked `NAME (published, not rerun)`: no interval, no verdict, outside the Pareto front; the
 report states their protocol and where this benchmark scores otherwise. The file names its test
-set (des18: needs --test-data of Des18 strips); none ship with svbrdf-bench.
+set (des18: needs --test-data of Des18 strips); none ship with svbrdf-bench. With a `scorer`
+(window centre-crop|resize, size, values, rmse per-image|pooled) each row is also scored the way
+the file says the papers scored, in a table beside theirs.
 
 \b
 Inference cost: every row gets its FLOPs per 256x256 image (torch.utils.flop_counter; they grow

@@ -8,7 +8,8 @@ budgets per model, a model is one row per budget over its seeds, as the report's
 
 Published numbers (``--published``) follow, marked "published, not rerun": copied figures, with
 no interval, never in bold, and a caption sentence naming where their protocol differs from this
-table's (:mod:`~svbrdf_bench.report.published`).
+table's (:mod:`~svbrdf_bench.report.published`). When the file has a ``scorer``, this table's
+models scored again that way (marked "scored as published", maps only) stand between the two.
 
 Figures are the report's own (:meth:`Report.interval`), printed to 3 decimals as the paper's
 Table 1 prints them; "best" is the lowest mean at that precision, so rows that print alike are
@@ -18,7 +19,7 @@ bold alike.
 from __future__ import annotations
 
 from .figures import Report
-from .published import export_rows, export_words
+from .published import export_rescored, export_rows, export_words
 from .rows import COLUMNS, PURE_OPTIMISATION, REFERENCE, ModelEntry
 from .verdicts import unit_count
 
@@ -143,11 +144,10 @@ def _cell(ci: tuple[float, float, float] | None, best: float | None, bold: str) 
     return figure, f"[{ci[1]:.{DIGITS}f}, {ci[2]:.{DIGITS}f}]"
 
 
-def _published(report: Report) -> list[tuple[str, list[str]]]:
-    """The published rows (``--published``): their label and each RMSE as printed, ``-`` where not
-    given; copied figures, so no interval and never in bold."""
-    return [(name, ["-" if v is None else f"{v:.{DIGITS}f}" for v in values])
-            for name, values in export_rows(report).items()]  # fmt: skip
+def _copied(rows: dict[str, list[float | None]]) -> list[tuple[str, list[str]]]:
+    """Rows scored outside this table's protocol (:func:`export_rescored`, :func:`export_rows`):
+    their label and each RMSE, ``-`` where there is none; no interval and never in bold."""
+    return [(name, ["-" if v is None else f"{v:.{DIGITS}f}" for v in values]) for name, values in rows.items()]
 
 
 def _markdown(report: Report, seeds: int | None) -> str:
@@ -157,7 +157,7 @@ def _markdown(report: Report, seeds: int | None) -> str:
              "| :--- | " + " | ".join("---:" for _ in COLUMNS) + " |"]  # fmt: skip
     rows = [(name, [" ".join(_cell(ci, b, "**{}**")).strip() for ci, b in zip(cells, best, strict=True)])
             for name, cells in figures.items()]  # fmt: skip
-    for name, shown in [*rows, *_published(report)]:
+    for name, shown in [*rows, *_copied(export_rescored(report)), *_copied(export_rows(report))]:
         name = name.replace("|", "\\|")  # a bar would end the cell
         lines.append(f"| {name} | " + " | ".join(shown) + " |")
     return "\n".join(lines) + "\n"
@@ -175,9 +175,10 @@ def _latex(report: Report, seeds: int | None) -> str:
             figure, interval = _cell(ci, b, r"\textbf{{{}}}")
             shown.append(f"{figure} {{\\scriptsize {interval}}}" if interval else figure)
         body.append(f"{latex_escape(name)} & " + " & ".join(shown) + r" \\")
-    published = _published(report)
-    body += [r"\midrule"] * bool(published)  # copied from papers: apart from the rows scored here
-    body += [f"{latex_escape(name)} & " + " & ".join(cells) + r" \\" for name, cells in published]
+    # apart from the rows scored here: this run's rows scored as published, then the copied rows
+    for apart in (_copied(export_rescored(report)), _copied(export_rows(report))):
+        body += [r"\midrule"] * bool(apart)
+        body += [f"{latex_escape(name)} & " + " & ".join(cells) + r" \\" for name, cells in apart]
     head = "Model & " + " & ".join(c.capitalize() for c in COLUMNS) + r" \\"
     return "\n".join([
         f"% svbrdf-bench export {report.parent_id} --format latex; needs \\usepackage{{booktabs}}",

@@ -13,13 +13,21 @@ from __future__ import annotations
 
 import re
 
+from svbrdf_render import MAP_NAMES
+
+from ..published import AS_PUBLISHED
 from ..published import MARK, PublishedRow
 from .figures import Report
 from .rows import COLUMNS
 from .tables import Table
 
 __all__ = ["this_run", "protocol_check", "published_rows", "with_published", "published_note",
-           "protocol_table", "published_json", "export_rows", "export_words"]  # fmt: skip
+           "protocol_table", "rescored", "rescored_table", "published_json", "export_rows", "export_rescored",
+           "export_words",
+           "RESCORED_MARK"]  # fmt: skip
+
+#: How the report marks this run's rows scored again as the published rows were.
+RESCORED_MARK = "scored as published"
 
 #: The aspects of a protocol the report compares, in order (a file may name others too).
 ASPECTS = ("test strips", "resolution", "crop", "values", "normals", "rmse", "renderings")
@@ -149,6 +157,12 @@ def protocol_table(report: Report) -> Table | None:
     head = ["aspect", "this run", *(f"published: {', '.join(r.name for r in g)}" for g in groups.values())]
     rows = [[c["aspect"], c["this_run"], *(f"{k[i]['published']} ({k[i]['verdict']})" for k in checks)]
             for i, c in enumerate(checks[0])]  # fmt: skip
+    scorer = report.published.scorer
+    if scorer is not None:  # the rows scored again as the file says the papers scored
+        again = scorer.words() | {"test strips": "this run's own"}
+        head.insert(2, f"this run, {RESCORED_MARK}")
+        for row in rows:
+            row.insert(2, again.get(row[0], "-"))
     lpips = [r.name for r in report.published.rows if r.lpips]
     after = [
         "",
@@ -162,6 +176,41 @@ def protocol_table(report: Report) -> Table | None:
                  rows, after)  # fmt: skip
 
 
+def rescored(report: Report) -> dict[str, dict[str, float]]:
+    """Row label -> its map RMSE scored as the published rows were (the file's ``scorer``), for
+    every unrefined row that has them; empty without a scorer."""
+    if report.published is None or report.published.scorer is None:
+        return {}
+    out = {}
+    for e in report.models:
+        figures = {m: e.figures.get(f"{AS_PUBLISHED}rmse/{m}") for m in MAP_NAMES}
+        if not e.refine_steps and all(v is not None for v in figures.values()):
+            out[e.label] = figures
+    return out
+
+
+def rescored_table(report: Report) -> Table | None:
+    """This run's rows scored as the published ones were, with the published rows under them, on
+    the maps; None without a ``scorer`` in the file."""
+    rows = rescored(report)
+    if not rows:
+        return None
+    scorer = report.published.scorer
+    images = next((e.figures.get(f"{AS_PUBLISHED}images") for e in report.models if e.label in rows), None)
+    body = [[label, *(f"{v[m]:.4f}" for m in MAP_NAMES)] for label, v in rows.items()]
+    body += [[r.label, *(f"{r.rmse[m]:.4f}" if m in r.rmse else "-" for m in MAP_NAMES)]
+             for r in report.published.rows if r.rmse]  # fmt: skip
+    count = f"{images:.0f} test tiles" if images is not None else "the test tiles"
+    after = [
+        "",
+        f"This run's rows scored again on {count} as the file's scorer says ({scorer.describe()}); the "
+        f"published rows copied. One figure per row, over images as the papers take them: no interval, no "
+        "verdict. That the papers scored this way is the file's claim; refined rows are not rescored.",
+    ]
+    title = f"Scored as the published rows ({report.published.origin}): RMSE of the maps, lower is better"
+    return Table(title, ["model", *MAP_NAMES], body, after)
+
+
 def published_json(report: Report) -> dict | None:
     """results.json's ``published``: the file, its test set and rows, each with its protocol and how
     that protocol compares with this run's; None without published numbers."""
@@ -171,8 +220,11 @@ def published_json(report: Report) -> dict | None:
     rows = [{"name": r.name, "label": r.label, "source": r.source, "rmse": r.rmse, "lpips": r.lpips,
              "protocol": r.protocol, "protocol_check": protocol_check(report, r.protocol)}
             for r in p.rows]  # fmt: skip
+    scorer = None if p.scorer is None else {
+        "window": p.scorer.window, "size": p.scorer.size, "values": p.scorer.values, "rmse": p.scorer.rmse,
+        "words": p.scorer.words(), "rows": rescored(report)}  # fmt: skip
     return {"file": p.origin, "test_set": p.test_set, "marked": MARK, "protocol": p.protocol,
-            "this_run": this_run(report), "rows": rows,
+            "this_run": this_run(report), "rows": rows, "scorer": scorer,
             "note": f"copied from {p.origin}, not rerun: no interval, no verdict, outside the Holm family, "
             "the costs and the Pareto front"}  # fmt: skip
 
@@ -183,11 +235,21 @@ def export_rows(report: Report) -> dict[str, list[float | None]]:
     return {r.label: [r.rmse.get(c) for c in COLUMNS] for r in rows if r.rmse}
 
 
+def export_rescored(report: Report) -> dict[str, list[float | None]]:
+    """This run's rows scored as published (a ``scorer``), marked, with their RMSE per column (None:
+    renderings, which the scorer does not score), for the exported table."""
+    return {f"{label} ({RESCORED_MARK})": [v.get(c) for c in COLUMNS] for label, v in rescored(report).items()}
+
+
 def export_words(report: Report) -> str:
-    """The caption's sentence on the published rows ('' without them): what they are, and where
-    their protocol differs from this table's."""
-    if not export_rows(report):
-        return ""
+    """The caption's sentences on the published rows and on this run's rows scored as they were
+    ('' without either): what they are, and where the published protocol differs from this table's."""
+    again = ""
+    if rescored(report):
+        again = (f"Rows marked {RESCORED_MARK}: this table's models scored again under the file's scorer "
+                 f"({report.published.scorer.describe()}). ")  # fmt: skip
+    if not any(r.rmse for r in (report.published.rows if report.published else [])):
+        return again
     checks = [c for r in report.published.rows for c in protocol_check(report, r.protocol)]
     differs = list(dict.fromkeys(c["aspect"] for c in checks if c["verdict"] == DIFFERS))
     unsure = [a for a in dict.fromkeys(c["aspect"] for c in checks if c["verdict"] == CHECK)
@@ -198,4 +260,5 @@ def export_words(report: Report) -> str:
         + (", ".join(differs) or "no aspect the file's words settle")
         + (f" and may differ in {', '.join(unsure)}" if unsure else "")
         + "; shown without interval, never in bold. "
+        + again
     )

@@ -20,7 +20,7 @@ from .tables import (
     verdict_table,
 )
 from .inference import inference_table
-from .published import protocol_table, with_published
+from .published import protocol_table, rescored_table, with_published
 from .verdicts import family, holm_note, small_sample_note
 
 __all__ = ["terminal", "markdown", "table_lines", "PLOTS"]
@@ -68,6 +68,7 @@ def _tables(report: Report, markdown: bool) -> list[str]:
     blocks = [table_lines(with_published(accuracy_table(report, *m), report, m[0]), markdown)
               for m in report.metrics_present()]  # fmt: skip
     blocks.append(table_lines(protocol_table(report), markdown))  # --published: their protocol and ours
+    blocks.append(table_lines(rescored_table(report), markdown))  # --published with a scorer
     blocks += [table_lines(t, markdown) for t in (against_table(report, fam), real_table(report))]
     blocks += [table_lines(refine_table(report), markdown), table_lines(time_table(report), markdown)]
     blocks.append([f"- {n}" if markdown else n for n in words.timing_notes(report)])
