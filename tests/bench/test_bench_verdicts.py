@@ -101,6 +101,16 @@ def test_a_verdict_that_does_not_survive_holm_says_so():
     assert all(row.rstrip().endswith("beats, but not after Holm over 5 comparisons") for row in table[3:])
 
 
+def test_the_family_is_computed_once_per_set_of_rows():
+    report = _weak_report()
+    fam = family(report)
+    assert family(report) is fam  # every section asks; the bootstraps run once
+    report.models[0].per_sample = {k: v - 0.02 for k, v in report.models[1].per_sample.items()}
+    again = family(report)  # other figures: computed anew
+    assert again is not fam and all(v.survives for v in again.verdicts)
+    assert not any(v.survives for v in fam.verdicts)
+
+
 def test_a_clear_verdict_survives_and_keeps_its_words():
     report = _weak_report()
     report.models[0].per_sample = {k: v - 0.02 for k, v in report.models[1].per_sample.items()}

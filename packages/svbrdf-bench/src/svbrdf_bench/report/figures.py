@@ -67,6 +67,8 @@ class Report:
     resolution: int | None = None
     #: :meth:`latency_front`'s last answer, with the rows it was computed for.
     _front_cache: dict = field(default_factory=dict, repr=False, compare=False)
+    #: :func:`svbrdf_bench.report.verdicts.family`'s last answer, with the rows it was computed for.
+    _family_cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     # -- per material -------------------------------------------------------------------------
 
