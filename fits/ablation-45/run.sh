@@ -11,7 +11,9 @@
 # DATA/des18-dev and DATA/unseen-dev are both test sets none of them saw; they are scored with
 #   MLFLOW_TRACKING_URI=sqlite:///fits/ablation-45/mlflow.db svbrdf-bench run \
 #     --from-runs ours,no-attn,no-attn-wide --seeds 3 --minutes 2,8,32 --test-data DATA/unseen-dev
-# Run from the repository root: fits/ablation-45/run.sh [--foreground]
+# Run from the repository root: fits/ablation-45/run.sh [--foreground]. SEEDS="0 1" limits a run to
+# those seeds, so that two runs on two cores share the work without meeting on one fit:
+#   SEEDS="0 1" fits/ablation-45/run.sh; SEEDS=2 fits/ablation-45/run.sh
 # All nine fits run the code of one commit (CODE_REV), checked out beside the repository
 # (CODE_TREE) and put first on PYTHONPATH, so that work on the packages meanwhile (and issue
 # 48's sample change) reaches none of them; the state (checkpoints, MLflow store) stays here.
@@ -27,12 +29,13 @@ fi
 src="$CODE_TREE/packages"
 export PYTHONPATH="$src/svbrdf-render/src:$src/svbrdf-models/src:$src/svbrdf-train/src:$src/svbrdf-bench/src"
 export MLFLOW_TRACKING_URI="sqlite:///$DIR/mlflow.db" OMP_NUM_THREADS=1
+export SEEDS="${SEEDS:-0 1 2}"
 if [ "${1:-}" != --foreground ]; then
     setsid nohup nice "$0" --foreground >> "$DIR/fit.log" 2>&1 < /dev/null &
     echo "fits started (pid $!): tail -f $DIR/fit.log"
     exit 0
 fi
-for seed in 0 1 2; do
+for seed in ${SEEDS:-0 1 2}; do
     for recipe in ours no-attn no-attn-wide; do
         out="$DIR/$recipe-s$seed"
         if [ -f "$out/DONE" ]; then continue; fi

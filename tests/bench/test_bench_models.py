@@ -320,7 +320,7 @@ def test_a_new_store_is_made_without_mlflow_s_notices(tmp_path):
     env = dict(os.environ, MLFLOW_TRACKING_URI=f"sqlite:///{tmp_path / 'new.db'}")
     done = subprocess.run(
         [sys.executable, "-m", "svbrdf_bench", "run", "--models", "pretrained", "--test-count", "2",
-         "--no-baselines", "-o", str(tmp_path / "r")],
+         "--no-baselines", "--latency-grid", "256x1", "-o", str(tmp_path / "r")],
         capture_output=True, text=True, timeout=300, env=env,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr
