@@ -239,6 +239,22 @@ def test_a_fit_on_strips_validates_the_held_out_fold(strips, tmp_path):
     assert all(np.isfinite(v) for v in result.metrics.values())
 
 
+def test_the_held_out_fold_is_photographed_under_its_entry_s_capture(strips):
+    from svbrdf_train.data.fitdata import fold_validation_set
+    from svbrdf_train.recipe import load_recipe
+
+    def fold_photo(capture):
+        entry = {"source": "materials", "weight": 1, "fold": "fabric", **({"capture": capture} if capture else {})}
+        recipe = load_recipe("ours-materials", "smoke", overrides={
+            "data.path": str(strips), "data.capture": "phone",
+            "data.mix": [{"source": "procedural", "weight": 1}, entry]})  # fmt: skip
+        held, _ = fold_validation_set(recipe.data, recipe.train.resolution)
+        return held.photo
+
+    assert fold_photo(None) == PhotoSettings.preset("phone")
+    assert fold_photo("handheld") == PhotoSettings.preset("handheld")
+
+
 def test_init_takes_the_shipped_model_file():
     """``fit --init pretrained``: the shipped generator, its steps and time, no discriminator;
     it matches ours-materials at the cpu size, the recipe meant to go on from it."""

@@ -80,6 +80,8 @@ def test_a_mix_recipe_builds_both_sources_and_their_validation(tmp_path):
         ("[{source: procedural, weight: 1}, {source: photos, weight: 1}]", ["mix[1].source", "photos"]),
         ("[{source: procedural, weight: 1, wieght: 2}]", ["unknown key 'wieght'", "'weight'"]),
         ("[]", ["needs data.mix"]),
+        ("[{source: procedural, weight: 1, capture: phnoe}]", ["mix[0].capture must be one of", "'phnoe'"]),
+        ("[{source: des18, weight: 1, capture: phone}]", ["mix[0].capture", "bring their own photos"]),
     ],
 )
 def test_bad_mixes_are_refused_in_one_line(tmp_path, mix, needles):
@@ -233,6 +235,19 @@ def test_procedural_materials_are_a_plain_source_of_a_mix():
     mix = Mixture([proc], [2.0], count=6, seed=0)
     names = sorted(mix[k]["name"] for k in range(6))
     assert names == sorted(proc[k]["name"] for k in range(6))
+
+
+def test_each_entry_photographs_its_samples_under_its_own_capture():
+    mix = [{"source": "procedural", "weight": 1}, {"source": "procedural", "weight": 1, "capture": "handheld"}]
+    recipe = load_recipe("ours-mix", "smoke", {"data.mix": mix, "data.count": 8, "data.capture": "phone"})
+    train, val = build_datasets(recipe)
+    first, second = train.sources
+    assert first.photo == PhotoSettings.preset("phone")  # the section's capture where the entry names none
+    assert second.photo == PhotoSettings.preset("handheld")
+    same = ProceduralMaterials(8, first.resolution, seed=recipe.data.seed, photo=PhotoSettings.preset("handheld"))
+    assert torch.equal(second[3]["input"], same[3]["input"])
+    assert not torch.equal(first[3]["input"], second[3]["input"])  # one material, two photos
+    assert {type(v.photo) for v in val.datasets} == {PhotoSettings} and val.datasets[1].photo == second.photo
 
 
 def test_the_general_recipe_trains_the_resize_generator_on_phone_photos(tmp_path):

@@ -125,6 +125,7 @@ def section_datasets(d: DataSettings, res: int) -> tuple[Dataset, Dataset]:
             count=entry.get("count") or d.count,
             validation=d.validation if entry.get("validation") is None else entry["validation"],
             fold=entry.get("fold"),
+            capture=entry.get("capture") or d.capture,
             mix=None,
             balance=d.balance if entry["source"] == "materials" else "none",
             albedo_prior=d.albedo_prior if entry["source"] == "materials" else None,
@@ -451,14 +452,14 @@ def _strip_datasets(d: DataSettings, res: int) -> tuple[Dataset, Dataset]:
 
 
 def fold_validation_set(d: DataSettings, res: int) -> tuple[Dataset, str] | None:
-    """``(dataset, description)`` of the held-out fold of the ``materials`` source (or mix
-    entry) that has a ``fold``, logged as ``val_fold/``; None when none has."""
+    """``(dataset, description)`` of the held-out fold of the ``materials`` source (or the first
+    mix entry) that has a ``fold``, photographed under that entry's capture, logged as
+    ``val_fold/``; None when none has."""
     entries = list(d.mix or ()) if d.source == "mix" else [{"source": d.source, "fold": d.fold}]
     for entry in entries:
         if entry.get("source") == "materials" and entry.get("fold"):
-            part = dataclasses.replace(
-                d, source="materials", path=entry.get("path") or d.path, fold=entry["fold"], mix=None
-            )
+            part = dataclasses.replace(d, source="materials", path=entry.get("path") or d.path, fold=entry["fold"],
+                                       capture=entry.get("capture") or d.capture, mix=None)  # fmt: skip
             _, held = _strip_datasets(part, res)
             names = ", ".join(s.removeprefix("strip:") for s in held.bank.names[:4])
             return held, f"{len(held)} held-out materials (fold {entry['fold']}: {names}, ...)"

@@ -23,7 +23,7 @@ CAPTURES = ("des18", "phone", "handheld")
 #: (svbrdf_train.data.real.kinds.kind_weights).
 BALANCES = ("none", "kind")
 #: Keys of one ``data.mix`` entry, and the sources an entry may name.
-MIX_KEYS = ("source", "weight", "path", "count", "validation", "fold")
+MIX_KEYS = ("source", "weight", "path", "count", "validation", "fold", "capture")
 MIX_SOURCES = ("procedural", "shards", "des18", "materials")
 
 
@@ -67,9 +67,10 @@ class DataSection:
     )
     mix: tuple[dict, ...] | None = param(
         None,
-        "with source mix: entries {source, weight[, path, count, validation]}; each training "
-        "sample comes from entry i with probability weight_i / sum(weights); validation sets "
-        "are each entry's own, put together",
+        "with source mix: entries {source, weight[, path, count, validation, fold, capture]}; each "
+        "training sample comes from entry i with probability weight_i / sum(weights); validation sets "
+        "are each entry's own, put together; an entry's capture (procedural and materials) "
+        "photographs its samples its own way, so that one fit sees several captures",
     )
     fold: str | None = param(
         None,
@@ -189,6 +190,12 @@ def _check_mix_entry(i: int, entry: Mapping[str, Any]) -> None:
     if fold is not None and (entry["source"] != "materials" or not isinstance(fold, str) or not fold.strip()):
         raise ValueError(
             f"{where}.fold must be k/n or material names, on a materials entry only; got {fold!r}"
+        )
+    capture = entry.get("capture")
+    if capture is not None and (capture not in CAPTURES or entry["source"] not in ("procedural", "materials")):
+        raise ValueError(
+            f"{where}.capture must be one of {', '.join(CAPTURES)}, on a procedural or materials entry only "
+            f"(the others bring their own photos); got {capture!r} on {entry['source']!r}"
         )
     if entry["source"] == "procedural" and path is not None:
         raise ValueError(f"{where}.path is {path!r} but its source is 'procedural', which reads no files")
