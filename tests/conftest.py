@@ -5,6 +5,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -27,6 +28,12 @@ _MLFLOW_DIR = tempfile.mkdtemp(prefix="svbrdf-tests-mlflow-")
 os.environ["MLFLOW_TRACKING_URI"] = f"sqlite:///{_MLFLOW_DIR}/mlflow.db"
 # Nor may a user's MLFLOW_EXPERIMENT_NAME move the runs the tests look for (tests set it themselves).
 os.environ.pop("MLFLOW_EXPERIMENT_NAME", None)
+# A suite started in the background by a script (`setsid nohup ... &`) inherits Ctrl-C ignored,
+# so Python installs no handler of its own and every command it starts ignores Ctrl-C too; the
+# tests of what Ctrl-C does would then fail for the way the suite was started. Put Python's own
+# handler in place, as in a terminal (the commands it starts then get the default disposition).
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def random_svbrdf(
