@@ -269,6 +269,15 @@ def test_verdicts_across_seeds_join_the_holm_family_and_say_when_it_overturns_th
     assert said == {0.001: (False, True), 0.0019: (True, False)}
 
 
+def test_what_accuracy_costs_pairs_a_checkpoint_only_with_its_seed_and_budget():
+    good, bad = _seeds(seed=4), _seeds(seed=4, shift=0.01)
+    report = _report([(m, s, b, v) for m, v in (("a", good), ("b", bad)) for s in range(3) for b in (10, 40)])
+    pairs = {(c["model"], c["versus"]) for c in report.costs()}
+    assert len(pairs) == 3 * 2  # a against b, per seed and budget; nothing across them
+    for model, versus in pairs:
+        assert model.split(" ", 1)[1] == versus.split(" ", 1)[1]  # "seed S @ B steps" alike
+
+
 def test_one_seed_and_one_budget_per_model_has_no_section():
     report = _report([("a", 0, 10, _seeds(seed=5)), ("b", 0, 10, _seeds(seed=6))])
     assert not stats.shown(report) and section.seeds_table(report) is None
