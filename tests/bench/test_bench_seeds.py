@@ -276,6 +276,8 @@ def test_what_accuracy_costs_pairs_a_checkpoint_only_with_its_seed_and_budget():
     assert len(pairs) == 3 * 2  # a against b, per seed and budget; nothing across them
     for model, versus in pairs:
         assert model.split(" ", 1)[1] == versus.split(" ", 1)[1]  # "seed S @ B steps" alike
+    one_each = _report([("a", 0, 10, good), ("b", 1, 40, bad)])  # one row a model: still paired
+    assert {(c["model"], c["versus"]) for c in one_each.costs()} == {("a seed 0 @ 10 steps", "b seed 1 @ 40 steps")}
 
 
 def test_one_seed_and_one_budget_per_model_has_no_section():

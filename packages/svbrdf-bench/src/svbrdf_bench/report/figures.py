@@ -205,16 +205,19 @@ class Report:
         return [e for e in self.trained if not e.refine_steps]
 
     def costs(self) -> list[dict]:
-        """Every ordered pair (A, B), A more accurate on renderings: what A's accuracy costs. Rows of
-        several seeds or budgets (``--seeds``, ``--minutes 2,8,32``) are paired only with the rows
-        of the same seed and budget: one checkpoint against another seed's or budget's says nothing
+        """Every ordered pair (A, B), A more accurate on renderings: what A's accuracy costs. When a
+        model has several seeds or budgets here (``--seeds``, ``--minutes 2,8,32``), rows are paired
+        only with the rows of the same seed and budget: one checkpoint against another seed's or budget's says nothing
         the section "Across seeds and budgets" does not, and would swell the Holm family."""
         from ..metrics import paired_difference
 
+        methods = [e.method for e in self.costed if e.method]
+        matched = len(methods) != len(set(methods))  # a model has several seeds or budgets here
         out = []
         for a in self.costed:
             for b in self.costed:
-                if a is b or (a.method and b.method and (a.seed, a.train_budget) != (b.seed, b.train_budget)):
+                apart = a.method and b.method and (a.seed, a.train_budget) != (b.seed, b.train_budget)
+                if a is b or (matched and apart):
                     continue
                 ra, rb = a.per_sample["rmse/render"], b.per_sample["rmse/render"]
                 if len(ra) != len(rb):
