@@ -78,8 +78,9 @@ def markdown(records: list[dict]) -> str:
     lines = [head, "| --- | --- | --- | --- | ---: | ---: | ---: | --- | ---: | ---: |"]
     for r in records:
         lines.append(
-            f"| {r['budget']} | {r['A']} | {r['B']} | {r['column']} | {r['A mean']:.4f} ({r['A seed sd']:.4f}) | "
-            f"{r['B mean']:.4f} ({r['B seed sd']:.4f}) | {r['difference']:+.4f} [{r['low']:+.4f}, {r['high']:+.4f}] | "
+            f"| {r['budget']} | {r['A']} | {r['B']} | {r['column']} | "
+            f"{r['A mean']:.4f} ({r['A seed sd']:.4f}) | {r['B mean']:.4f} ({r['B seed sd']:.4f}) | "
+            f"{r['difference']:+.4f} [{r['low']:+.4f}, {r['high']:+.4f}] | "
             f"{r['across seeds']} | {r['A beats B']} / {r['B beats A']} / {r['within noise']} | "
             f"{r['agree']} of {r['single fits']} |"
         )
@@ -89,8 +90,8 @@ def markdown(records: list[dict]) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("parent", help="the parent run id of a finished svbrdf-bench run with several seeds")
-    parser.add_argument("--columns", default="render", help="maps to compare, comma-separated (default: render)")
+    parser.add_argument("parent", help="the parent run id of a finished svbrdf-bench run with seeds")
+    parser.add_argument("--columns", default="render", help="maps to compare, comma-separated (render)")
     args = parser.parse_args(argv)
     from svbrdf_bench.report import build_report
 

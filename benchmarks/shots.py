@@ -108,7 +108,8 @@ def logged_result(log: Path) -> dict | None:
         return None
     wall = re.search(r"Elapsed \(wall clock\) time \(h:mm:ss or m:ss\): ([\d:.]+)", text)
     peak = re.search(r"Maximum resident set size \(kbytes\): (\d+)", text)
-    seconds = sum(float(x) * 60**i for i, x in enumerate(reversed(wall.group(1).split(":")))) if wall else math.nan
+    parts = reversed(wall.group(1).split(":")) if wall else ()
+    seconds = sum(float(x) * 60**i for i, x in enumerate(parts)) if wall else math.nan
     gb = int(peak.group(1)) / 1024**2 if peak else math.nan
     return {"ok": True, "rc": 0, "seconds": seconds, "peak_gb": gb, "why": ""}
 

@@ -69,8 +69,8 @@ from .layout import PUBLISHED
 
 __all__ = ["PublishedRow", "Published", "read_published", "parse_published", "check_test_set",
            "log_published", "TEST_SETS", "FIGURE_NAMES", "MARK", "DOCS_SECTION", "PublishedScorer",
-           "score_as_published", "parse_scorer", "check_tiles", "AS_PUBLISHED", "WINDOWS", "VALUES", "POOLING",
-           "SCORER_KEYS", "MIN_SIZE"]  # fmt: skip
+           "score_as_published", "parse_scorer", "check_tiles", "AS_PUBLISHED", "WINDOWS", "VALUES",
+           "POOLING", "SCORER_KEYS", "MIN_SIZE"]  # fmt: skip
 
 #: The test sets a file may name, and what a run's test set must be for each.
 TEST_SETS = {"des18": "the synthetic test set of Deschaintre et al. 2018"}
@@ -285,11 +285,13 @@ class PublishedScorer:
     def words(self) -> dict[str, str]:
         """The protocol aspects (as :mod:`svbrdf_bench.report.published` names them) this scorer follows."""
         side = f"{self.size} px"
-        crop = (f"centre {side} of each stored tile, not resampled" if self.window == "centre-crop"
-                else f"none: each whole tile resized to {side} (area filter, normals renormalised)")  # fmt: skip
+        resized = f"none: each whole tile resized to {side} (area filter, normals renormalised)"
+        centre = f"centre {side} of each stored tile, not resampled"
+        crop = centre if self.window == "centre-crop" else resized
         scale = "" if self.values == "[0, 1]" else ", reported on [-1, 1] (twice the [0, 1] figure)"
-        pooled = ("per image over all pixels and channels, then the mean over images" if self.rmse == "per-image"
-                  else "pooled: one square root over every image's squared errors")  # fmt: skip
+        per_image = "per image over all pixels and channels, then the mean over images"
+        root = "pooled: one square root over every image's squared errors"
+        pooled = per_image if self.rmse == "per-image" else root
         return {
             "resolution": f"{side} (the models run at it, whatever they were trained at)",
             "crop": crop,
@@ -331,8 +333,8 @@ def check_tiles(scorer: PublishedScorer, sides: list[int], origin: str) -> None:
     if small:
         raise BenchError(
             f"--published {origin}: its scorer works on {scorer.size} px windows, but {len(small)} of the "
-            f"{len(sides)} test tiles are smaller (the smallest {min(small)} px); give --test-data tiles of at "
-            f"least {scorer.size} px, or a smaller scorer.size"
+            f"{len(sides)} test tiles are smaller (the smallest {min(small)} px); give --test-data tiles of "
+            f"at least {scorer.size} px, or a smaller scorer.size"
         )
 
 

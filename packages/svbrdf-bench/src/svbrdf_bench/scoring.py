@@ -3,8 +3,8 @@ scored alike by :class:`RowScorer`: its figures on the test images, its latency 
 its FLOPs and latency grid: :mod:`svbrdf_bench.inference`), its self-consistency on real
 photos, its figures as published papers scored (with a ``--published`` file's ``scorer``:
 :func:`svbrdf_bench.published.score_as_published`), and the rows of its refinement budgets; a
-fit's row adds its training figures (:func:`training_figures`). The scorer keeps what the comparison sheets show
-(:func:`comparison_grid`, :func:`real_grid`).
+fit's row adds its training figures (:func:`training_figures`). The scorer keeps what the
+comparison sheets show (:func:`comparison_grid`, :func:`real_grid`).
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ import torch
 
 from svbrdf_render import MAP_NAMES
 
-from .published import PublishedScorer, score_as_published
 from .inference import inference_cost
 from .layout import FIT_WALL_METRIC, REAL_PREFIX, REAL_RERENDER, STEPS_METRIC, STEPS_WALL_METRIC, TEST_PREFIX
+from .published import PublishedScorer, score_as_published
 from .refinement import RefinedRow, RefinePlan, refine_real, refine_rows, refined_label
 from .testset import TestSet
 

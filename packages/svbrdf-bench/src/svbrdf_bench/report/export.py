@@ -147,7 +147,8 @@ def _cell(ci: tuple[float, float, float] | None, best: float | None, bold: str) 
 def _copied(rows: dict[str, list[float | None]]) -> list[tuple[str, list[str]]]:
     """Rows scored outside this table's protocol (:func:`export_rescored`, :func:`export_rows`):
     their label and each RMSE, ``-`` where there is none; no interval and never in bold."""
-    return [(name, ["-" if v is None else f"{v:.{DIGITS}f}" for v in values]) for name, values in rows.items()]
+    return [(name, ["-" if v is None else f"{v:.{DIGITS}f}" for v in values])
+            for name, values in rows.items()]  # fmt: skip
 
 
 def _markdown(report: Report, seeds: int | None) -> str:

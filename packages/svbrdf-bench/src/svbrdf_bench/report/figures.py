@@ -207,8 +207,9 @@ class Report:
     def costs(self) -> list[dict]:
         """Every ordered pair (A, B), A more accurate on renderings: what A's accuracy costs. When a
         model has several seeds or budgets here (``--seeds``, ``--minutes 2,8,32``), rows are paired
-        only with the rows of the same seed and budget: one checkpoint against another seed's or budget's says nothing
-        the section "Across seeds and budgets" does not, and would swell the Holm family."""
+        only with the rows of the same seed and budget: one checkpoint against another seed's or
+        budget's says nothing the section "Across seeds and budgets" does not, and would swell the
+        Holm family."""
         from ..metrics import paired_difference
 
         methods = [e.method for e in self.costed if e.method]

@@ -15,16 +15,14 @@ import re
 
 from svbrdf_render import MAP_NAMES
 
-from ..published import AS_PUBLISHED
-from ..published import MARK, PublishedRow
+from ..published import AS_PUBLISHED, MARK, PublishedRow
 from .figures import Report
 from .rows import COLUMNS
 from .tables import Table
 
 __all__ = ["this_run", "protocol_check", "published_rows", "with_published", "published_note",
            "protocol_table", "rescored", "rescored_table", "published_json", "export_rows", "export_rescored",
-           "export_words",
-           "RESCORED_MARK"]  # fmt: skip
+           "export_words", "RESCORED_MARK"]  # fmt: skip
 
 #: How the report marks this run's rows scored again as the published rows were.
 RESCORED_MARK = "scored as published"
@@ -238,7 +236,8 @@ def export_rows(report: Report) -> dict[str, list[float | None]]:
 def export_rescored(report: Report) -> dict[str, list[float | None]]:
     """This run's rows scored as published (a ``scorer``), marked, with their RMSE per column (None:
     renderings, which the scorer does not score), for the exported table."""
-    return {f"{label} ({RESCORED_MARK})": [v.get(c) for c in COLUMNS] for label, v in rescored(report).items()}
+    rows = rescored(report)
+    return {f"{label} ({RESCORED_MARK})": [v.get(c) for c in COLUMNS] for label, v in rows.items()}
 
 
 def export_words(report: Report) -> str:

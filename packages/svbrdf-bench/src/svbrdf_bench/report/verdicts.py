@@ -141,9 +141,9 @@ def family(report: Report) -> Family:
     # bootstraps behind it run once per set of rows (the rows' figures held, compared by identity).
     rows_now = [(e.label, e.run_id, e.per_sample, e.figures) for e in report.models]
     cached = report._family_cache
-    if cached and cached["groups"] is report.groups and len(cached["rows"]) == len(rows_now) and all(
-        a[:2] == b[:2] and a[2] is b[2] and a[3] is b[3] for a, b in zip(cached["rows"], rows_now, strict=True)
-    ):
+    same = cached and cached["groups"] is report.groups and len(cached["rows"]) == len(rows_now)
+    if same and all(a[:2] == b[:2] and a[2] is b[2] and a[3] is b[3]
+                    for a, b in zip(cached["rows"], rows_now, strict=True)):  # fmt: skip
         return cached["family"]
     raw = [("against baseline", r["model"], r["versus"], r["column"], r["rmse_difference"], r["low"],
             r["high"], r["verdict"], r["p_value"]) for r in report.against_reference()]  # fmt: skip

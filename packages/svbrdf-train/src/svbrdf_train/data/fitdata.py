@@ -458,8 +458,9 @@ def fold_validation_set(d: DataSettings, res: int) -> tuple[Dataset, str] | None
     entries = list(d.mix or ()) if d.source == "mix" else [{"source": d.source, "fold": d.fold}]
     for entry in entries:
         if entry.get("source") == "materials" and entry.get("fold"):
-            part = dataclasses.replace(d, source="materials", path=entry.get("path") or d.path, fold=entry["fold"],
-                                       capture=entry.get("capture") or d.capture, mix=None)  # fmt: skip
+            part = dataclasses.replace(d, source="materials", path=entry.get("path") or d.path,
+                                       fold=entry["fold"], capture=entry.get("capture") or d.capture,
+                                       mix=None)  # fmt: skip
             _, held = _strip_datasets(part, res)
             names = ", ".join(s.removeprefix("strip:") for s in held.bank.names[:4])
             return held, f"{len(held)} held-out materials (fold {entry['fold']}: {names}, ...)"

@@ -192,7 +192,8 @@ def _check_mix_entry(i: int, entry: Mapping[str, Any]) -> None:
             f"{where}.fold must be k/n or material names, on a materials entry only; got {fold!r}"
         )
     capture = entry.get("capture")
-    if capture is not None and (capture not in CAPTURES or entry["source"] not in ("procedural", "materials")):
+    photographed = entry["source"] in ("procedural", "materials")
+    if capture is not None and (capture not in CAPTURES or not photographed):
         raise ValueError(
             f"{where}.capture must be one of {', '.join(CAPTURES)}, on a procedural or materials entry only "
             f"(the others bring their own photos); got {capture!r} on {entry['source']!r}"
