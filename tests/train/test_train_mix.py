@@ -145,12 +145,13 @@ MIXED = (
 def test_a_mixed_fit_stopped_and_resumed_ends_bitwise_as_one_that_never_stopped(tmp_path):
     real = des18_strips(tmp_path / "real", count=4, size=64)
     data = ("--data", str(real))
-    whole = run_cli(*MIXED, *data, "--out", "whole", cwd=tmp_path)
+    one = {"OMP_NUM_THREADS": "1"}  # each run would pick its threads by the load it meets: sums differ
+    whole = run_cli(*MIXED, *data, "--out", "whole", cwd=tmp_path, env=one)
     assert whole.returncode == 0, whole.stderr
-    first = run_cli(*MIXED, *data, "--out", "cut", "--max-steps", "6", cwd=tmp_path)
+    first = run_cli(*MIXED, *data, "--out", "cut", "--max-steps", "6", cwd=tmp_path, env=one)
     assert first.returncode == 0, first.stderr
     assert load_checkpoint(tmp_path / "cut" / "last.pt")["step"] == 6  # mid-epoch: 4 steps an epoch
-    resumed = run_cli("fit", "--out", "cut", "--resume", "--max-steps", "12", "-q", cwd=tmp_path)
+    resumed = run_cli("fit", "--out", "cut", "--resume", "--max-steps", "12", "-q", cwd=tmp_path, env=one)
     assert resumed.returncode == 0, resumed.stderr
     a = load_checkpoint(tmp_path / "whole" / "last.pt")
     b = load_checkpoint(tmp_path / "cut" / "last.pt")
