@@ -248,6 +248,31 @@ def test_the_section_s_verdicts_in_words():
     assert [(m, b) for m, b, _ in series["a"]] == [(1.0, "10 steps"), (4.0, "40 steps")]
 
 
+def test_models_at_one_budget_in_minutes_cost_the_same_on_the_training_front():
+    """A snapshot lands at the first step past the mark, so two models given 2 minutes measure
+    2.00 and 2.01: neither is cheaper, and the one within noise is not dominated for it."""
+    good = _seeds(seed=4)
+    near = _noisy_rival(good, 0.0)  # within noise of `b`
+    rows = []
+    for method, values, measured in (("a", near, 2.01), ("b", good, 2.00)):
+        for s in range(3):
+            e = ModelEntry(f"{method} {s}", f"run-{method}-{s}", f"fit-{method}-{s}",
+                           {"rmse/render": values[s]}, {"time/train_s": measured * 60})  # fmt: skip
+            e.seed, e.method, e.train_budget = s, method, ("minutes", 2.0)
+            rows.append(e)
+    front = stats.training_front(Report("parent", "quick", "made up", "-", "-", rows))
+    assert front["front"] == ["a @ 2 min", "b @ 2 min"] and front["dominated"] == {}
+    assert {p[0] for p in front["points"].values()} == {2.0}
+    worse = {s: v + 0.02 for s, v in good.items()}  # beyond noise: the same cost does not save it
+    rows = [e for e in rows if e.method == "b"]
+    for s in range(3):
+        e = ModelEntry(f"c {s}", f"run-c-{s}", f"fit-c-{s}", {"rmse/render": worse[s]}, {"time/train_s": 119.0})
+        e.seed, e.method, e.train_budget = s, "c", ("minutes", 2.0)
+        rows.append(e)
+    front = stats.training_front(Report("parent", "quick", "made up", "-", "-", rows))
+    assert front["front"] == ["b @ 2 min"] and front["dominated"] == {"c @ 2 min": "b @ 2 min"}
+
+
 def _noisy_rival(good: dict[int, np.ndarray], shift: float) -> dict[int, np.ndarray]:
     return {s: v + shift + 0.004 * np.random.default_rng(100 + s).standard_normal(v.size) for s, v in good.items()}
 

@@ -166,6 +166,15 @@ class Cell:
             raise BenchError(f"{self.name}: its seeds were tested on different test sets")
         return np.stack(values)
 
+    def cost_minutes(self) -> float:
+        """The training cost the front compares: the budget mark for a budget in minutes (each fit
+        was given exactly that; its snapshot lands at the first step past the mark, so the measured
+        minutes of two models at one mark differ by a step, which is no difference in cost), else
+        :meth:`minutes`."""
+        if self.budget is not None and self.budget[0] == "minutes":
+            return float(self.budget[1])
+        return self.minutes()
+
     def minutes(self) -> float:
         """Mean training minutes over its seeds (on the fits' clock); NaN when not recorded."""
         t = [e.figures.get("time/train_s", math.nan) for e in self.rows.values()]
@@ -274,12 +283,14 @@ def _figures(r: dict) -> dict:
 def training_front(report: Report) -> dict:
     """The front of render RMSE against training minutes over every model and budget: a point is
     dominated when one trained no longer is better, or within noise of it (:func:`paired_seeds`),
-    as :func:`svbrdf_bench.plots.dominated_by` decides."""
+    as :func:`svbrdf_bench.plots.dominated_by` decides. Training time is :meth:`Cell.cost_minutes`:
+    models at one budget in minutes cost the same, and neither dominates the other unless it is
+    better beyond noise."""
     from ..plots import dominated_by
 
     points, by_name = {}, {}
     for c in cells(report):
-        minutes = c.minutes()
+        minutes = c.cost_minutes()
         if not math.isnan(minutes):
             points[c.name] = (minutes, *hierarchical_bootstrap(c.matrix(report, "rmse/render")))
             by_name[c.name] = c
