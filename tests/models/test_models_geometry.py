@@ -198,10 +198,10 @@ def test_command_help_teaches_fov_and_distance(capsys):
 
 def test_refinement_stands_at_the_photos_geometry_and_material_json_says_so(tmp_path):
     """An EXIF photo with a crop: the refinement's camera and flash at the geometry's height (not
-    2.2), over the photo's clear highlight when it shows one (the foot of a flash beside the lens:
-    where a tilted phone was), else over the geometry's x and y; material.json's geometry section
-    gives the place and where it came from."""
-    from svbrdf_render.refinement.rings import find_highlight
+    2.2), where the fall-off of the photo's light puts the flash (a flash beside the lens: where
+    a tilted phone was), searched around the geometry's x and y; material.json's geometry
+    section gives the place, where it came from and how well the fall-off fitted."""
+    from svbrdf_render.refinement.falloff import fall_off_point
 
     path = _f35(tmp_path / "shot.jpg")
     options = CaptureOptions(refine=2, relit="none", crop=(0, 0, 64))
@@ -209,16 +209,19 @@ def test_refinement_stands_at_the_photos_geometry_and_material_json_says_so(tmp_
     want = list(capture_geometry(path, (0, 0, 64)).position)
     from svbrdf_models.capture.photos import load_photo
 
-    point, clear = find_highlight(load_photo(path, crop=(0, 0, 64))[0][None])  # the capture's square
-    over = "highlight" if bool(clear[0]) else "square"
-    if over == "highlight":
-        want[:2] = [float(v) for v in point[0]]
+    square = load_photo(path, crop=(0, 0, 64))[0][None]  # the capture's square
+    point, misfit = fall_off_point(square, want[2], around=torch.tensor(want[:2]))
+    distance = math.hypot(*want)  # the lens's distance to the square's centre, kept
+    want[:2] = [float(v) for v in point[0]]
+    want[2] = math.sqrt(distance**2 - want[0] ** 2 - want[1] ** 2)
     assert entry["flash"]["position"] == pytest.approx(want, abs=1e-5)
     record = json.loads((tmp_path / "out" / "material.json").read_text())
     geometry = record["geometry"]
-    assert geometry["source"] == "exif-35mm" and geometry["used"] is True and geometry["over"] == over
+    assert geometry["source"] == "exif-35mm" and geometry["used"] is True and geometry["over"] == "fall-off"
+    assert geometry["fall_off_misfit"] == pytest.approx(float(misfit[0]), abs=1e-4)
+    assert record["flash"]["placed"] == "fall-off"
     assert geometry["position"] == pytest.approx(list(want), abs=1e-4)
-    assert geometry["distance"] == pytest.approx(math.hypot(*want), abs=1e-4)
+    assert geometry["distance"] == pytest.approx(distance, abs=1e-4)
     assert geometry["focal_length_35mm"] == 26 and geometry["focal_length_mm"] == pytest.approx(4.2)
     assert geometry["photo_size"] == [128, 96] and geometry["square"] == [0, 0, 64]
     f_px = 26 * math.hypot(128, 96) / DIAGONAL_35MM
@@ -267,17 +270,21 @@ def test_refine_prediction_camera_and_axis_flash_position():
     assert result.scene.camera.position.reshape(-1, 3)[0].tolist() == pytest.approx([0.5, 0.25, 3.0])
 
 
-def test_a_tilted_phone_s_flash_stands_over_its_highlight(tmp_path):
+@pytest.mark.parametrize("roughness", [0.3, 0.9])
+def test_a_tilted_phone_s_flash_stands_where_its_light_falls_off_from(tmp_path, roughness):
     """A photo whose flash stood 0.3 half-widths right of and 0.2 below the square's centre (a
-    phone held off-centre or tilted): with the lens from EXIF the flash is placed over the
-    highlight, at the height the lens gives, not on the square's axis; ``--distance`` keeps the
-    axis the user states."""
+    phone held off-centre or tilted): with the lens from EXIF the flash is placed where the
+    fall-off of its light puts it, at the height the lens gives, not on the square's axis, on a
+    glossy material and on a matte one that shows no clear highlight (which used to leave the
+    flash on the axis); ``--distance`` keeps the axis the user states."""
     from svbrdf_render.refinement.fit import flash_scene
+    from svbrdf_render.refinement.rings import find_highlight
 
     from svbrdf_render import SVBRDF
 
-    maps = SVBRDF.constant(1, 96, diffuse=(0.2, 0.2, 0.2), roughness=0.3, specular=(0.04, 0.04, 0.04))
+    maps = SVBRDF.constant(1, 96, diffuse=(0.2, 0.2, 0.2), roughness=roughness, specular=(0.04, 0.04, 0.04))
     photo = render(maps, flash_scene(torch.tensor([[0.3, -0.2, 2.0]]), torch.tensor([10.0]))).clamp(0, 1)[0]
+    assert bool(find_highlight(photo[None])[1][0]) is (roughness < 0.5)
     data = (linear_to_srgb(photo) * 255).round().byte().permute(1, 2, 0).contiguous().numpy()
     exif = Image.Exif()
     exif.get_ifd(EXIF_IFD).update({FOCAL_35MM: 26})
@@ -285,7 +292,8 @@ def test_a_tilted_phone_s_flash_stands_over_its_highlight(tmp_path):
     Image.fromarray(data).save(path, format="JPEG", quality=95, exif=exif)
     entry = capture_one(_Known(96), path, tmp_path / "out", CaptureOptions(refine=2, relit="none"))
     x, y, z = entry["flash"]["position"]
-    assert (x, y) == pytest.approx((0.3, -0.2), abs=0.08)
-    assert z == pytest.approx(capture_geometry(path).position[2], abs=1e-5)
+    assert (x, y) == pytest.approx((0.3, -0.2), abs=0.08) and entry["flash"]["placed"] == "fall-off"
+    assert math.hypot(x, y, z) == pytest.approx(capture_geometry(path).distance, abs=1e-5)  # kept
+    assert z < capture_geometry(path).position[2]  # off the axis: lower
     on_axis = capture_one(_Known(96), path, tmp_path / "o2", CaptureOptions(refine=2, relit="none", distance=2.0))
     assert on_axis["flash"]["position"] == pytest.approx([0.0, 0.0, 2.0], abs=1e-5)

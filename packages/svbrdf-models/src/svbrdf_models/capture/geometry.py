@@ -31,11 +31,15 @@ The focal length in pixels comes from, in this order (:func:`capture_geometry`):
 A phone's main camera (about 26 mm equivalent, 4:3) puts the camera at about 2.0 half-widths of
 the centred square, close to the 2.2 of the photos the networks learnt from.
 
-A flash beside the lens lights the point of the surface right under it: the photo's highlight,
-found by :func:`svbrdf_render.refinement.rings.find_highlight`, says where the flash stood over
-the square (:func:`place_flash`: the geometry placed over it). A photo without a clear one (a
-rough, dark or strongly textured material) gets the flash assumed over the square's centre, or
-where the lens and the crop place the camera. :func:`flash_record` says which in material.json's
+A flash beside the lens lights the point of the surface right under it most, and less with the
+distance from it: with the lens known, the fall-off of that light over the whole photo
+(:func:`svbrdf_render.refinement.falloff.fall_off_point`) says where the flash stood over the
+square (:func:`place_flash`: the geometry placed there), on a matte material as on a glossy
+one. The photo's highlight, found by :func:`svbrdf_render.refinement.rings.find_highlight`, is
+recorded beside it, and places the flash of a photo without a known lens (the refinement's
+own default) or one a card covers too much of for the fit; a photo without a clear highlight
+there gets the flash assumed over the square's centre, or where the lens and the crop place the
+camera. :func:`flash_record` says which in material.json's
 ``flash`` (``placed``, ``highlight``), :func:`flash_line` says it in one line (``predict`` prints
 it on stderr), and a highlight :data:`EDGE` half-widths or more from the centre gets a note with
 what docs/capture-guide.md measured such a capture to cost (:func:`edge_note`)::
@@ -51,6 +55,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import torch
 from torch import Tensor
 
 from svbrdf_render.scene import DES18_DISTANCE
@@ -112,7 +117,11 @@ class CaptureGeometry:
     photo_size: tuple[int, int] | None = None
     square: tuple[int, int, int] | None = None
     over: str | None = None
-    """Where x and y came from once placed (:meth:`over_highlight`): "highlight" or "square"."""
+    """Where x and y came from once placed (:meth:`over_highlight`): "fall-off", "highlight" or
+    "square"."""
+    misfit: float | None = None
+    """With ``over == "fall-off"``: how far the photo departs from a flat material's fall-off
+    there (:func:`svbrdf_render.refinement.falloff.fall_off_point`)."""
 
     @property
     def distance(self) -> float:
@@ -125,25 +134,43 @@ class CaptureGeometry:
         return self.source != "default"
 
     def over_highlight(self, photo, ignore=None, found=None) -> CaptureGeometry:
-        """This geometry with x and y under the clear highlight of ``photo`` ``(3, S, S)`` (the
-        captured square; ``ignore``: a reference card's pixels), its height kept. A flash beside
-        the lens lights its highlight at the foot of the camera on the surface, so a tilted or
-        off-centre phone shows where it was; the lens and the crop alone assume the phone
-        parallel to the surface (a 20 degree tilt moves the flash 0.7 half-widths). Without a
-        clear highlight, for ``--distance`` (the user says the camera stood on the square's axis)
-        or for the default geometry (placed over the highlight anyway), as it is. ``found``: what
-        :func:`~svbrdf_render.refinement.rings.find_highlight` gave for ``photo``, when known."""
+        """This geometry with x and y where the flash stood over the square ``photo`` ``(3, S, S)``
+        (linear; ``ignore``: a reference card's pixels), at the distance from the square's centre
+        the lens gives (so lower than it when off the axis, as a tilted phone's flash is). A tilted or
+        off-centre phone moves its flash off the square's axis (a 20 degree tilt: 0.7
+        half-widths), which the lens and the crop alone cannot know. The place is read off the
+        fall-off of the flash's light over the whole photo
+        (:func:`~svbrdf_render.refinement.falloff.fall_off_point`: ``over`` "fall-off"), which a
+        matte material shows as well as a glossy one; on the simulated handheld photos of
+        docs/measured-shots.md it lay 0.02-0.24 half-widths from the true flash, where the
+        photo's brightest blurred point (``found``, :func:`~svbrdf_render.refinement.rings.
+        find_highlight`, computed when None) missed by up to 0.43 and, on a bright card's edge,
+        by 1.6. A photo too covered by ``ignore`` for the fit is placed over its clear
+        highlight ("highlight"), else left as it is ("square"). For ``--distance`` (the user
+        says the camera stood on the square's axis) and the default geometry (the refinement
+        places its flash over the highlight itself), as it is."""
         import dataclasses
 
+        from svbrdf_render.refinement.falloff import fall_off_point
         from svbrdf_render.refinement.rings import find_highlight
 
         if self.source in ("default", "distance"):
             return self
+        height = self.position[2]
+        around = torch.tensor(self.position[:2])
+        point, misfit = fall_off_point(photo[None].float(), height, ignore, around=around)
+        if math.isfinite(float(misfit[0])):
+            x, y = (float(v) for v in point[0])
+            # The lens gives the distance to the square's centre, which a tilted phone keeps while
+            # its flash moves off the axis: the flash stands lower than that distance (a fifth of
+            # it at most, for a flash beyond the square's corner).
+            z = math.sqrt(max(self.distance**2 - x * x - y * y, (0.8 * self.distance) ** 2))
+            return dataclasses.replace(self, position=(x, y, z), over="fall-off", misfit=float(misfit[0]))
         point, clear = found if found is not None else find_highlight(photo[None].float(), ignore)
         if not bool(clear[0]):
             return dataclasses.replace(self, over="square")
         x, y = (float(v) for v in point[0])
-        return dataclasses.replace(self, position=(x, y, self.position[2]), over="highlight")
+        return dataclasses.replace(self, position=(x, y, height), over="highlight")
 
     def record(self, used: bool) -> dict:
         """material.json's ``geometry`` section; ``used``: the refinement's camera and flash
@@ -157,6 +184,7 @@ class CaptureGeometry:
             "position": None if not self.known else [r(v) for v in self.position],
             "distance": r(self.distance if self.known else self.position[2]),
             "over": self.over or ("square" if self.known else "highlight"),
+            "fall_off_misfit": r(self.misfit),
             "units": "half-widths of the captured square, from its centre; x right, y up, z out",
             "fov": r(self.fov, 3),
             "focal_length_px": r(self.focal_px, 2),
@@ -299,6 +327,7 @@ EDGE_COST = "diffuse +22%, re-rendering +34%"
 
 #: material.json's ``flash.placed``: how the flash's x and y over the square were chosen.
 PLACES = {
+    "fall-off": "where the fall-off of its light over the photo puts it",
     "highlight": "over the photo's highlight",
     "centre": "assumed over the centre of the square",
     "lens": "where the lens and the crop place the camera",
@@ -332,6 +361,8 @@ def flash_record(found: tuple[Tensor, Tensor], geometry, options) -> dict:
         placed = "scene"
     elif geometry.source == "distance":
         placed = "distance"
+    elif geometry.over == "fall-off":
+        placed = "fall-off"
     else:
         placed = "highlight" if seen else ("lens" if geometry.known else "centre")
     highlight = {"found": seen, "point": [x, y] if seen else None,
@@ -363,10 +394,12 @@ def flash_line(flash: dict) -> str:
         if point else "no clear highlight in the photo"
     )  # fmt: skip
     placed = flash.get("placed")
+    at = flash.get("position") or [None, None]
+    if placed == "fall-off" and None not in at[:2]:
+        return f"flash at x {at[0]:+.2f}, y {at[1]:+.2f}, {PLACES[placed]}; {seen}"
     if placed == "highlight":
         return f"flash taken over its {seen}"
     if placed in ("centre", "lens"):
-        at = flash.get("position") or [None, None]
         where = f" (x {at[0]:+.2f}, y {at[1]:+.2f})" if placed == "lens" and None not in at[:2] else ""
         return f"{seen}: the flash {PLACES[placed]}{where}"
     return f"flash {PLACES.get(placed, 'where the capture put it')}; {seen}"

@@ -6,6 +6,8 @@
   several photos, each under its own camera and light;
 - :mod:`~svbrdf_render.refinement.rings`: the flash's rings (the highlight found on a photo, the
   ring penalty, de-ringing);
+- :mod:`~svbrdf_render.refinement.falloff`: where the flash stood, read off the fall-off of its
+  light over a photo;
 - :mod:`~svbrdf_render.refinement.fit`: the flash found from maps and a photo (``axis_flash``,
   ``fit_flash``) and the Adam both step.
 
