@@ -220,6 +220,27 @@ def test_a_card_that_makes_the_material_implausible_is_refused(level, base, brig
     _check_level(3.0, SVBRDF(maps.normal, torch.full_like(diffuse, 0.1), maps.roughness, maps.specular), mask, "x")
 
 
+def test_a_metal_s_black_diffuse_is_no_reason_to_refuse_its_card():
+    """A polished metal's diffuse is black (its colour is in its specular): a card that darkens
+    the network's 0.002 three times more is a metal's, read; the same diffuse on a material the
+    network takes for a non-metal is darker than any and refused; and a metal is still held to
+    the ratio."""
+    from svbrdf_models.capture.reference import _check_level
+
+    def maps(specular: float) -> SVBRDF:
+        return SVBRDF(torch.tensor([0.0, 0.0, 1.0]).view(1, 3, 1, 1).expand(1, 3, 32, 32),
+                      torch.full((1, 3, 32, 32), 0.002), torch.full((1, 1, 32, 32), 0.2),
+                      torch.full((1, 3, 32, 32), specular))  # fmt: skip
+
+    mask = torch.zeros(1, 1, 32, 32, dtype=torch.bool)
+    mask[..., 28:, 28:] = True
+    _check_level(1 / 3, maps(0.9), mask, "metal.jpg")  # no error
+    with pytest.raises(DataError, match="median albedo 0.0007"):
+        _check_level(1 / 3, maps(0.04), mask, "plastic.jpg")
+    with pytest.raises(DataError, match="17.0 times darker .*a metal, its diffuse not judged"):
+        _check_level(1 / 17, maps(0.9), mask, "metal.jpg")
+
+
 @pytest.mark.parametrize("corner", [(4, 4, 28, 28), (4, 68, 28, 92), (68, 68, 92, 92)])
 @pytest.mark.parametrize("exposure", [0.5, 2.0])
 def test_a_good_grey_card_still_reads_in_any_corner(tmp_path, capsys, corner, exposure):
