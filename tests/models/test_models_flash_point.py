@@ -90,4 +90,9 @@ def test_every_placement_has_its_line(placed):
     none = {**found, "highlight": {"found": False, "point": None, "off_centre": None}}
     assert "\n" not in flash_line(found) and "\n" not in flash_line(none)
     assert ("x +0.70, y +0.10" in flash_line(found)) and "no clear highlight" in flash_line(none)
-    assert edge_note(found) is not None and edge_note(none) is None
+    if placed == "fall-off":  # where it stood, 0.22 from the centre: no note, highlight or not
+        assert "x +0.10, y +0.20" in flash_line(found) and edge_note(found) is None
+        far = {**none, "position": [0.7, -0.1, 2.0]}
+        assert "flash stood 0.71 half-widths" in edge_note(far)
+    else:
+        assert edge_note(found) is not None and edge_note(none) is None

@@ -406,13 +406,18 @@ def flash_line(flash: dict) -> str:
 
 
 def edge_note(flash: dict) -> str | None:
-    """A note when the photo's highlight lies :data:`EDGE` half-widths or more from the square's
-    centre, with what docs/capture-guide.md measured that to cost; None otherwise."""
-    r = (flash.get("highlight") or {}).get("off_centre")
+    """A note when the flash stood :data:`EDGE` half-widths or more from the square's centre (placed
+    by its fall-off: where it stood; else the photo's highlight), with what docs/capture-guide.md
+    measured that to cost; None otherwise."""
+    at = flash.get("position") or [None, None]
+    if flash.get("placed") == "fall-off" and None not in at[:2]:
+        r, what = math.hypot(at[0], at[1]), "flash stood"
+    else:
+        r, what = (flash.get("highlight") or {}).get("off_centre"), "flash's highlight is"
     if r is None or r < EDGE:
         return None
     return (
-        f"the flash's highlight is {r:.2f} half-widths from the centre of the square, near its edge: a "
+        f"the {what} {r:.2f} half-widths from the centre of the square, near its edge: a "
         f"flash {EDGE:g} half-widths off the centre cost {EDGE_COST} error, measured on rendered photos "
         "(docs/capture-guide.md, What each mistake costs); hold the phone over the centre of the "
         "material, or --crop a square around the highlight"
