@@ -51,9 +51,11 @@ re-rendering.""",
 maps are refined against the photo at the square's own resolution up to {map_size} px
 (--map-size N, or full for all of it: a refinement holds about 1.4 KB a pixel, and what this
 machine's memory cannot hold is refused before the work starts) through the differentiable
-renderer, for at most STEPS steps (and --refine-seconds S), under the flash
-svbrdf_render.refine_maps finds from the network's maps (or --scene FILE, a scene
-YAML as `svbrdf-render scene` writes: one camera, one view). The maps written are the refined
+renderer, for at most STEPS steps (and --refine-seconds S), under a flash whose intensity
+svbrdf_render.refine_maps finds from the network's maps (or a --reference card measures), and
+which stands, when the lens is known (EXIF, --fov), where the fall-off of its light over the
+photo puts it, else over the photo's highlight (or --scene FILE, a scene YAML as
+`svbrdf-render scene` writes: one camera, one view). The maps written are the refined
 ones. A progress bar is drawn on stderr when it is a terminal (nothing when it is not).
 Squares or --map-size under {min_refine} px are refused. --backend auto (default) refines
 photos from 512x512 up with the compiled renderer (it compiles first, seconds, and is then
