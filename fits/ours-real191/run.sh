@@ -23,6 +23,8 @@
 # stage 1's best step, into out-3/, 240 CPU minutes on one thread.
 # Run from the repository root:
 #   fits/ours-real191/run.sh [start|resume|stage2|resume-2|mixed|resume-3] [extra fit flags]
+# While it runs, no git stash, checkout or reset of this folder: mlflow.db and fit.log are tracked,
+# and a command that swaps them leaves the fit writing to deleted files (twice a fit died so).
 # State (checkpoints, MLflow store, log) stays in this folder so that a later session resumes it;
 # the shard is made again from the two folders when missing (the same bytes every time).
 set -euo pipefail
