@@ -237,8 +237,9 @@ def test_a_metal_s_black_diffuse_is_no_reason_to_refuse_its_card():
     _check_level(1 / 3, maps(0.9), mask, "metal.jpg")  # no error
     with pytest.raises(DataError, match="median albedo 0.0007"):
         _check_level(1 / 3, maps(0.04), mask, "plastic.jpg")
-    with pytest.raises(DataError, match="17.0 times darker .*a metal, its diffuse not judged"):
+    with pytest.raises(DataError, match="17.0 times darker .*its diffuse not judged"):
         _check_level(1 / 17, maps(0.9), mask, "metal.jpg")
+    _check_level(1 / 1.2, maps(0.04), mask, "marble.jpg")  # 0.0017, but what the network saw: confirmed
 
 
 @pytest.mark.parametrize("corner", [(4, 4, 28, 28), (4, 68, 28, 92), (68, 68, 92, 92)])
