@@ -93,6 +93,6 @@ def test_every_placement_has_its_line(placed):
     if placed == "fall-off":  # where it stood, 0.22 from the centre: no note, highlight or not
         assert "x +0.10, y +0.20" in flash_line(found) and edge_note(found) is None
         far = {**none, "position": [0.7, -0.1, 2.0]}
-        assert "flash stood 0.71 half-widths" in edge_note(far)
+        assert "flash stood 0.71 half-widths" in edge_note(far) and "a square under the flash" in edge_note(far)
     else:
         assert edge_note(found) is not None and edge_note(none) is None

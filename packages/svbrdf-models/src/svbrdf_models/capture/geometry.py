@@ -411,14 +411,15 @@ def edge_note(flash: dict) -> str | None:
     measured that to cost; None otherwise."""
     at = flash.get("position") or [None, None]
     if flash.get("placed") == "fall-off" and None not in at[:2]:
-        r, what = math.hypot(at[0], at[1]), "flash stood"
+        r, what, where = math.hypot(at[0], at[1]), "flash stood", "under the flash"
     else:
-        r, what = (flash.get("highlight") or {}).get("off_centre"), "flash's highlight is"
+        r = (flash.get("highlight") or {}).get("off_centre")
+        what, where = "flash's highlight is", "around the highlight"
     if r is None or r < EDGE:
         return None
     return (
         f"the {what} {r:.2f} half-widths from the centre of the square, near its edge: a "
         f"flash {EDGE:g} half-widths off the centre cost {EDGE_COST} error, measured on rendered photos "
         "(docs/capture-guide.md, What each mistake costs); hold the phone over the centre of the "
-        "material, or --crop a square around the highlight"
+        f"material, or --crop a square {where}"
     )
