@@ -122,3 +122,20 @@ def test_comparison_grid_rejects_bad_rows(tmp_path):
         comparison_grid([("x", [t, t])], ["a", "b", "c"], tmp_path / "g.png")
     with pytest.raises(BenchError, match="among"):
         comparison_grid([("x", [t]), ("y", [torch.rand(3, 4, 4)])], ["a"], tmp_path / "g.png")
+
+
+def test_training_time_ticks_are_the_budgets_in_plain_numbers(tmp_path):
+    """The log axis of accuracy against training time is ticked at the minutes drawn (measured
+    2.01 and 2.0 are one tick), written 2, 8, 32: not 2 x 10^0."""
+    from matplotlib.figure import Figure
+
+    from svbrdf_bench.plots import _plain_ticks, accuracy_vs_training_time
+
+    ax = Figure().add_subplot()
+    ax.set_xscale("log")
+    ax.plot([2.0, 2.01, 8.003, 32.01], [1, 2, 3, 4])
+    _plain_ticks(ax, [2.0, 2.01, 8.003, 32.01])
+    assert list(ax.get_xticks()) == [2.0, 8.0, 32.0]
+    assert [ax.xaxis.get_major_formatter()(t, 0) for t in ax.get_xticks()] == ["2", "8", "32"]
+    series = {"a": [(2.0, "2 min", (0.1, 0.09, 0.11)), (8.0, "8 min", (0.08, 0.07, 0.09))]}
+    assert accuracy_vs_training_time(series, tmp_path / "t.png").is_file()

@@ -322,6 +322,7 @@ def accuracy_vs_training_time(
         for t, k, v in pts:
             ax.annotate(k, (t, v[0]), xytext=(4, 3), textcoords="offset points", fontsize="x-small")
     ax.set_xscale("log")
+    _plain_ticks(ax, [t for pts in drawn.values() for t, _, _ in pts])
     ax.margins(x=0.1, y=0.08)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
@@ -330,6 +331,17 @@ def accuracy_vs_training_time(
     ax.grid(True, alpha=0.35, which="both")
     ax.legend(fontsize="small")
     return _save(fig, path)
+
+
+def _plain_ticks(ax, xs: Iterable[float]) -> None:
+    """Ticks of a log x axis at the values drawn (two significant digits: 2, 8, 32 minutes), as
+    plain numbers, instead of powers of ten."""
+    from matplotlib.ticker import FixedLocator, FuncFormatter, NullLocator
+
+    ticks = sorted({float(f"{x:.2g}") for x in xs})
+    ax.xaxis.set_major_locator(FixedLocator(ticks))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.xaxis.set_minor_locator(NullLocator())
 
 
 def comparison_grid(
