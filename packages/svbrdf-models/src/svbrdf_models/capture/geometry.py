@@ -142,7 +142,7 @@ class CaptureGeometry:
         fall-off of the flash's light over the whole photo
         (:func:`~svbrdf_render.refinement.falloff.fall_off_point`: ``over`` "fall-off"), which a
         matte material shows as well as a glossy one; on the simulated handheld photos of
-        docs/measured-shots.md it lay 0.02-0.24 half-widths from the true flash, where the
+        docs/measured-shots.md it lay 0.01-0.24 half-widths from the true flash, where the
         photo's brightest blurred point (``found``, :func:`~svbrdf_render.refinement.rings.
         find_highlight`, computed when None) missed by up to 0.43 and, on a bright card's edge,
         by 1.6. A photo too covered by ``ignore`` for the fit is placed over its clear

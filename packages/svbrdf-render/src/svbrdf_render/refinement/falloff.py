@@ -18,7 +18,7 @@ A specular lobe in the model matters: with the diffuse part alone, the broad lob
 roughness-0.5 material put the flash 20-30% too far from the centre.
 
 On the handheld photos of ``benchmarks/shots.py`` (unseen-dev, 512 px, tilts up to 20
-degrees) the point lay 0.02-0.24 half-widths from the true flash, against 0.05-0.6 for the
+degrees) the point lay 0.01-0.24 half-widths from the true flash, against 0.05-0.6 for the
 highlight where one was found and the square's centre where none was.
 """
 
