@@ -183,13 +183,13 @@ def log_fit_model(run, metrics: dict[str, float]) -> str | None:
     A failure (the store, the disk) does not fail the finished fit: it is said on the terminal
     and in the run's tags, and None is returned, as it is for a fit that is not tracked.
     """
+    if run.run_id is None:  # not tracked: mlflow may not even be installed
+        return None
     import tempfile
 
     from svbrdf_models.modelfile.files import save_model
     from svbrdf_models.modelfile.pyfunc import log_pyfunc_model
 
-    if run.run_id is None:
-        return None
     try:
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / f"{run.recipe.name}.pt"
