@@ -136,7 +136,18 @@ def score(pred, truth, keep: torch.Tensor) -> dict[str, float]:
     with torch.no_grad():
         a, b = display_rendering(pred, scene), display_rendering(truth, scene)  # (1, K, 3, n, n)
     out["render"] = _masked(a.flatten(0, 1), b.flatten(0, 1), keep)
+    out["diffuse_scale"], out["diffuse_scaled"] = _best_scale(pred.diffuse, truth.diffuse, keep)
     return out
+
+
+def _best_scale(pred: torch.Tensor, truth: torch.Tensor, keep: torch.Tensor) -> tuple[float, float]:
+    """The one factor on the recovered diffuse that fits the truth best over ``keep`` (least
+    squares, clipped to [0, 1] after) and the diffuse RMSE with it: what is left when the level
+    (the exposure, the flash's intensity) is forgiven, the split and the pattern alone."""
+    k = keep.expand_as(pred[:, :1]).expand_as(pred)
+    p, t = pred.float()[k], truth.float()[k]
+    factor = float((p * t).sum() / (p * p).sum().clamp_min(1e-12))
+    return factor, _masked((pred.float() * factor).clamp(0, 1), truth, keep)
 
 
 def relight(maps, keep: torch.Tensor, held: list[tuple]) -> float:
@@ -348,6 +359,21 @@ def print_table(name: str, pm, rows: list[str], args, unavailable: dict) -> None
         print(f"| {row} | " + " | ".join(cells) + " |")
 
 
+def print_scaled(name: str, pm, rows: list[str]) -> None:
+    """Each row's diffuse RMSE beside the same after the best factor per material
+    (:func:`_best_scale`) and the median factor: how much of the diffuse error is its level."""
+    print(f"\n{name}: diffuse RMSE, and after the best factor on each material's diffuse (its level forgiven)")
+    print("| row | diffuse | diffuse, best factor | median factor |")
+    print("| --- | ---: | ---: | ---: |")
+    for row in rows:
+        scaled = pm.values(f"{row}|diffuse_scaled")
+        if scaled:
+            factors = sorted(pm.values(f"{row}|diffuse_scale"))
+            cells = (_cell(pm.values(f"{row}|diffuse"), "diffuse"), _cell(scaled, "diffuse"),
+                     f"{factors[len(factors) // 2]:.2f}")  # fmt: skip
+            print(f"| {row} | " + " | ".join(cells) + " |")
+
+
 def _paired(pm, a: str, b: str):
     from svbrdf_bench.metrics import paired_difference
 
@@ -510,6 +536,7 @@ def main(argv=None) -> None:
         (args.out / f"{folder.name}.json").write_text(json.dumps(
             {"size": args.size, "refine": args.refine, "materials": pm.materials}, indent=1))  # fmt: skip
         print_table(folder.name, pm, rows, args, unavailable)
+        print_scaled(folder.name, pm, rows)
         for row, whys in failed.items():
             print(f"\n{row}: failed on {len(whys)} of {len(files)} files, left out of its means:")
             print("\n".join(f"  - {w}" for w in whys))

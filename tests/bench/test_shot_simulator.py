@@ -119,3 +119,20 @@ def test_card_shot_box_lies_on_the_card_inside_the_square(sim, material, tmp_pat
     scene = sim.known_scene(card)
     assert float(scene.camera.position.norm()) == pytest.approx(today.distance, rel=0.1)
     assert math.isfinite(float(scene.point_lights[0].intensity))
+
+
+def test_the_benchmark_forgives_the_diffuse_level_and_nothing_else(material):
+    """``shots.score``'s ``diffuse_scaled``: a diffuse off by one factor scores 0 after the best
+    factor (and the factor is found), one with another pattern does not."""
+    from svbrdf_render import SVBRDF
+
+    shots = load_benchmark("shots")
+    keep = torch.ones(1, 1, *material.size, dtype=torch.bool)
+    dim = SVBRDF(**{**material.maps(), "diffuse": material.diffuse * 0.5})
+    s = shots.score(dim, material, keep)
+    assert s["diffuse"] > 0.05
+    assert s["diffuse_scale"] == pytest.approx(2.0, rel=1e-4)
+    assert s["diffuse_scaled"] == pytest.approx(0.0, abs=1e-5)
+    flipped = SVBRDF(**{**material.maps(), "diffuse": material.diffuse.flip(-1)})
+    f = shots.score(flipped, material, keep)
+    assert f["diffuse_scaled"] > 0.02 and f["diffuse_scaled"] <= f["diffuse"] + 1e-6
