@@ -304,6 +304,8 @@ def capture_material(f: Path, index: int, args, out: Path, unavailable: dict, fa
             shot = card if row == "grey card" else today
             on_window, inside = sim.square_maps_to_window(maps, shot, n)
             s["relight"] = relight(on_window, inside & ~card_on_window, held)
+        if row == "grey card":
+            s.update(_card_reading(folder / "material.json", sim.known_scene(card)))
         s["seconds"], s["peak_gb"] = result["seconds"], result["peak_gb"]
         fig.update({f"{row}|{k}": v for k, v in s.items()})
     # baselines and the relighting floor
@@ -321,6 +323,17 @@ def capture_material(f: Path, index: int, args, out: Path, unavailable: dict, fa
     head = f"  {f.name[:40]:40s} (simulated in {simulated:.0f} s; frame distance {near:.2f}-{far:.2f})"
     print(f"{head}: {line}", flush=True)
     return fig
+
+
+def _card_reading(record: Path, known) -> dict[str, float]:
+    """What the card capture measured against the truth: how far (half-widths, across the
+    square) it stood the flash from the true one, and its flash intensity over the true one."""
+    ref = json.loads(record.read_text()).get("reference") or {}
+    if "flash_intensity" not in ref:
+        return {}
+    light = known.lights[0]
+    error = float(torch.tensor(ref["flash_position"][:2]).sub(light.position[:2]).norm())
+    return {"flash_error": error, "intensity_ratio": ref["flash_intensity"] / float(light.intensity)}
 
 
 def _card_arg(shot) -> str:
@@ -372,6 +385,18 @@ def print_scaled(name: str, pm, rows: list[str]) -> None:
             cells = (_cell(pm.values(f"{row}|diffuse"), "diffuse"), _cell(scaled, "diffuse"),
                      f"{factors[len(factors) // 2]:.2f}")  # fmt: skip
             print(f"| {row} | " + " | ".join(cells) + " |")
+
+
+def print_card(name: str, pm) -> None:
+    """The card capture's flash against the truth, per material."""
+    rows = [(m, d) for m, d in pm.materials.items() if "grey card|intensity_ratio" in d]
+    if not rows:
+        return
+    print(f"\n{name}: the card's flash against the true one (the square's units)")
+    print("| material | flash placed off by (half-widths) | intensity over the true |")
+    print("| --- | ---: | ---: |")
+    for m, d in rows:
+        print(f"| {m} | {d['grey card|flash_error']:.3f} | {d['grey card|intensity_ratio']:.3f} |")
 
 
 def _paired(pm, a: str, b: str):
@@ -537,6 +562,7 @@ def main(argv=None) -> None:
             {"size": args.size, "refine": args.refine, "materials": pm.materials}, indent=1))  # fmt: skip
         print_table(folder.name, pm, rows, args, unavailable)
         print_scaled(folder.name, pm, rows)
+        print_card(folder.name, pm)
         for row, whys in failed.items():
             print(f"\n{row}: failed on {len(whys)} of {len(files)} files, left out of its means:")
             print("\n".join(f"  - {w}" for w in whys))

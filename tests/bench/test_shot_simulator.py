@@ -136,3 +136,21 @@ def test_the_benchmark_forgives_the_diffuse_level_and_nothing_else(material):
     flipped = SVBRDF(**{**material.maps(), "diffuse": material.diffuse.flip(-1)})
     f = shots.score(flipped, material, keep)
     assert f["diffuse_scaled"] > 0.02 and f["diffuse_scaled"] <= f["diffuse"] + 1e-6
+
+
+def test_the_benchmark_reads_the_cards_flash_against_the_truth(tmp_path):
+    """``shots._card_reading``: the distance across the square from the placed flash to the true
+    one, and the solved intensity over the true; nothing for a capture without a reference."""
+    import json
+
+    from svbrdf_render import Camera, PointLight, Scene
+
+    shots = load_benchmark("shots")
+    known = Scene(Camera(torch.tensor([0.0, 0.0, 2.0])), (PointLight(torch.tensor([0.3, -0.4, 2.0]), 20.0),))
+    record = tmp_path / "material.json"
+    record.write_text(json.dumps({"reference": {"flash_intensity": 15.0, "flash_position": [0.0, 0.0, 2.1]}}))
+    got = shots._card_reading(record, known)
+    assert got["flash_error"] == pytest.approx(0.5, abs=1e-6)
+    assert got["intensity_ratio"] == pytest.approx(0.75)
+    record.write_text(json.dumps({"reference": None}))
+    assert shots._card_reading(record, known) == {}
