@@ -134,6 +134,25 @@ def test_pin_flash_puts_the_camera_where_it_is_told():
     assert reference_mask(ref, (0, 0, 64, 64, 64), 32, "x").sum() == 64
 
 
+def test_with_the_lens_known_the_card_s_reading_allows_for_the_tilted_view():
+    """``focal`` given: the phone at ``position``, off the axis, is aimed at the square's centre,
+    and the flash read off a card on the far side is raised by the perspective's factor
+    (recorded as ``tilt_factor``); without it, nothing changes."""
+    from svbrdf_render.refinement.falloff import tilted_view_factor
+
+    maps = _with_card(example_material("tiles", 64), (0, 0, 16, 16), albedo=0.5)
+    photo = render(maps, Scene.flash(intensity=10.0)).clamp(0, 1)[0]
+    ref, box, at = Reference.parse("0,0,16,16:0.5"), (0, 0, 64, 64, 64), torch.tensor([0.6, -0.5, 2.0])
+    plain = pin_flash(photo, example_material("tiles", 64), ref, box, "x.png", position=at)
+    tilted = pin_flash(photo, example_material("tiles", 64), ref, box, "x.png", position=at, focal=2.2)
+    factor = tilted_view_factor(reference_mask(ref, box, 64, "x"), at, 2.2)
+    assert factor > 1.05  # the card in the top-left corner, the phone at the bottom right
+    assert tilted.record["tilt_factor"] == pytest.approx(factor, abs=1e-4) and plain.record["tilt_factor"] == 1.0
+    assert tilted.record["flash_intensity"] == pytest.approx(plain.record["flash_intensity"] * factor, rel=1e-5)
+    assert float(tilted.scene.point_lights[0].intensity.reshape(-1)[0]) == pytest.approx(
+        tilted.record["flash_intensity"], rel=1e-5)
+
+
 @pytest.mark.parametrize(
     ("exposure", "card", "spec", "needle"),
     [

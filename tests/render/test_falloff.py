@@ -4,11 +4,13 @@ photos answered without a crash."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 
 from svbrdf_render import SVBRDF, render
-from svbrdf_render.refinement.falloff import fall_off_point
+from svbrdf_render.refinement.falloff import fall_off_point, tilted_view_factor
 from svbrdf_render.refinement.fit import flash_scene
 from svbrdf_render.refinement.rings import find_highlight
 
@@ -96,3 +98,49 @@ def test_dark_empty_and_broken_photos_give_the_centre_and_an_infinite_misfit():
 def test_bad_arguments_are_refused_in_one_line(photo, height, match):
     with pytest.raises(ValueError, match=match):
         fall_off_point(photo, height)
+
+
+# --- the perspective of a tilted phone --------------------------------------------------------
+def _card(size: int, rows: slice, cols: slice) -> torch.Tensor:
+    mask = torch.zeros(1, 1, size, size, dtype=torch.bool)
+    mask[..., rows, cols] = True
+    return mask
+
+
+def test_a_tilted_view_meets_the_surface_where_trigonometry_says():
+    """A camera tilted by theta about x (standing at -y), aimed at the centre: the ray at angle
+    alpha above its axis meets the surface at y = -D sin(theta) + D cos(theta) tan(theta + alpha)."""
+    from svbrdf_render.refinement.falloff import _plane_points
+
+    d, theta, focal = 2.2, math.radians(18), 2.2
+    camera = torch.tensor([0.0, -d * math.sin(theta), d * math.cos(theta)], dtype=torch.float64)
+    v = torch.tensor([-0.9, -0.3, 0.0, 0.4, 0.9], dtype=torch.float64)
+    got = _plane_points(camera, focal, torch.zeros_like(v), v)
+    want = -d * math.sin(theta) + d * math.cos(theta) * torch.tan(theta + torch.atan(v / focal))
+    assert torch.allclose(got[:, 1], want, atol=1e-9) and torch.allclose(got[:, 0], torch.zeros_like(v))
+
+
+def test_a_card_beyond_a_tilted_phone_s_centre_gets_less_light_than_its_place_says():
+    """Phone held at -y, tilted towards the centre: a card at the top of the square (the far side)
+    lies farther from the flash than its place in the square, so its reading is too weak (factor
+    above 1), more than one at the bottom (under the flash); the phone at +y turns the two
+    round; on the axis, no factor (exactly 1)."""
+    size, focal = 96, 2.2
+    top, bottom = _card(size, slice(4, 20), slice(40, 56)), _card(size, slice(76, 92), slice(40, 56))
+    tilted, mirrored = torch.tensor([0.0, -0.7, 2.08]), torch.tensor([0.0, 0.7, 2.08])
+    assert tilted_view_factor(top, tilted, focal) > 1.03
+    assert tilted_view_factor(bottom, tilted, focal) < tilted_view_factor(top, tilted, focal) - 0.03
+    assert tilted_view_factor(bottom, mirrored, focal) == pytest.approx(tilted_view_factor(top, tilted, focal), rel=1e-6)
+    axis = torch.tensor([0.0, 0.0, 2.2])
+    assert tilted_view_factor(top, axis, focal) == pytest.approx(1.0, abs=1e-9)
+    # a tilt along x treats a card at the left as the top one above
+    left = _card(size, slice(40, 56), slice(4, 20))
+    assert tilted_view_factor(left, torch.tensor([0.7, 0.0, 2.08]), focal) == pytest.approx(
+        tilted_view_factor(top, tilted, focal), rel=1e-6)
+
+
+@pytest.mark.parametrize("camera", [[0.3, 0.2, 0.0], [0.3, 0.2, -2.0], [float("nan"), 0.0, 2.0], [0.0, 0.0, 2.0]])
+def test_the_tilt_factor_of_a_broken_pose_or_an_empty_region_is_one(camera):
+    mask = _card(32, slice(2, 8), slice(2, 8)) if camera != [0.0, 0.0, 2.0] else torch.zeros(1, 1, 32, 32, dtype=bool)
+    assert tilted_view_factor(mask, torch.tensor(camera), 2.0) == 1.0
+    assert tilted_view_factor(_card(32, slice(2, 8), slice(2, 8)), torch.tensor([0.0, 0.0, 2.0]), 0.0) == 1.0

@@ -133,6 +133,14 @@ class CaptureGeometry:
         """Whether the position is the photo's own (not the default's guess)."""
         return self.source != "default"
 
+    def square_focal(self) -> float | None:
+        """The lens's focal length over half the square's side (both in the photo's pixels) when
+        the camera was placed by the fall-off (off the axis, aimed at the square's centre), else
+        None: what :func:`svbrdf_render.refinement.falloff.tilted_view_factor` takes."""
+        if self.over != "fall-off" or not self.focal_px or not self.square:
+            return None
+        return float(self.focal_px) / (self.square[2] / 2)
+
     def over_highlight(self, photo, ignore=None, found=None) -> CaptureGeometry:
         """This geometry with x and y where the flash stood over the square ``photo`` ``(3, S, S)``
         (linear; ``ignore``: a reference card's pixels), at the distance from the square's centre

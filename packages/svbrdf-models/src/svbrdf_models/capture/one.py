@@ -351,6 +351,7 @@ def _pin_reference(svbrdf: SVBRDF, photo: Tensor, options: CaptureOptions, path:
     return pin_flash(
         photo, svbrdf, options.reference, square_box(path, options.crop), str(path),
         position=torch.tensor(geometry.position, dtype=torch.float32) if known else None,
+        focal=geometry.square_focal() if known else None,
     )  # fmt: skip
 
 

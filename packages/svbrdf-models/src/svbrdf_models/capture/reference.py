@@ -27,6 +27,7 @@ and scaling every albedo to make that patch 0.18 made them 2.5-3 times too brigh
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -228,6 +229,7 @@ def pin_flash(
     where: str,
     *,
     position: Tensor | None = None,
+    focal: float | None = None,
 ) -> PinnedFlash:
     """The flash measured on the card ``ref`` of the photo's ``square`` ``(3, S, S)`` (linear,
     at the size the maps are made at), with ``network``'s maps of it (one material, any size)
@@ -235,13 +237,18 @@ def pin_flash(
 
     ``box`` is where the square lies in the photo (:func:`svbrdf_models.capture.photos.square_box`);
     ``position`` ``(3,)`` the camera and flash in patch half-widths (default: the Des18 distance
-    over the photo's highlight, found with the card ignored).
+    over the photo's highlight, found with the card ignored). ``focal`` (the lens's focal length
+    over half the square's side in pixels, when the lens is known): the phone at ``position`` is
+    taken as aimed at the square's centre, and the reading is corrected for the perspective that
+    puts a card on the far side of the tilt farther from the flash than its place in the square
+    (:func:`svbrdf_render.refinement.falloff.tilted_view_factor`).
 
     Raises:
         DataError: a region outside the photo or the square, more than 5% clipped or black,
             too dark to read, too small, or one that makes the material's albedo implausible.
     """
     from svbrdf_render import DES18_DISTANCE
+    from svbrdf_render.refinement.falloff import tilted_view_factor
     from svbrdf_render.refinement.fit import card_maps, flash_scene, reference_flash
     from svbrdf_render.refinement.rings import highlight_point
 
@@ -255,6 +262,8 @@ def pin_flash(
     position = position.reshape(1, 3).to(photo)
     measured = reference_flash(photo, mask, ref.albedo, position)
     _check_readable(measured, head)
+    tilt = 1.0 if focal is None else tilted_view_factor(mask, position[0], focal)
+    measured = dataclasses.replace(measured, intensity=measured.intensity * tilt)
     card = card_maps(ref.albedo, (size, size))
     level = _network_level(photo, network, card, mask, position, float(measured.intensity[0]))
     _check_level(level, network, mask, head)
@@ -264,6 +273,7 @@ def pin_flash(
         "flash_intensity": float(measured.intensity[0]),
         "flash_color": [round(float(c), 4) for c in measured.color[0]],
         "flash_position": [round(float(c), 4) for c in position[0]],
+        "tilt_factor": round(tilt, 4),
         "network_level": level,
         "clipped": round(float(measured.clipped[0]), 4),
         "pixels": int(measured.pixels[0]),
