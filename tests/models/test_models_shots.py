@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -149,6 +150,8 @@ def test_three_shots_are_posed_exposed_and_beat_the_frontal_shot_alone(tmp_path,
         assert s["residual"] < 0.25 and s["rmse"] < s["rmse_network"]
     assert [s["network_view"] for s in record["shots"]] == [True, False, False]
     assert record["refine"]["views"] == 3 and record["refine"]["gains"] == "fixed"
+    # three shots: each map's pull towards the network's start a third of one photo's, per pixel
+    assert record["refine"]["coarse"] == 0 and record["refine"]["prior"]["normal"] == pytest.approx(2.0 / 3)
     assert record["frame"]["window_cm"] == LAYOUT.window_cm and record["frame"]["strip_albedo"] == PAPER
     lights = _page_data(folder / "index.html")["shots"]  # the viewer's keys 1-9: each shot's flash
     assert [s["name"] for s in lights] == [f"{n}.png" for n in names]
@@ -158,6 +161,7 @@ def test_three_shots_are_posed_exposed_and_beat_the_frontal_shot_alone(tmp_path,
     code, got = _run(files["s0"], "--shots", "--fov", FOV, "--strip-albedo", PAPER, "-o", alone,
                      "--refine", 60, "--map-size", 64, "--bits", 16, *QUICK, capsys=capsys)  # fmt: skip
     assert code == 0, got.err
+    assert _record(alone / "s0")["refine"]["coarse"] == 8  # one shot: a single photo's settings
     three, one = read_map_folder(folder), read_map_folder(alone / "s0")
     for camera in HELD_OUT:  # relit where no shot was taken from
         scene = _held_out_scene(camera)
@@ -239,3 +243,27 @@ def test_bad_shots_are_refused_in_one_line_with_nothing_written(tmp_path, shots,
     assert len(error) == 1 and error[0] == lines[-1], got.err
     assert says.format(**{n.replace("-", "_"): files[n] for n in names}) in error[0], got.err
     assert not out.exists() or not any(out.iterdir())
+
+
+@pytest.mark.parametrize(
+    ("network", "refined", "refused"),
+    [
+        ([0.20, 0.22, 1.03], [0.09, 0.05, 0.19], "c.jpg"),  # another material: both stand out
+        ([0.20, 0.22, 1.03], [0.05, 0.05, 0.07], None),  # the network's start missed it, refining explained it
+        ([0.20, 0.22, 0.25], [0.02, 0.02, 0.12], None),  # the start explains it as well as the others
+        ([0.05, 0.06, 0.20], [0.01, 0.01, 0.10], None),  # stands out, but all explained well (floor)
+    ],
+)
+def test_a_shot_is_of_another_material_when_neither_the_start_nor_the_refinement_explains_it(
+        network, refined, refused):  # fmt: skip
+    from types import SimpleNamespace
+
+    from svbrdf_models.capture.shotcapture import check_residuals
+    from svbrdf_models.errors import DataError
+
+    shots = SimpleNamespace(shots=[SimpleNamespace(path=Path(n)) for n in ("a.jpg", "b.jpg", "c.jpg")])
+    if refused is None:
+        check_residuals(shots, torch.tensor(refined), torch.tensor(network))
+    else:
+        with pytest.raises(DataError, match=f"shots of different materials\\? {refused} is not explained"):
+            check_residuals(shots, torch.tensor(refined), torch.tensor(network))

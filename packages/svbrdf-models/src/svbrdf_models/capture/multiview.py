@@ -76,14 +76,15 @@ def relit_preview(network: SVBRDF, refined: SVBRDF, options) -> Tensor | None:
 
 
 def refine_network(network: SVBRDF, photos: Tensor, scenes: list[Scene], options, progress, device, *,
-                   masks: Tensor | None = None, gains: str = "fixed",
-                   anchor: list[int] | None = None, began: float | None = None):  # fmt: skip
+                   masks: Tensor | None = None, gains: str = "fixed", anchor: list[int] | None = None,
+                   began: float | None = None, settings: RefineSettings | None = None):  # fmt: skip
     """The network's maps (without their 2-pixel pattern, at the photos' size) refined against
     ``photos`` ``(K, 3, S, S)``, each under its own scene, on ``device``
     (:func:`svbrdf_render.refine_views`; ``options.refine`` steps, 0: none). ``options.metal``
     ``"none"``: the specular held at a dielectric's 0.04 (:func:`.refining.as_dielectric`).
     ``began`` (``time.monotonic()`` when the capture began): ``options.refine_seconds`` counts
-    from there and keeps back the files' time (:func:`.refining.steps_seconds`)."""
+    from there and keeps back the files' time (:func:`.refining.steps_seconds`). ``settings``: the
+    refinement's weights (default :class:`svbrdf_render.RefineSettings`'s)."""
     size = tuple(photos.shape[-2:])
     seconds = options.refine_seconds
     if began is not None:
@@ -103,6 +104,11 @@ def refine_network(network: SVBRDF, photos: Tensor, scenes: list[Scene], options
             seconds=seconds,
             backend=pick_backend(options.backend, *size),
             callback=progress,
-            settings=RefineSettings(hold=("specular",)) if dielectric else None,
+            settings=_held_dielectric(settings) if dielectric else settings,
         )
     return dataclasses.replace(result, svbrdf=as_dielectric(result.svbrdf)) if dielectric else result
+
+
+def _held_dielectric(settings: RefineSettings | None) -> RefineSettings:
+    """``settings`` with the specular held at the start's (``--metal none``)."""
+    return dataclasses.replace(settings or RefineSettings(), hold=("specular",))

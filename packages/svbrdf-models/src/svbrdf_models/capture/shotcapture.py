@@ -16,7 +16,8 @@ from torch import Tensor
 
 from ..errors import DataError
 from .multiview import Judged, finite, judge, refine_network, relit_preview, views_figure
-from .shots import ODD_FLOOR, ODD_RATIO, Exposure, ShotSet, exposures, shot_scene
+from .shots import (ODD_FLOOR, ODD_RATIO, ODD_REFINED, Exposure, ShotSet, exposures, refine_settings,
+                    shot_scene)
 
 __all__ = ["capture_shots", "check_residuals", "figure", "record"]
 
@@ -41,15 +42,17 @@ def capture_shots(predictor, shots: ShotSet, options, *, progress=None) -> dict:
     exposure = exposures(shots, start)
     scenes = [shot_scene(s, exposure.intensity[i], exposure.color[i]) for i, s in enumerate(shots.shots)]
     device = getattr(predictor, "device", torch.device("cpu"))
+    settings = refine_settings(len(shots.shots))
     result = refine_network(network, windows, scenes, options, progress, device, masks=masks,
-                            gains=exposure.gains, anchor=exposure.anchor, began=began)  # fmt: skip
+                            gains=exposure.gains, anchor=exposure.anchor, began=began,
+                            settings=settings)  # fmt: skip
     gained = [shot_scene(s, exposure.intensity[i] * float(result.gains[i]), exposure.color[i])
               for i, s in enumerate(shots.shots)]  # fmt: skip
     refined = result.svbrdf.to("cpu")
     judged = judge(windows, gained, network, refined)
     residual = _log_residuals(judged.refined, windows, masks)
     if options.refine:
-        check_residuals(shots, residual)
+        check_residuals(shots, residual, _log_residuals(judged.network, windows, masks))
     content = record(predictor, shots, options, exposure, result, residual, judged)
     relit = relit_preview(network, refined, options)
     write_material(shots.folder, refined, MaterialContent(windows[f], figure(shots, windows, judged), relit,
@@ -71,29 +74,41 @@ def _log_residuals(renderings: Tensor, windows: Tensor, masks: Tensor) -> Tensor
     return torch.where(seen > 0, value, torch.full_like(value, float("nan")))
 
 
-def check_residuals(shots: ShotSet, residual: Tensor) -> None:
-    """Refuse (one line naming it) the shot the refined material explains far worse than the
-    others (:data:`~svbrdf_models.capture.shots.ODD_RATIO`, :data:`~svbrdf_models.capture.shots.ODD_FLOOR`):
-    a shot of another material."""
-    values = [float(r) for r in residual]
-    if len(values) < 2:
+def check_residuals(shots: ShotSet, residual: Tensor, network: Tensor) -> None:
+    """Refuse (one line naming it) the shot the material of the others does not explain: its
+    residual under the network's maps (``network``) more than
+    :data:`~svbrdf_models.capture.shots.ODD_RATIO` times the others' median and above
+    :data:`~svbrdf_models.capture.shots.ODD_FLOOR`, and under the refined maps (``residual``)
+    more than :data:`~svbrdf_models.capture.shots.ODD_REFINED` times theirs: a shot of another
+    material."""
+    refined = [float(r) for r in residual]
+    start = [float(r) for r in network]
+    if len(refined) < 2:
         return
-    worst, ratio, others = None, 0.0, 0.0
-    for i, r in enumerate(values):
-        rest = [v for j, v in enumerate(values) if j != i and math.isfinite(v)]
-        if not rest or not math.isfinite(r):
+    worst, ratio = None, 0.0
+    for i in range(len(refined)):
+        net, ref = _stands_out(start, i), _stands_out(refined, i)
+        if net is None or ref is None or start[i] <= ODD_FLOOR:
             continue
-        median = statistics.median(rest)
-        if r > ODD_FLOOR and r > ODD_RATIO * median and r / max(median, 1e-12) > ratio:
-            worst, ratio, others = i, r / max(median, 1e-12), median
+        if net[0] > ODD_RATIO and ref[0] > ODD_REFINED and net[0] > ratio:
+            worst, ratio, others = i, net[0], net[1]
     if worst is not None:
         name = shots.shots[worst].path
         raise DataError(
-            f"shots of different materials? {name} is not explained by the material of the other shots: its "
-            f"residual after refining all {len(values)} together is {values[worst]:.2f} (mean |log| of "
-            f"rendering over photo), {ratio:.1f} times the others' median ({others:.2f}); leave it out, or "
-            "shoot one material"
+            f"shots of different materials? {name} is not explained by the material of the other shots: the "
+            f"network's maps of the most frontal shot leave it a residual of {start[worst]:.2f} (mean |log| "
+            f"of rendering over photo), {ratio:.1f} times the others' median ({others:.2f}), and refining "
+            f"all {len(refined)} together still {refined[worst]:.2f}; leave it out, or shoot one material"
         )
+
+
+def _stands_out(values: list[float], i: int) -> tuple[float, float] | None:
+    """(``values[i]`` over the median of the others, that median); None where not finite."""
+    rest = [v for j, v in enumerate(values) if j != i and math.isfinite(v)]
+    if not rest or not math.isfinite(values[i]):
+        return None
+    median = statistics.median(rest)
+    return values[i] / max(median, 1e-12), median
 
 
 def figure(shots: ShotSet, windows: Tensor, judged: Judged) -> Tensor:
@@ -136,8 +151,11 @@ def record(predictor, shots: ShotSet, options, exposure: Exposure, result, resid
     from .photos import photo_encoding
     from .refining import pick_backend
 
+    from svbrdf_render import RefineSettings
+
     f, k, size = shots.frontal, len(shots.shots), shots.size
     mean = finite(sum(judged.rmse) / k)
+    settings = refine_settings(k) or RefineSettings()
     light = shots.shots[f].flash
     return {
         "name": shots.folder.name,
@@ -152,6 +170,7 @@ def record(predictor, shots: ShotSet, options, exposure: Exposure, result, resid
         "refine": {"budget": options.refine, "seconds_budget": options.refine_seconds,
                    "steps": int(result.steps), "seconds": round(float(result.seconds), 3),
                    "views": k, "gains": exposure.gains, "backend": pick_backend(options.backend, size, size),
+                   "prior": dict(settings.prior), "coarse": settings.coarse,
                    "rmse_network": finite(sum(judged.rmse_network) / k), "rmse_refined": mean},  # fmt: skip
         "frame": {
             "window_cm": shots.window_cm, "half_width_cm": shots.window_cm / 2,
