@@ -24,6 +24,8 @@ highlight where one was found and the square's centre where none was.
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor
@@ -219,4 +221,4 @@ def tilted_view_factor(mask: Tensor, camera: Tensor, focal: float) -> float:
         return d[2] / d.square().sum(0).pow(1.5)
 
     factor = float(light(u, v).mean() / light(q.real, q.imag).mean())
-    return factor if factor > 0 and factor == factor and factor != float("inf") else 1.0
+    return factor if math.isfinite(factor) and factor > 0 else 1.0
