@@ -267,3 +267,53 @@ def test_a_shot_is_of_another_material_when_neither_the_start_nor_the_refinement
     else:
         with pytest.raises(DataError, match=f"shots of different materials\\? {refused} is not explained"):
             check_residuals(shots, torch.tensor(refined), torch.tensor(network))
+
+
+def test_clipped_pixels_are_kept_as_lower_bounds_and_their_neighbours_left_out():
+    from svbrdf_models.capture import shots as shots_module
+
+    windows = torch.full((2, 3, 9, 9), 0.3)
+    windows[0, :, 4, 4] = 1.0  # a clipped highlight of one pixel
+    windows[1, 1, 0, 0] = 0.99  # one channel is enough
+    masks = torch.ones(2, 1, 9, 9)
+    masks[0, :, 3:6, 3:6] = 0  # as prepare_shots leaves them: the clipped pixel and its neighbours out
+    masks[1, :, 0:2, 0:2] = 0
+    fitted = shots_module.fitted_masks(windows, masks)
+    assert fitted[0, 0, 4, 4] == 1 and fitted[1, 0, 0, 0] == 1  # the clipped pixels: in, as bounds
+    assert fitted[0, 0, 3:6, 3:6].sum() == 1 and fitted[1, 0, 0:2, 0:2].sum() == 1  # their neighbours: out
+    assert torch.equal(fitted[0, 0, :3], masks[0, 0, :3])
+
+
+def test_clipped_pixels_held_as_lower_bounds_make_a_metal_as_bright_as_its_photos():
+    """A bright metal clips over much of each shot. Left out of the loss, those pixels tell the
+    refinement nothing, and a start too dark there stays dark; kept as lower bounds (the
+    rendering clipped to [0, 1] as the camera's: at least as bright costs nothing), the
+    refinement has to reach the clip level there."""
+    from svbrdf_models.capture import shots as shots_module
+    from svbrdf_render import RefineSettings, refine_views
+    from svbrdf_render.maps import SVBRDF
+
+    n = 32
+    flat = torch.zeros(1, 3, n, n)
+    flat[:, 2] = 1
+
+    def metal(specular):
+        return SVBRDF(normal=flat, diffuse=torch.full((1, 3, n, n), 0.02), roughness=torch.full((1, 1, n, n), 0.45),
+                      specular=torch.full((1, 3, n, n), specular))  # fmt: skip
+
+    scenes = [Scene(Camera(torch.tensor([x, y, 2.5])), (PointLight(torch.tensor([x + 0.1, y, 2.5]), 12.0),))
+              for x, y in ((0.0, 0.0), (0.5, -0.4), (-0.5, 0.4))]  # fmt: skip
+    photos = torch.cat([render(metal(0.9), s) for s in scenes]).clamp(0, 1)
+    clipped = (photos.amax(1, keepdim=True) >= shots_module.CLIPPED).float()
+    assert 0.02 < float(clipped.mean()) < 0.5  # a bright patch a shot, not the whole shot
+    masks = 1 - torch.nn.functional.max_pool2d(clipped, 3, stride=1, padding=1)
+    fitted = shots_module.fitted_masks(photos, masks)
+    settings = RefineSettings(prior={"normal": 0.4, "diffuse": 0.06, "roughness": 0.01, "specular": 0.04}, coarse=0)
+    reached = {}
+    for name, weights in (("left out", masks), ("lower bound", fitted)):
+        result = refine_views(photos, metal(0.3), scenes, masks=weights, steps=60, settings=settings, backend="eager")
+        for k in ("normal", "diffuse", "roughness", "specular"):
+            assert torch.isfinite(getattr(result.svbrdf, k)).all()
+        again = torch.cat([render(result.svbrdf, s) for s in scenes]).clamp(0, 1).amax(1, keepdim=True)
+        reached[name] = float(again[clipped.bool()].mean())
+    assert reached["lower bound"] > shots_module.CLIPPED - 0.05 > reached["left out"], reached

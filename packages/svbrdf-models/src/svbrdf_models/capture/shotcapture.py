@@ -16,8 +16,8 @@ from torch import Tensor
 
 from ..errors import DataError
 from .multiview import Judged, finite, judge, refine_network, relit_preview, views_figure
-from .shots import (ODD_FLOOR, ODD_RATIO, ODD_REFINED, Exposure, ShotSet, exposures, refine_settings,
-                    shot_scene)
+from .shots import (ODD_FLOOR, ODD_RATIO, ODD_REFINED, Exposure, ShotSet, exposures, fitted_masks,
+                    refine_settings, shot_scene)
 
 __all__ = ["capture_shots", "check_residuals", "figure", "record"]
 
@@ -43,7 +43,8 @@ def capture_shots(predictor, shots: ShotSet, options, *, progress=None) -> dict:
     scenes = [shot_scene(s, exposure.intensity[i], exposure.color[i]) for i, s in enumerate(shots.shots)]
     device = getattr(predictor, "device", torch.device("cpu"))
     settings = refine_settings(len(shots.shots))
-    result = refine_network(network, windows, scenes, options, progress, device, masks=masks,
+    fitted = fitted_masks(windows, masks)  # the clipped pixels in, as lower bounds
+    result = refine_network(network, windows, scenes, options, progress, device, masks=fitted,
                             gains=exposure.gains, anchor=exposure.anchor, began=began,
                             settings=settings)  # fmt: skip
     gained = [shot_scene(s, exposure.intensity[i] * float(result.gains[i]), exposure.color[i])
@@ -150,6 +151,7 @@ def record(predictor, shots: ShotSet, options, exposure: Exposure, result, resid
     from .material import model_record, provenance
     from .photos import photo_encoding
     from .refining import pick_backend
+    from .shots import CLIPPED_FLOOR  # read when called: a study may turn it off
 
     from svbrdf_render import RefineSettings
 
@@ -171,6 +173,7 @@ def record(predictor, shots: ShotSet, options, exposure: Exposure, result, resid
                    "steps": int(result.steps), "seconds": round(float(result.seconds), 3),
                    "views": k, "gains": exposure.gains, "backend": pick_backend(options.backend, size, size),
                    "prior": dict(settings.prior), "coarse": settings.coarse,
+                   "clipped": "lower bound" if CLIPPED_FLOOR else "left out",
                    "rmse_network": finite(sum(judged.rmse_network) / k), "rmse_refined": mean},  # fmt: skip
         "frame": {
             "window_cm": shots.window_cm, "half_width_cm": shots.window_cm / 2,
@@ -178,7 +181,8 @@ def record(predictor, shots: ShotSet, options, exposure: Exposure, result, resid
             "units": "positions in half-widths of the window (cm / (window / 2)), from its centre: x right, "
             "y towards the frame's title, z towards the camera; intensity for a 1/d^2 falloff in half-widths",
             "residual": "a shot's mean |log(rendering + 0.01) - log(photo + 0.01)| over its pixels not "
-            "clipped, after the one refinement of all shots (masked_rmse: the same pixels' RMSE)",
+            "clipped, after the one refinement of all shots (masked_rmse: the RMSE over the pixels the "
+            "refinement compared, the clipped ones included)",
         },  # fmt: skip
         "shots": _shots(shots, exposure, result, residual, judged),
         "holdout": None,

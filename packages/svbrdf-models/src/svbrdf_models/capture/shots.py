@@ -63,15 +63,22 @@ from .frame import FLASH_OFFSET_CM
 from .framephoto import FrameDetection
 from .strip import NOMINAL_ALBEDO, StripReading, check_strip, read_strip
 
-__all__ = ["ODD_FLOOR", "ODD_RATIO", "ODD_REFINED", "SHOTS_COARSE", "SHOTS_MAP_SIZE", "Exposure",
-           "Shot", "ShotSet", "check_options", "exposures", "prepare_shots", "refine_settings",
-           "shot_scene"]  # fmt: skip
+__all__ = ["CLIPPED_FLOOR", "ODD_FLOOR", "ODD_RATIO", "ODD_REFINED", "SHOTS_COARSE", "SHOTS_MAP_SIZE",
+           "Exposure", "Shot", "ShotSet", "check_options", "exposures", "fitted_masks", "prepare_shots",
+           "refine_settings", "shot_scene"]  # fmt: skip
 
 #: The side the shots' maps are made at unless --map-size says otherwise (at most the smallest
 #: window's side in pixels): each refinement step renders every shot.
 SHOTS_MAP_SIZE = 256
-#: A rectified pixel with a channel at or above this is clipped: left out of its shot's loss.
+#: A rectified pixel with a channel at or above this is clipped: its true value is at least
+#: this, not this.
 CLIPPED = 0.98
+#: Whether a clipped pixel stays in its shot's loss as a lower bound (the renderings are
+#: clipped to [0, 1] as the camera's are, so a rendering at least as bright costs nothing and a
+#: darker one is pulled up) rather than left out: a glossy material's highlight is a few
+#: clipped pixels, the only place a shot shows how sharp it is. The pixels beside a clipped
+#: one (rectified from both) stay out.
+CLIPPED_FLOOR = True
 #: A shot is of another material when its residual (the refinement's data term for it alone:
 #: the masked mean of |log(rendering + eps) - log(photo + eps)|) under the network's maps of
 #: the frontal shot is more than ODD_RATIO times the median of the other shots' and above
@@ -329,6 +336,16 @@ def exposures(shots: ShotSet, start: SVBRDF) -> Exposure:
             intensity[i] = level * reading.intensity / readings[f].intensity if i != f else level
             source[i] = "relative"
     return Exposure(intensity, torch.ones(k, 3), source)
+
+
+def fitted_masks(windows: Tensor, masks: Tensor) -> Tensor:
+    """``(K, 1, S, S)`` the pixels each shot's refinement compares: ``masks`` (neither clipped
+    nor beside a clipped pixel) and, with :data:`CLIPPED_FLOOR`, the clipped pixels as lower
+    bounds."""
+    if not CLIPPED_FLOOR:
+        return masks
+    clipped = (windows.amax(1, keepdim=True) >= CLIPPED).to(masks.dtype)
+    return torch.maximum(masks, clipped)
 
 
 def refine_settings(shots: int) -> RefineSettings | None:
