@@ -6,7 +6,9 @@ run in this process once per setting and K. A research tool for choosing what th
 should do; the figures a user gets are ``benchmarks/shots.py``'s.
 
 A setting is ``NAME:KEY=VALUE,...``. With no keys it is the shipped capture
-(:func:`svbrdf_models.capture.shots.refine_settings`, the clipped pixels as lower bounds).
+(:func:`svbrdf_models.capture.shots.refine_settings`, the clipped pixels as lower bounds, the
+normals pulled towards :data:`~svbrdf_models.capture.shots.SHOTS_PRIOR_RELIEF` of the network's
+relief).
 Keys:
 
 - ``steps``: ``--refine`` (default 100);
@@ -16,6 +18,8 @@ Keys:
   ``normal_lr_scale``: :class:`svbrdf_render.RefineSettings`'s;
 - ``floor``: 1 keeps a shot's clipped pixels as lower bounds, 0 leaves them out
   (:data:`svbrdf_models.capture.shots.CLIPPED_FLOOR`);
+- ``relief``: the share of the network's relief the normals are pulled towards (0 a flat
+  surface, 1 the network's normals; :data:`svbrdf_models.capture.shots.SHOTS_PRIOR_RELIEF`);
 - ``true_offset``: 1 passes the simulated phone's lens-to-flash offset (``--flash-offset``),
   as a user who measured it.
 
@@ -49,7 +53,7 @@ import shots as bench  # noqa: E402
 
 MAPS = ("normal", "diffuse", "roughness", "specular")
 KEYS = {"steps": int, "prior": float, **{f"prior_{m}": float for m in MAPS}, "coarse": int, "lr": float,
-        "normal_lr_scale": float, "floor": int, "true_offset": int}  # fmt: skip
+        "normal_lr_scale": float, "floor": int, "relief": float, "true_offset": int}  # fmt: skip
 SHOWN = ("normal", "diffuse", "roughness", "specular", "render", "relight", "seconds")
 
 
@@ -160,7 +164,7 @@ def main(argv=None) -> None:
     current: dict = {}
     bench.run_command = in_process(args.device, current)
     bench.simulate = cached(bench.simulate)
-    floor = shots_module.CLIPPED_FLOOR
+    floor, relief = shots_module.CLIPPED_FLOOR, shots_module.SHOTS_PRIOR_RELIEF
     files = [f for folder in args.folders for f in sorted(folder.glob("*.png"))[: args.limit]]
     began = time.monotonic()
     today = _today(files, args)
@@ -170,6 +174,7 @@ def main(argv=None) -> None:
             print(f"stopped before {name}: --minutes {args.minutes} passed", flush=True)
             break
         shotcapture.refine_settings = settings_for(values)
+        shots_module.SHOTS_PRIOR_RELIEF = float(values.get("relief", relief))
         shots_module.CLIPPED_FLOOR = bool(values.get("floor", floor))
         current.clear()
         current.update(values)

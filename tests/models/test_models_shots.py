@@ -152,6 +152,7 @@ def test_three_shots_are_posed_exposed_and_beat_the_frontal_shot_alone(tmp_path,
     assert record["refine"]["views"] == 3 and record["refine"]["gains"] == "fixed"
     # three shots: each map's pull towards the network's start a third of one photo's, per pixel
     assert record["refine"]["coarse"] == 0 and record["refine"]["prior"]["normal"] == pytest.approx(2.0 / 3)
+    assert record["refine"]["clipped"] == "lower bound" and record["refine"]["prior_relief"] == shots_prior_relief()
     assert record["frame"]["window_cm"] == LAYOUT.window_cm and record["frame"]["strip_albedo"] == PAPER
     lights = _page_data(folder / "index.html")["shots"]  # the viewer's keys 1-9: each shot's flash
     assert [s["name"] for s in lights] == [f"{n}.png" for n in names]
@@ -162,6 +163,7 @@ def test_three_shots_are_posed_exposed_and_beat_the_frontal_shot_alone(tmp_path,
                      "--refine", 60, "--map-size", 64, "--bits", 16, *QUICK, capsys=capsys)  # fmt: skip
     assert code == 0, got.err
     assert _record(alone / "s0")["refine"]["coarse"] == 8  # one shot: a single photo's settings
+    assert _record(alone / "s0")["refine"]["prior_relief"] == 1.0
     three, one = read_map_folder(folder), read_map_folder(alone / "s0")
     for camera in HELD_OUT:  # relit where no shot was taken from
         scene = _held_out_scene(camera)
@@ -317,3 +319,61 @@ def test_clipped_pixels_held_as_lower_bounds_make_a_metal_as_bright_as_its_photo
         again = torch.cat([render(result.svbrdf, s) for s in scenes]).clamp(0, 1).amax(1, keepdim=True)
         reached[name] = float(again[clipped.bool()].mean())
     assert reached["lower bound"] > shots_module.CLIPPED - 0.05 > reached["left out"], reached
+
+
+def test_several_shots_pull_the_normals_towards_a_share_of_the_networks_relief():
+    """The network's normals of a flat material carry relief it made up. Pulled towards them,
+    the refinement keeps much of it where the shots contradict it weakly; pulled towards a
+    flatter surface (several shots: ``SHOTS_PRIOR_RELIEF`` of the network's slopes), less."""
+    from svbrdf_models.capture.shots import SHOTS_PRIOR_RELIEF
+    from types import SimpleNamespace
+
+    from svbrdf_models.capture.multiview import refine_network
+    from svbrdf_render.maps import SVBRDF
+
+    n = 32
+    truth = example_material("leather", n)
+    flat = torch.zeros(1, 3, n, n)
+    flat[:, 2] = 1
+    truth = SVBRDF(flat, truth.diffuse, truth.roughness, truth.specular)
+    g = torch.linspace(-1, 1, n)
+    y, x = torch.meshgrid(g, g, indexing="ij")
+    bumps = torch.stack([0.3 * torch.sin(9 * x), 0.3 * torch.cos(7 * y), torch.ones_like(x)])[None]
+    network = SVBRDF(bumps / bumps.norm(dim=1, keepdim=True), truth.diffuse, truth.roughness, truth.specular)
+    scenes = [Scene(Camera(torch.tensor([x0, y0, 3.0])), (PointLight(torch.tensor([x0 + 0.1, y0, 3.0]), 12.0),))
+              for x0, y0 in ((0.0, 0.0), (0.6, -0.5), (-0.6, 0.5))]  # fmt: skip
+    photos = torch.cat([render(truth, s) for s in scenes]).clamp(0, 1)
+    options = SimpleNamespace(refine=40, refine_seconds=None, backend="eager", metal="auto")
+    error = {}
+    for relief in (1.0, SHOTS_PRIOR_RELIEF, 0.0):
+        result = refine_network(network, photos, scenes, options, None, torch.device("cpu"), prior_relief=relief)
+        normal = result.svbrdf.normal
+        assert torch.isfinite(normal).all()
+        error[relief] = float((normal - flat).square().mean().sqrt())
+    assert error[0.0] < error[SHOTS_PRIOR_RELIEF] < 0.9 * error[1.0], error
+
+
+def shots_prior_relief() -> float:
+    """The share of the network's relief several shots pull the normals towards."""
+    from svbrdf_models.capture.shots import SHOTS_PRIOR_RELIEF
+
+    return SHOTS_PRIOR_RELIEF
+
+
+def test_flatter_scales_each_normals_slope_and_stays_finite_at_grazing_normals():
+    from svbrdf_models.capture.multiview import flatter
+    from svbrdf_render.maps import SVBRDF
+
+    n = torch.tensor([[0.6, -0.3, 0.74], [0.0, 1.0, 0.0], [1.0, 0.0, 1e-9], [0.0, 0.0, 1.0]])  # the last: flat
+    n = (n / n.norm(dim=1, keepdim=True)).T.reshape(1, 3, 2, 2).requires_grad_(True)
+    maps = SVBRDF(n, torch.full((1, 3, 2, 2), 0.3), torch.full((1, 1, 2, 2), 0.5), torch.full((1, 3, 2, 2), 0.04),
+                  validate=False)  # fmt: skip
+    same, half, flat = (flatter(maps, r).normal for r in (1.0, 0.5, 0.0))
+    assert torch.allclose(same[..., 0, 0], n[..., 0, 0], atol=1e-6)
+    slope = lambda t: t[0, :2, 0, 0] / t[0, 2, 0, 0]  # noqa: E731
+    assert torch.allclose(slope(half), 0.5 * slope(n), atol=1e-6)
+    assert torch.allclose(flat, torch.tensor([0.0, 0.0, 1.0])[None, :, None, None].expand_as(flat))
+    for t in (same, half, flat):
+        assert torch.isfinite(t).all() and torch.allclose(t.norm(dim=1), torch.ones(1, 2, 2), atol=1e-5)
+    half.sum().backward()
+    assert torch.isfinite(n.grad).all()

@@ -26,7 +26,7 @@ from .refining import (
     without_checkerboard,
 )
 
-__all__ = ["Judged", "finite", "judge", "refine_network", "relit_preview", "views_figure"]
+__all__ = ["Judged", "finite", "flatter", "judge", "refine_network", "relit_preview", "views_figure"]
 
 
 def finite(x) -> float | None:
@@ -77,14 +77,17 @@ def relit_preview(network: SVBRDF, refined: SVBRDF, options) -> Tensor | None:
 
 def refine_network(network: SVBRDF, photos: Tensor, scenes: list[Scene], options, progress, device, *,
                    masks: Tensor | None = None, gains: str = "fixed", anchor: list[int] | None = None,
-                   began: float | None = None, settings: RefineSettings | None = None):  # fmt: skip
+                   began: float | None = None, settings: RefineSettings | None = None,
+                   prior_relief: float = 1.0):  # fmt: skip
     """The network's maps (without their 2-pixel pattern, at the photos' size) refined against
     ``photos`` ``(K, 3, S, S)``, each under its own scene, on ``device``
     (:func:`svbrdf_render.refine_views`; ``options.refine`` steps, 0: none). ``options.metal``
     ``"none"``: the specular held at a dielectric's 0.04 (:func:`.refining.as_dielectric`).
     ``began`` (``time.monotonic()`` when the capture began): ``options.refine_seconds`` counts
     from there and keeps back the files' time (:func:`.refining.steps_seconds`). ``settings``: the
-    refinement's weights (default :class:`svbrdf_render.RefineSettings`'s)."""
+    refinement's weights (default :class:`svbrdf_render.RefineSettings`'s). ``prior_relief``: the
+    share of the network's relief the normals are pulled towards (:func:`flatter`; 1: the
+    network's normals, 0: a flat surface; they start at the network's whatever it is)."""
     size = tuple(photos.shape[-2:])
     seconds = options.refine_seconds
     if began is not None:
@@ -93,10 +96,12 @@ def refine_network(network: SVBRDF, photos: Tensor, scenes: list[Scene], options
     with torch.inference_mode(False), torch.enable_grad():
         maps = SVBRDF(**{k: t.detach().clone() for k, t in network.maps().items()}, validate=False)
         start = refine_start(without_checkerboard(maps), size).to(device)
+        start = as_dielectric(start) if dielectric else start
         result = refine_views(
             photos.to(device),
-            as_dielectric(start) if dielectric else start,
+            start,
             scenes,
+            prior=None if prior_relief == 1.0 else flatter(start, prior_relief),
             masks=None if masks is None else masks.to(device),
             gains=gains,
             anchor=anchor,
@@ -107,6 +112,16 @@ def refine_network(network: SVBRDF, photos: Tensor, scenes: list[Scene], options
             settings=_held_dielectric(settings) if dielectric else settings,
         )
     return dataclasses.replace(result, svbrdf=as_dielectric(result.svbrdf)) if dielectric else result
+
+
+def flatter(maps: SVBRDF, relief: float) -> SVBRDF:
+    """``maps`` with each normal's slope (its x and y over z) times ``relief``: 0 a flat
+    surface, 1 the maps' own."""
+    n = maps.normal
+    slope = n[:, :2] / n[:, 2:].clamp_min(1e-3) * relief
+    normal = torch.cat([slope, torch.ones_like(n[:, 2:])], 1)
+    normal = normal / normal.norm(dim=1, keepdim=True)
+    return SVBRDF(normal, maps.diffuse, maps.roughness, maps.specular, validate=False)
 
 
 def _held_dielectric(settings: RefineSettings | None) -> RefineSettings:

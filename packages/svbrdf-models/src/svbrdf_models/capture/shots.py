@@ -64,8 +64,8 @@ from .framephoto import FrameDetection
 from .strip import NOMINAL_ALBEDO, StripReading, check_strip, read_strip
 
 __all__ = ["CLIPPED_FLOOR", "ODD_FLOOR", "ODD_RATIO", "ODD_REFINED", "SHOTS_COARSE", "SHOTS_MAP_SIZE",
-           "Exposure", "Shot", "ShotSet", "check_options", "exposures", "fitted_masks", "prepare_shots",
-           "refine_settings", "shot_scene"]  # fmt: skip
+           "SHOTS_PRIOR_RELIEF", "Exposure", "Shot", "ShotSet", "check_options", "exposures",
+           "fitted_masks", "prepare_shots", "refine_settings", "shot_scene"]  # fmt: skip
 
 #: The side the shots' maps are made at unless --map-size says otherwise (at most the smallest
 #: window's side in pixels): each refinement step renders every shot.
@@ -104,6 +104,16 @@ EXPOSURES = ("strip", "relative", "free")
 #: flakes' specular, near-flat normals). Measured on unseen-dev's 9 materials at 512 px
 #: (docs/measured-shots.md, "Several shots, a lighter prior").
 SHOTS_COARSE = 0
+#: K shots (two or more) pull the normals towards this share of the relief of the network's
+#: normals of the frontal shot (where they start): 1 the network's normals, 0 a flat surface
+#: (:func:`svbrdf_models.capture.multiview.flatter`). One photo cannot tell relief from albedo
+#: and needs the network's guess; several shots under flashes elsewhere show the relief that is
+#: there, and the network's guess of relief on a flat material (a polished stone, a metal) is
+#: what no shot contradicts strongly enough. unseen-dev 5 shots: normals -5% [-8, -2], every
+#: map better beyond noise, des18-dev none worse; flatter shares did better on both, but lost
+#: the relief of tests/models/test_models_shots.py's leather (docs/measured-shots.md, "The
+#: normals pulled towards flat").
+SHOTS_PRIOR_RELIEF = 0.5
 
 
 @dataclass(frozen=True, eq=False)
