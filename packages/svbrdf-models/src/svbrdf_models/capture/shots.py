@@ -27,8 +27,10 @@ printed frame (:mod:`~svbrdf_models.capture.frame`) tells them:
    and a gain the refinement learns (``"free"``), the frontal anchored at gain 1.
 5. The network sees the most frontal shot (the smallest angle of its camera off the window's
    axis) once; its maps are the start and the prior of one
-   :func:`svbrdf_render.refine_views` over every shot, each under its own camera and flash,
-   pixels clipped in a shot (and the pixel around them) left out of its loss.
+   :func:`svbrdf_render.refine_views` over every shot, each under its own camera and flash:
+   a pixel clipped in a shot stays in its loss as a lower bound (:data:`CLIPPED_FLOOR`), the
+   pixels around it are left out, and the normals are pulled towards
+   :data:`SHOTS_PRIOR_RELIEF` of the network's relief.
 6. Each shot's residual (the refinement's data term for it alone, the masked mean of
    ``|log(R + eps) - log(P + eps)|``), under the network's maps and under the refined ones: a
    shot whose residual under the network's maps is more than :data:`ODD_RATIO` times the
