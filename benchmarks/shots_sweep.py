@@ -157,6 +157,9 @@ def main(argv=None) -> None:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     args.shots = sorted(int(k) for k in args.shots.split(",") if k.strip())
+    for folder in args.folders:
+        if not folder.is_dir() or not any(folder.glob("*.png")):
+            ap.error(f"{folder}: no Des18-layout strips (*.png) there; give a folder such as DATA/unseen-dev")
     import svbrdf_models.capture.shotcapture as shotcapture
     import svbrdf_models.capture.shots as shots_module
 
