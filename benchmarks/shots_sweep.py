@@ -143,12 +143,22 @@ def cached(simulate):
     return once
 
 
+def _counts(text: str) -> list[int]:
+    try:
+        counts = sorted({int(k) for k in text.split(",") if k.strip()})
+    except ValueError:
+        counts = []
+    if not counts or counts[0] < 1:
+        raise argparse.ArgumentTypeError(f"expected shot counts K,K,... (1 or more), got {text!r}")
+    return counts
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("folders", nargs="+", type=Path, help="folders of Des18-layout strips with ground truth")
     ap.add_argument("--set", dest="settings", action="append", type=parse_setting, required=True,
                     metavar="NAME:KEY=V,...", help="a setting to try (repeat); the first is the reference")
-    ap.add_argument("--shots", default="3,5", help="K shots per capture (default 3,5)")
+    ap.add_argument("--shots", default=[3, 5], type=_counts, help="K shots per capture (default 3,5)")
     ap.add_argument("--size", type=int, default=512, help="the photos' shorter side (default 512)")
     ap.add_argument("--out", type=Path, default=Path("out/sweep"), help="photos, captures, figures")
     ap.add_argument("--limit", type=int, default=None, help="at most N files per folder")
@@ -156,7 +166,6 @@ def main(argv=None) -> None:
     ap.add_argument("--minutes", type=float, default=None, help="start no setting after this many minutes")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
-    args.shots = sorted(int(k) for k in args.shots.split(",") if k.strip())
     for folder in args.folders:
         if not folder.is_dir() or not any(folder.glob("*.png")):
             ap.error(f"{folder}: no Des18-layout strips (*.png) there; give a folder such as DATA/unseen-dev")
