@@ -68,11 +68,33 @@ def figures(walk: list[str]) -> dict[str, int]:
     return {"files": len(set(walk)), "returns": len(returns), "hops": len(hops)}
 
 
+def merged(walk: list[str], moves: dict[str, str]) -> list[str]:
+    """``walk`` as if each file of ``moves`` were merged into its value (consecutive repeats
+    collapsed again): what merging two modules would do to the figures, before doing it."""
+    out: list[str] = []
+    for f in walk:
+        f = moves.get(f, f)
+        if not out or out[-1] != f:
+            out.append(f)
+    return out
+
+
+def _move(text: str) -> tuple[str, str]:
+    src, sep, dst = text.partition("=")
+    if not sep or not src.endswith(".py") or not dst.endswith(".py"):
+        raise argparse.ArgumentTypeError(f"expected FILE=INTO, two paths as --list prints them, got {text!r}")
+    return src, dst
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--size", type=int, default=256, help="side of the photo [256]")
     parser.add_argument("--refine", type=int, default=100)
     parser.add_argument("--list", action="store_true", help="print the files in the order first visited")
+    parser.add_argument("--merge", type=_move, action="append", default=[], metavar="FILE=INTO",
+                        help="also print the figures as if FILE were merged into INTO (paths as --list "
+                        "prints them, e.g. svbrdf_models/capture/relight.py=svbrdf_models/capture/"
+                        "figures.py); repeat for several")
     args = parser.parse_args()
     import torch
 
@@ -88,6 +110,15 @@ def main() -> None:
         walk = record_walk([*argv, str(Path(tmp) / "out")], [*argv, str(Path(tmp) / "warm")])
     f = figures(walk)
     print(f"files {f['files']}  returns {f['returns']}  hops {f['hops']}")
+    for src, dst in args.merge:
+        if src not in walk:
+            print(f"  {src}: not in the walk (see --list)")
+            continue
+        g = figures(merged(walk, {src: dst}))
+        print(f"  {src} merged into {dst}: files {g['files']}  returns {g['returns']}  hops {g['hops']}")
+    if len(args.merge) > 1:
+        g = figures(merged(walk, dict(args.merge)))
+        print(f"  all {len(args.merge)} merges: files {g['files']}  returns {g['returns']}  hops {g['hops']}")
     if args.list:
         print("\n".join(dict.fromkeys(walk)))
 
