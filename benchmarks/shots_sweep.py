@@ -75,20 +75,23 @@ def parse_setting(text: str) -> tuple[str, dict]:
 
 
 def settings_for(values: dict):
-    """A replacement for ``refine_settings``: K shots refined with ``values``."""
-    from svbrdf_models.capture.shots import SHOTS_COARSE
+    """A replacement for ``refine_settings``: the shipped K shots' settings
+    (:func:`svbrdf_models.capture.shots.refine_settings`) with what ``values`` changes."""
+    from svbrdf_models.capture.shots import refine_settings as shipped
     from svbrdf_render import RefineSettings
 
     def refine_settings(shots: int):
-        if shots < 2:
+        base = shipped(shots)
+        if base is None:
             return None
-        single = RefineSettings()
-        changes = {k: v for k, v in values.items() if k in ("lr", "normal_lr_scale")}
-        prior = {}
-        for name, weight in single.prior.items():
+        single = RefineSettings().prior  # the factors of ``prior`` are on a single photo's weights
+        prior = dict(base.prior)
+        for name in prior:
             factor = values.get(f"prior_{name}", values.get("prior"))
-            prior[name] = weight / shots if factor is None else weight * factor  # the shipped rule: 1/K
-        return dataclasses.replace(single, prior=prior, coarse=values.get("coarse", SHOTS_COARSE), **changes)
+            if factor is not None:
+                prior[name] = single[name] * factor
+        changes = {k: v for k, v in values.items() if k in ("coarse", "lr", "normal_lr_scale")}
+        return dataclasses.replace(base, prior=prior, **changes)
 
     return refine_settings
 

@@ -64,3 +64,24 @@ def test_photos_of_an_earlier_run_are_read_back_with_the_same_draws(sweep, tmp_p
     today, card, frames = fresh[:3]
     assert np.allclose(again[0].camera, today.camera) and np.allclose(again[1].flash, card.flash)
     assert all(np.allclose(a.flash, b.flash) and a.intensity == b.intensity for a, b in zip(again[2], frames))
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["{empty}", "--set", "a"], "no Des18-layout strips (*.png) there"),
+        (["{empty}/missing", "--set", "a"], "no Des18-layout strips (*.png) there"),
+        (["{empty}", "--set", "a", "--shots", "3,x"], "expected shot counts"),
+        (["{empty}", "--set", "a", "--shots", "0"], "expected shot counts"),
+    ],
+)
+def test_a_bad_command_line_is_refused_in_one_line_before_anything_is_written(sweep, tmp_path, capsys, args, says):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as stop:
+        sweep.main([a.format(empty=empty) for a in args] + ["--out", str(out)])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert says in err[-1] and "Traceback" not in "\n".join(err)
+    assert not out.exists()

@@ -17,7 +17,7 @@ from torch import Tensor
 from ..errors import DataError
 from .multiview import Judged, finite, judge, refine_network, relit_preview, views_figure
 from .shots import (ODD_FLOOR, ODD_RATIO, ODD_REFINED, Exposure, ShotSet, exposures, fitted_masks,
-                    refine_settings, shot_scene)
+                    prior_relief, refine_settings, shot_scene)
 
 __all__ = ["capture_shots", "check_residuals", "figure", "record"]
 
@@ -46,7 +46,7 @@ def capture_shots(predictor, shots: ShotSet, options, *, progress=None) -> dict:
     fitted = fitted_masks(windows, masks)  # the clipped pixels in, as lower bounds
     result = refine_network(network, windows, scenes, options, progress, device, masks=fitted,
                             gains=exposure.gains, anchor=exposure.anchor, began=began, settings=settings,
-                            prior_relief=_prior_relief(len(shots.shots)))  # fmt: skip
+                            prior_relief=prior_relief(len(shots.shots)))  # fmt: skip
     gained = [shot_scene(s, exposure.intensity[i] * float(result.gains[i]), exposure.color[i])
               for i, s in enumerate(shots.shots)]  # fmt: skip
     refined = result.svbrdf.to("cpu")
@@ -59,14 +59,6 @@ def capture_shots(predictor, shots: ShotSet, options, *, progress=None) -> dict:
     write_material(shots.folder, refined, MaterialContent(windows[f], figure(shots, windows, judged), relit,
                                                           content), options)  # fmt: skip
     return content
-
-
-def _prior_relief(k: int) -> float:
-    """The share of the network's relief ``k`` shots pull the normals towards
-    (:data:`~svbrdf_models.capture.shots.SHOTS_PRIOR_RELIEF`, read when called; 1 for one shot)."""
-    from .shots import SHOTS_PRIOR_RELIEF
-
-    return float(SHOTS_PRIOR_RELIEF) if k >= 2 else 1.0
 
 
 def _log_residuals(renderings: Tensor, windows: Tensor, masks: Tensor) -> Tensor:
@@ -182,7 +174,7 @@ def record(predictor, shots: ShotSet, options, exposure: Exposure, result, resid
                    "views": k, "gains": exposure.gains, "backend": pick_backend(options.backend, size, size),
                    "prior": dict(settings.prior), "coarse": settings.coarse,
                    "clipped": "lower bound" if CLIPPED_FLOOR else "left out",
-                   "prior_relief": _prior_relief(k),
+                   "prior_relief": prior_relief(k),
                    "rmse_network": finite(sum(judged.rmse_network) / k), "rmse_refined": mean},  # fmt: skip
         "frame": {
             "window_cm": shots.window_cm, "half_width_cm": shots.window_cm / 2,

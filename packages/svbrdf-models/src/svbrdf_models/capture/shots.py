@@ -67,7 +67,7 @@ from .strip import NOMINAL_ALBEDO, StripReading, check_strip, read_strip
 
 __all__ = ["CLIPPED_FLOOR", "ODD_FLOOR", "ODD_RATIO", "ODD_REFINED", "SHOTS_COARSE", "SHOTS_MAP_SIZE",
            "SHOTS_PRIOR_RELIEF", "Exposure", "Shot", "ShotSet", "check_options", "exposures",
-           "fitted_masks", "prepare_shots", "refine_settings", "shot_scene"]  # fmt: skip
+           "fitted_masks", "prepare_shots", "prior_relief", "refine_settings", "shot_scene"]  # fmt: skip
 
 #: The side the shots' maps are made at unless --map-size says otherwise (at most the smallest
 #: window's side in pixels): each refinement step renders every shot.
@@ -369,6 +369,12 @@ def refine_settings(shots: int) -> RefineSettings | None:
     single = RefineSettings()
     prior = {name: weight / shots for name, weight in single.prior.items()}
     return dataclasses.replace(single, prior=prior, coarse=SHOTS_COARSE)
+
+
+def prior_relief(shots: int) -> float:
+    """The share of the network's relief ``shots`` shots pull the normals towards:
+    :data:`SHOTS_PRIOR_RELIEF` for two or more, 1 (the network's normals) for one."""
+    return float(SHOTS_PRIOR_RELIEF) if shots >= 2 else 1.0
 
 
 def shot_scene(shot: Shot, intensity: float, color: Tensor) -> Scene:
